@@ -1,0 +1,90 @@
+"""The kinematics contract every machine family implements.
+
+A family is one class built from a geometry dataclass and the joint position
+limits. Everything is vectorised over N points:
+
+* ``inverse(points (N,3) float, mm) -> q (N,J) float`` (rad or mm; NaN rows where
+  the geometry cannot reach the point),
+* ``forward(q (N,J)) -> points (N,3)`` (NaN rows where the joints cannot close
+  the mechanism),
+* ``jacobian(q (N,J)) -> (N,3,J)``: d(point)/d(q),
+* ``inverse_jacobian(q (N,J)) -> (N,J,3)``: d(q)/d(point), what the planner uses,
+* ``reachable(points (N,3)) -> (N,) bool``: real inverse, joint limits and any
+  family-specific limit (ball-joint tilt), and not near a singularity.
+
+Points are in the bed frame: x, y on the bed with the origin at its centre, z up
+from the bed surface, tool tip. Hot loops get masks, never exceptions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class Kinematics:
+    """Shared behaviour; subclasses provide ``inverse``, ``forward``, ``jacobian``."""
+
+    n_joints: int = 3
+    joint_kinds: tuple[str, ...] = ()
+
+    def __init__(self, geometry, position_min, position_max, singularity_limit: float = 50.0):
+        self.geometry = geometry
+        self.position_min = np.asarray(position_min, dtype=float)
+        self.position_max = np.asarray(position_max, dtype=float)
+        self.singularity_limit = float(singularity_limit)
+
+    # -- to implement -------------------------------------------------------------
+    def inverse(self, points: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def forward(self, q: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    # -- shared -------------------------------------------------------------------
+    def inverse_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """q: (N,J) -> (N,J,3), d(q)/d(point); NaN where the Jacobian is singular."""
+        jac = self.jacobian(q)
+        out = np.full(jac.shape[:1] + (jac.shape[2], jac.shape[1]), np.nan)
+        det = np.linalg.det(jac)
+        ok = np.isfinite(det) & (np.abs(det) > 1e-300)
+        out[ok] = np.linalg.inv(jac[ok])
+        return out
+
+    def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Family-specific limits beyond joint positions (default: none). (N,) bool."""
+        return np.ones(len(points), dtype=bool)
+
+    def within_joint_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        """q: (N,J) -> (N,) bool; NaN rows are outside."""
+        q = np.atleast_2d(q)
+        with np.errstate(invalid="ignore"):
+            return np.all((q >= self.position_min - tol) & (q <= self.position_max + tol), axis=1)
+
+    def condition(self, q: np.ndarray) -> np.ndarray:
+        """Condition number of the Jacobian (N,); inf at singular or unreachable poses.
+
+        Columns are the joints, so for a revolute joint the scale is mm per rad; a
+        large condition number means some direction needs much larger joint motion
+        than another: the robot is near a singularity."""
+        q = np.atleast_2d(q)
+        out = np.full(len(q), np.inf)
+        good = np.all(np.isfinite(q), axis=1)
+        if good.any():
+            s = np.linalg.svd(self.jacobian(q[good]), compute_uv=False)
+            with np.errstate(divide="ignore"):
+                out[good] = np.where(s[:, -1] > 0, s[:, 0] / s[:, -1], np.inf)
+        return out
+
+    def reachable(self, points: np.ndarray) -> np.ndarray:
+        """points: (N,3) float, mm -> (N,) bool: the tool can stand there within every limit."""
+        points = np.atleast_2d(np.asarray(points, dtype=float))
+        q = self.inverse(points)
+        ok = np.all(np.isfinite(q), axis=1) & self.within_joint_limits(q)
+        if ok.any():
+            sub = np.flatnonzero(ok)
+            ok[sub] &= self.extra_ok(points[sub], q[sub])
+            ok[sub] &= self.condition(q[sub]) < self.singularity_limit
+        return ok

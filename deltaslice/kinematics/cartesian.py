@@ -1,0 +1,30 @@
+"""Cartesian machine: each joint moves one bed axis (plus a constant offset)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Kinematics
+
+
+class Cartesian(Kinematics):
+    n_joints = 3
+    joint_kinds = ("prismatic", "prismatic", "prismatic")
+
+    def __init__(self, geometry, position_min, position_max, singularity_limit: float = 50.0):
+        super().__init__(geometry, position_min, position_max, singularity_limit)
+        self.offset = np.array([geometry.offset_x, geometry.offset_y, geometry.offset_z])
+
+    def inverse(self, points):
+        """points: (N,3) mm -> q: (N,3) mm."""
+        return np.atleast_2d(np.asarray(points, dtype=float)) + self.offset
+
+    def forward(self, q):
+        """q: (N,3) mm -> points: (N,3) mm."""
+        return np.atleast_2d(np.asarray(q, dtype=float)) - self.offset
+
+    def jacobian(self, q):
+        return np.broadcast_to(np.eye(3), (len(np.atleast_2d(q)), 3, 3)).copy()
+
+    def inverse_jacobian(self, q):
+        return self.jacobian(q)

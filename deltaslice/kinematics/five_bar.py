@@ -1,0 +1,126 @@
+"""Planar five-bar (5R) linkage for x-y plus a lead-screw z (the Atlas printer).
+
+Motors at A (``origin``) and C (``origin + base_length x``), in the bed plane's
+frame; links A-B, B-P (arm a) and C-D, D-P (arm c). Inverse (Atlas paper, sec.
+IV): per arm, ``theta = atan2(P - M) + codo * acos((l1^2 + |MP|^2 - l2^2) / (2 l1 |MP|))``;
+the two signs CODO1, CODO2 choose one of the four working modes. Forward: the
+two circles around B and D of radii l2 and l4 meet in two points; the one whose
+inverse returns the same joint angles under the chosen mode is kept. Joint 3 is
+the tool height above the bed, mm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Kinematics
+
+
+def _wrap(a, centre=0.0):
+    """Angles into (centre - pi, centre + pi]."""
+    return centre - ((centre - a + np.pi) % (2 * np.pi) - np.pi)
+
+
+class FiveBar(Kinematics):
+    n_joints = 3
+    joint_kinds = ("revolute", "revolute", "prismatic")
+
+    def __init__(self, geometry, position_min, position_max, singularity_limit: float = 50.0):
+        super().__init__(geometry, position_min, position_max, singularity_limit)
+        g = geometry
+        self.A = np.array([g.origin_x, g.origin_y])
+        self.C = self.A + np.array([g.base_length, 0.0])
+        # Arm angles are reported in the turn centred on the middle of each joint's range, so a
+        # range that crosses 180 deg stays continuous.
+        self.centre = (self.position_min[:2] + self.position_max[:2]) / 2
+
+    def _arm(self, rel, l1, l2, codo):
+        d = np.hypot(rel[:, 0], rel[:, 1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos_e = (l1**2 + d**2 - l2**2) / (2 * l1 * d)
+            th = np.arctan2(rel[:, 1], rel[:, 0]) + codo * np.arccos(cos_e)
+        th[~(np.abs(cos_e) <= 1)] = np.nan
+        return th
+
+    def inverse(self, points):
+        """points: (N,3) mm -> q: (N,3) = (theta_A rad, theta_C rad, z mm); each angle within
+        half a turn of the middle of its joint range."""
+        points = np.atleast_2d(np.asarray(points, dtype=float))
+        g = self.geometry
+        q = np.empty((len(points), 3))
+        q[:, 0] = _wrap(self._arm(points[:, :2] - self.A, g.proximal_a, g.distal_a, g.codo1), self.centre[0])
+        q[:, 1] = _wrap(self._arm(points[:, :2] - self.C, g.proximal_c, g.distal_c, g.codo2), self.centre[1])
+        q[:, 2] = points[:, 2]
+        q[np.isnan(q).any(axis=1)] = np.nan
+        return q
+
+    def _elbows(self, q):
+        g = self.geometry
+        b = self.A + g.proximal_a * np.stack([np.cos(q[:, 0]), np.sin(q[:, 0])], axis=1)
+        d = self.C + g.proximal_c * np.stack([np.cos(q[:, 1]), np.sin(q[:, 1])], axis=1)
+        return b, d
+
+    def forward(self, q):
+        """q: (N,3) -> points (N,3) mm (NaN where the distal links cannot meet)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        g = self.geometry
+        b, d = self._elbows(q)
+        bd = d - b
+        dist = np.hypot(bd[:, 0], bd[:, 1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a = (g.distal_a**2 - g.distal_c**2 + dist**2) / (2 * dist)
+            h = np.sqrt(g.distal_a**2 - a**2)
+            ex = bd / dist[:, None]
+        mid = b + a[:, None] * ex
+        perp = np.stack([-ex[:, 1], ex[:, 0]], axis=1)
+        cands = np.stack([mid + h[:, None] * perp, mid - h[:, None] * perp], axis=1)  # (N, 2, 2)
+        err = np.empty((len(q), 2))
+        for k in range(2):
+            pts = np.concatenate([cands[:, k], q[:, 2:3]], axis=1)
+            qq = self.inverse(pts)
+            err[:, k] = np.abs(_wrap(qq[:, 0] - q[:, 0])) + np.abs(_wrap(qq[:, 1] - q[:, 1]))
+        err = np.nan_to_num(err, nan=np.inf)
+        pick = np.argmin(err, axis=1)
+        out = np.concatenate([cands[np.arange(len(q)), pick], q[:, 2:3]], axis=1)
+        out[~(np.min(err, axis=1) < 1e-6)] = np.nan
+        return out
+
+    def _closure(self, q, points):
+        g = self.geometry
+        b, d = self._elbows(q)
+        p = points[:, :2]
+        rows = np.stack([p - b, p - d], axis=1)  # (N, 2, 2)
+        db = g.proximal_a * np.stack([-np.sin(q[:, 0]), np.cos(q[:, 0])], axis=1)
+        dd = g.proximal_c * np.stack([-np.sin(q[:, 1]), np.cos(q[:, 1])], axis=1)
+        diag = np.stack([-np.einsum("ni,ni->n", p - b, db), -np.einsum("ni,ni->n", p - d, dd)], axis=1)
+        return rows, diag
+
+    def jacobian(self, q):
+        """q: (N,3) -> (N,3,3) d(point)/d(q): mm/rad for the arms, 1 for z."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        rows, diag = self._closure(q, self.forward(q))
+        out = np.zeros((len(q), 3, 3))
+        out[:, :2, :2] = -np.linalg.solve(rows, diag[:, :, None] * np.eye(2)[None])
+        out[:, 2, 2] = 1.0
+        return out
+
+    def inverse_jacobian(self, q):
+        """q: (N,3) -> (N,3,3) d(q)/d(point)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        rows, diag = self._closure(q, self.forward(q))
+        out = np.zeros((len(q), 3, 3))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[:, :2, :2] = -rows / diag[:, :, None]
+        out[:, 2, 2] = 1.0
+        return out
+
+    def condition(self, q):
+        """Condition number of the planar (x-y) block; z is decoupled and never singular."""
+        q = np.atleast_2d(q)
+        out = np.full(len(q), np.inf)
+        good = np.all(np.isfinite(q), axis=1)
+        if good.any():
+            s = np.linalg.svd(self.jacobian(q[good])[:, :2, :2], compute_uv=False)
+            with np.errstate(divide="ignore"):
+                out[good] = np.where(s[:, -1] > 0, s[:, 0] / s[:, -1], np.inf)
+        return out

@@ -1,0 +1,73 @@
+"""Linear (Rostock/Kossel) delta: three carriages on vertical towers.
+
+Tower i stands at ``D u_i`` (``u_i`` at ``i * 120 deg`` counter-clockwise from +x,
+D the delta radius). The joint is the height of the carriage's rod joint above
+the bed; each diagonal rod of length L closes
+``(q_i - z - t)^2 + |xy - D u_i|^2 = L^2`` with the carriage above the effector.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Kinematics
+
+_ANGLES = np.radians([0.0, 120.0, 240.0])
+TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
+
+
+class LinearDelta(Kinematics):
+    n_joints = 3
+    joint_kinds = ("prismatic", "prismatic", "prismatic")
+
+    def __init__(self, geometry, position_min, position_max, singularity_limit: float = 50.0):
+        super().__init__(geometry, position_min, position_max, singularity_limit)
+        self.towers = geometry.delta_radius * TOWERS  # (3, 2)
+        self.L, self.t = geometry.diagonal_rod, geometry.tool_offset
+
+    def inverse(self, points):
+        """points: (N,3) mm -> q: (N,3) carriage heights, mm (NaN out of reach)."""
+        points = np.atleast_2d(np.asarray(points, dtype=float))
+        d2 = np.sum((points[:, None, :2] - self.towers[None]) ** 2, axis=2)
+        h2 = self.L**2 - d2
+        with np.errstate(invalid="ignore"):
+            q = points[:, 2:3] + self.t + np.sqrt(h2)
+        q[(h2 <= 0).any(axis=1)] = np.nan
+        return q
+
+    def forward(self, q):
+        """q: (N,3) mm -> points (N,3) mm: trilateration, effector below the carriages."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        c = np.concatenate([np.broadcast_to(self.towers[None], (len(q), 3, 2)), q[..., None]], axis=2)
+        p0, p1, p2 = c[:, 0], c[:, 1], c[:, 2]
+        ex = p1 - p0
+        d = np.linalg.norm(ex, axis=1)
+        ex = ex / d[:, None]
+        i = np.einsum("ni,ni->n", ex, p2 - p0)
+        ey = p2 - p0 - i[:, None] * ex
+        j = np.linalg.norm(ey, axis=1)
+        ey = ey / j[:, None]
+        ez = np.cross(ex, ey)
+        ez[ez[:, 2] > 0] *= -1
+        x = d / 2
+        y = (i**2 + j**2) / (2 * j) - i * x / j
+        zz2 = self.L**2 - x**2 - y**2
+        with np.errstate(invalid="ignore"):
+            out = p0 + x[:, None] * ex + y[:, None] * ey + np.sqrt(zz2)[:, None] * ez
+        out[:, 2] -= self.t
+        out[~(zz2 > 0)] = np.nan
+        return out
+
+    def inverse_jacobian(self, q):
+        """q: (N,3) -> (N,3,3) d(q)/d(point): dq_i/dxy = -(xy - T_i)/h_i, dq_i/dz = 1."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        p = self.forward(q)
+        h = q - p[:, 2:3] - self.t
+        out = np.ones((len(q), 3, 3))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[:, :, :2] = -(p[:, None, :2] - self.towers[None]) / h[..., None]
+        return out
+
+    def jacobian(self, q):
+        """q: (N,3) -> (N,3,3) d(point)/d(q), dimensionless."""
+        return np.linalg.inv(self.inverse_jacobian(q))

@@ -1,0 +1,127 @@
+"""Rotary (Clavel, 3-RSS) delta.
+
+Motor i's shoulder axis is at ``S_i = R u_i + H z`` with ``u_i`` at ``i * 120 deg``
+counter-clockwise from +x; the upper arm swings in the vertical plane through
+``u_i`` and ``theta = 0`` is horizontal, positive downward, so the elbow is
+``E_i = S_i + L1 (cos(theta) u_i - sin(theta) z)``. The platform stays parallel
+to the base; its ball joints are at ``B_i = p + r u_i + t z`` for a tool tip p
+(t: tool offset). Each forearm closes ``|E_i - B_i| = L2``.
+
+Inverse: per arm, ``a cos(theta) + b sin(theta) = c`` with ``a = w.u``,
+``b = -w.z``, ``c = (L1^2 + |w|^2 - L2^2) / (2 L1)`` and ``w = B_i - S_i``; the
+knee-outward root is ``theta = atan2(b, a) - acos(c / hypot(a, b))``.
+Forward: intersection of the three spheres of radius L2 around ``E_i - r u_i``,
+the lower root. Jacobian: from differentiating the closure equations,
+``A dp + diag(b) dtheta = 0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import Kinematics
+
+_ANGLES = np.radians([0.0, 120.0, 240.0])
+U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
+V = np.stack([-np.sin(_ANGLES), np.cos(_ANGLES), np.zeros(3)], axis=1)  # tangential unit vectors
+Z = np.array([0.0, 0.0, 1.0])
+
+
+class RotaryDelta(Kinematics):
+    n_joints = 3
+    joint_kinds = ("revolute", "revolute", "revolute")
+
+    def __init__(self, geometry, position_min, position_max, singularity_limit: float = 50.0):
+        super().__init__(geometry, position_min, position_max, singularity_limit)
+        g = geometry
+        self.R, self.r, self.L1, self.L2 = g.base_radius, g.platform_radius, g.upper_arm, g.forearm
+        self.H, self.t = g.shoulder_height, g.tool_offset
+        self.shoulders = self.R * U + self.H * Z  # (3, 3)
+
+    def _ball_minus_shoulder(self, points):
+        """points (N,3) -> w (N, 3 arms, 3): ball joint relative to its shoulder."""
+        return points[:, None, :] + (self.r * U + self.t * Z)[None] - self.shoulders[None]
+
+    def elbows(self, q: np.ndarray) -> np.ndarray:
+        """q (N,3) rad -> elbow centres (N, 3 arms, 3) mm."""
+        q = np.atleast_2d(q)
+        c, s = np.cos(q)[..., None], np.sin(q)[..., None]
+        return self.shoulders[None] + self.L1 * (c * U[None] - s * Z)
+
+    def inverse(self, points):
+        """points: (N,3) float, mm, bed frame -> q: (N,3) float, rad (NaN where out of reach)."""
+        points = np.atleast_2d(np.asarray(points, dtype=float))
+        w = self._ball_minus_shoulder(points)
+        a = np.einsum("nij,ij->ni", w, U)
+        b = -w[..., 2]
+        c = (self.L1**2 + np.einsum("nij,nij->ni", w, w) - self.L2**2) / (2 * self.L1)
+        rho = np.hypot(a, b)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            q = np.arctan2(b, a) - np.arccos(c / rho)
+        q[~(np.abs(c) <= rho)] = np.nan
+        q[np.isnan(q).any(axis=1)] = np.nan
+        return q
+
+    def forward(self, q):
+        """q: (N,3) float, rad -> points: (N,3) float, mm (NaN where the spheres do not meet)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        # Sphere centres: where the platform centre (plus tool offset) would be if arm i alone held it.
+        c = self.elbows(q) - (self.r * U + self.t * Z)[None]
+        p0, p1, p2 = c[:, 0], c[:, 1], c[:, 2]
+        ex = p1 - p0
+        d = np.linalg.norm(ex, axis=1)
+        ex = ex / d[:, None]
+        i = np.einsum("ni,ni->n", ex, p2 - p0)
+        ey = p2 - p0 - i[:, None] * ex
+        j = np.linalg.norm(ey, axis=1)
+        ey = ey / j[:, None]
+        ez = np.cross(ex, ey)
+        # ez points down when it opposes +z: pick the root below the elbows.
+        flip = ez[:, 2] > 0
+        ez[flip] *= -1
+        x = d / 2  # equal radii: (r1^2 - r2^2 + d^2) / 2d
+        y = (i**2 + j**2) / (2 * j) - i * x / j
+        zz2 = self.L2**2 - x**2 - y**2
+        with np.errstate(invalid="ignore"):
+            zz = np.sqrt(zz2)
+        out = p0 + x[:, None] * ex + y[:, None] * ey + zz[:, None] * ez
+        out[~(zz2 >= 0)] = np.nan
+        return out
+
+    def _closure(self, q, points):
+        """Rows of A (N,3,3) and diagonal b (N,3) of A dp + diag(b) dq = 0."""
+        e = self.elbows(q)
+        ball = points[:, None, :] + (self.r * U + self.t * Z)[None]
+        d = ball - e  # forearm vectors (N, arm, 3)
+        de_dq = self.L1 * (-np.sin(q)[..., None] * U[None] - np.cos(q)[..., None] * Z)
+        return d, -np.einsum("nij,nij->ni", d, de_dq)
+
+    def jacobian(self, q):
+        """q: (N,3) rad -> (N,3,3) d(point)/d(q), mm/rad."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        a, b = self._closure(q, self.forward(q))
+        return -np.linalg.solve(a, b[:, :, None] * np.eye(3)[None])
+
+    def inverse_jacobian(self, q):
+        """q: (N,3) rad -> (N,3,3) d(q)/d(point), rad/mm; analytic, no matrix inverse."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        a, b = self._closure(q, self.forward(q))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return -a / b[:, :, None]
+
+    def inverse_jacobian_at(self, points, q):
+        """As :meth:`inverse_jacobian` when the points are already known (saves a forward solve)."""
+        a, b = self._closure(np.atleast_2d(q), np.atleast_2d(points))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return -a / b[:, :, None]
+
+    def ball_joint_tilt(self, points, q):
+        """Sideways tilt of each forearm out of its arm's vertical plane: (N,3) rad."""
+        d, _ = self._closure(q, points)
+        return np.arcsin(np.clip(np.einsum("nij,ij->ni", d, V) / self.L2, -1, 1))
+
+    def extra_ok(self, points, q):
+        tilt_max = self.geometry.ball_joint_tilt_max
+        if tilt_max is None:
+            return np.ones(len(points), dtype=bool)
+        return np.all(np.abs(self.ball_joint_tilt(points, q)) <= tilt_max + 1e-12, axis=1)
