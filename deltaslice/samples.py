@@ -1,0 +1,87 @@
+"""Samples: a trajectory sampled at the printer's output rate, the input of every emitter.
+
+=======  ======  ===================================================================
+array    shape   meaning
+=======  ======  ===================================================================
+t        (n,)    time, s, uniform steps of 1 / rate
+q        (n, J)  joint positions, joint units (rad for revolute, mm for prismatic)
+e        (n,)    filament position, mm (cumulative; retracts go down)
+tool     (n,)    tool state: 0 off, 1 extruding, laser power fraction 0..1
+=======  ======  ===================================================================
+
+Long prints are emitted as a sequence of Samples blocks, so memory stays bounded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Samples:
+    t: np.ndarray
+    q: np.ndarray
+    e: np.ndarray
+    tool: np.ndarray
+
+    def __post_init__(self):
+        n = len(self.t)
+        for name in ("t", "e", "tool"):
+            arr = np.asarray(getattr(self, name), dtype=float).reshape(-1)
+            if len(arr) != n:
+                raise ValueError(f"Samples.{name}: expected {n} values, got {len(arr)}")
+            object.__setattr__(self, name, arr)
+        q = np.asarray(self.q, dtype=float)
+        if q.ndim != 2 or len(q) != n:
+            raise ValueError(f"Samples.q: expected shape ({n}, J), got {q.shape}")
+        object.__setattr__(self, "q", q)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def n_joints(self) -> int:
+        return self.q.shape[1]
+
+    @classmethod
+    def concatenate(cls, blocks: list["Samples"]) -> "Samples":
+        return cls(
+            np.concatenate([b.t for b in blocks]),
+            np.concatenate([b.q for b in blocks]),
+            np.concatenate([b.e for b in blocks]),
+            np.concatenate([b.tool for b in blocks]),
+        )
+
+
+def to_counts(printer, samples: Samples) -> np.ndarray:
+    """Integer actuator counts, (n, J + 1) int64: one column per joint
+    (``zero_count + counts_per_unit * q``) and one tool column (extruder microsteps
+    from the filament position, or laser PWM counts from the power fraction)."""
+    cpu = printer.joint_array("counts_per_unit")
+    zero = printer.joint_array("zero_count")
+    out = np.empty((len(samples), printer.n_joints + 1), dtype=np.int64)
+    out[:, :-1] = np.rint(zero[None] + cpu[None] * samples.q)
+    if printer.is_laser:
+        out[:, -1] = np.rint(samples.tool * printer.tool.power_counts)
+    else:
+        out[:, -1] = np.rint(samples.e * printer.tool.counts_per_mm)
+    return out
+
+
+def from_counts(printer, counts: np.ndarray, rate: float, t0: float = 0.0) -> Samples:
+    """Inverse of :func:`to_counts` (within quantisation). counts: (n, J + 1) int."""
+    counts = np.asarray(counts, dtype=float)
+    cpu = printer.joint_array("counts_per_unit")
+    zero = printer.joint_array("zero_count")
+    q = (counts[:, :-1] - zero[None]) / cpu[None]
+    n = len(counts)
+    t = t0 + np.arange(n) / rate
+    if printer.is_laser:
+        tool = counts[:, -1] / printer.tool.power_counts
+        e = np.zeros(n)
+    else:
+        e = counts[:, -1] / printer.tool.counts_per_mm
+        tool = np.concatenate([[0.0], (np.diff(e) > 0).astype(float)])
+    return Samples(t, q, e, tool)
