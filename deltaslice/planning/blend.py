@@ -1,0 +1,148 @@
+"""Corner blending: a polyline made tangent-continuous inside a tolerance band.
+
+Every interior corner of a run is replaced by a circular arc tangent to both
+segments. The arc's radius is the largest that keeps its midpoint within
+``tolerance`` of the corner (the farthest any point of the blend is from the
+original path) and whose set-back uses at most half of each adjacent segment,
+so neighbouring blends never overlap. The result is a :class:`BlendedPath`:
+alternating line and arc pieces parameterised by arc length s (mm), evaluated
+vectorised.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+_MIN_TURN = 1e-6  # rad: straighter corners are not blended
+
+
+@dataclass(frozen=True)
+class BlendedPath:
+    """A tangent-continuous path: pieces in order, alternating line and arc.
+
+    piece_start: (k+1,) cumulative arc length at each piece start, mm (last = total length)
+    kind: (k,) 0 line, 1 arc
+    p0: (k,3) start point of each piece
+    d0: (k,3) unit tangent at the start of each piece
+    normal: (k,3) unit vector toward an arc's centre (zero for lines)
+    radius: (k,) arc radius, mm (inf for lines)
+    segment: (k,) index of the original polyline segment a piece belongs to
+        (an arc belongs to the segment after its corner)
+    """
+
+    piece_start: np.ndarray
+    kind: np.ndarray
+    p0: np.ndarray
+    d0: np.ndarray
+    normal: np.ndarray
+    radius: np.ndarray
+    segment: np.ndarray
+
+    @property
+    def length(self) -> float:
+        return float(self.piece_start[-1])
+
+    def locate(self, s: np.ndarray) -> np.ndarray:
+        """Piece index of each arc length (a join belongs to the piece after it). (n,) int."""
+        idx = np.searchsorted(self.piece_start, s, side="right") - 1
+        return np.clip(idx, 0, len(self.kind) - 1)
+
+    def evaluate(self, s: np.ndarray, order: int = 0, piece: np.ndarray | None = None) -> np.ndarray:
+        """Point (order 0), unit tangent (1) or curvature vector (2) at arc lengths s. (n,3)."""
+        s = np.asarray(s, dtype=float)
+        k = self.locate(s) if piece is None else piece
+        u = s - self.piece_start[k]
+        d0, nrm, rad = self.d0[k], self.normal[k], self.radius[k]
+        arc = self.kind[k] == 1
+        out = np.empty((len(s), 3))
+        line = ~arc
+        if order == 0:
+            out[line] = self.p0[k][line] + u[line, None] * d0[line]
+        elif order == 1:
+            out[line] = d0[line]
+        else:
+            out[line] = 0.0
+        if arc.any():
+            a = u[arc] / rad[arc]
+            r, d, n = rad[arc, None], d0[arc], nrm[arc]
+            if order == 0:
+                out[arc] = self.p0[k][arc] + r * (np.sin(a)[:, None] * d + (1 - np.cos(a))[:, None] * n)
+            elif order == 1:
+                out[arc] = np.cos(a)[:, None] * d + np.sin(a)[:, None] * n
+            else:
+                out[arc] = (-np.sin(a)[:, None] * d + np.cos(a)[:, None] * n) / r
+        return out
+
+    def joins(self) -> np.ndarray:
+        """Arc lengths of the interior line/arc joins. (k-1,)"""
+        return self.piece_start[1:-1]
+
+
+def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
+    """Blend the corners of a polyline.
+
+    points: (m+1, 3) float, mm, consecutive duplicates already removed (m >= 1 segments).
+    tolerance: max distance of the blend from the corner, mm.
+    """
+    points = np.asarray(points, dtype=float)
+    seg = np.diff(points, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    d = seg / seg_len[:, None]
+    m = len(seg)
+
+    # Corners 1..m-1 between segment k-1 and k.
+    din, dout = d[:-1], d[1:]
+    cos_t = np.clip(np.einsum("ij,ij->i", din, dout), -1.0, 1.0)
+    turn = np.arccos(cos_t)
+    blended = turn > _MIN_TURN
+    half = turn / 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # Set-back that puts the arc midpoint exactly `tolerance` from the corner.
+        sb_tol = tolerance * np.tan(half) / (1 / np.cos(half) - 1)
+        sb_tol = np.where(turn > np.pi - 1e-9, tolerance, sb_tol)
+    room = 0.5 * np.minimum(seg_len[:-1], seg_len[1:])
+    setback = np.where(blended, np.minimum(sb_tol, room), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        radius = np.where(blended, setback / np.tan(half), np.inf)
+    perp = dout - cos_t[:, None] * din
+    pn = np.linalg.norm(perp, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        normal = np.where(pn[:, None] > 1e-12, perp / pn[:, None], 0.0)
+
+    # Lines: segment k runs from its start set-back to its end set-back.
+    sb_start = np.concatenate([[0.0], setback])  # set-back at the start of segment k
+    sb_end = np.concatenate([setback, [0.0]])
+    line_len = seg_len - sb_start - sb_end
+    line_p0 = points[:-1] + sb_start[:, None] * d
+
+    # Interleave: line 0, arc 1, line 1, arc 2, ..., line m-1 (arcs only where blended).
+    n_pieces = 2 * m - 1
+    kind = np.zeros(n_pieces, dtype=np.int8)
+    kind[1::2] = 1
+    lengths = np.empty(n_pieces)
+    lengths[0::2] = line_len
+    lengths[1::2] = np.where(blended, radius * turn, 0.0)
+    p0 = np.empty((n_pieces, 3))
+    p0[0::2] = line_p0
+    p0[1::2] = points[1:-1] - setback[:, None] * din
+    d0 = np.empty((n_pieces, 3))
+    d0[0::2] = d
+    d0[1::2] = din
+    nrm = np.zeros((n_pieces, 3))
+    nrm[1::2] = normal
+    rad = np.full(n_pieces, np.inf)
+    rad[1::2] = radius
+    segment = np.repeat(np.arange(m), 2)[1:]
+    keep = (kind == 0) | (lengths > 0)
+    keep &= (lengths > 1e-12) | (kind == 0)
+    lengths, kind, p0, d0, nrm, rad, segment = (a[keep] for a in (lengths, kind, p0, d0, nrm, rad, segment))
+    return BlendedPath(np.concatenate([[0.0], np.cumsum(lengths)]), kind, p0, d0, nrm, rad, segment)
+
+
+def dedupe(points: np.ndarray, *arrays, eps: float = 1e-9):
+    """Drop zero-length segments of a polyline. points (m+1,3); arrays: per-segment (m,) values."""
+    keep = np.linalg.norm(np.diff(points, axis=0), axis=1) > eps
+    pts = np.concatenate([points[:1], points[1:][keep]])
+    return (pts, *(a[keep] for a in arrays))

@@ -1,0 +1,277 @@
+"""Time-optimal parameterisation of one run in joint space, with toppra.
+
+A run (a continuous extrusion or laser-on polyline) is blended
+(:mod:`.blend`), mapped through the inverse kinematics and parameterised by a
+normalised path coordinate x = s / S in [0, 1] (s: arc length in mm, S: run
+length): toppra's seidel solver is badly conditioned when the path parameter
+is in mm. The path handed to toppra has one coordinate per joint plus the
+filament position (extruders), so
+
+* joint and filament velocity limits and the feed cap become one grid-wide
+  bound on x_dot^2 (:class:`PathVelocityConstraint`),
+* joint and filament acceleration limits are toppra's
+  ``JointAccelerationConstraint`` (interpolation discretisation),
+
+all reduced by the printer's ``limit_margin`` because toppra enforces them at
+grid points only. The grid is refined geometrically toward every line/arc join
+with points on both sides of each, so braking before a corner is resolved
+without a fine grid on long lines.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import toppra
+import toppra.algorithm
+import toppra.constraint
+from toppra.constraint.linear_constraint import LinearConstraint
+from toppra.interpolator import AbstractGeometricPath
+
+from ..errors import PlanningError, UnreachableError
+from .blend import BlendedPath, blend_polyline
+
+logging.getLogger("toppra").setLevel(logging.ERROR)
+
+# Grid: spacing grows geometrically from each join up to MAX_STEP (mm).
+MIN_STEP = 0.01
+MAX_STEP = 2.0
+GROWTH = 1.6
+ACTIVE = 0.95  # a limit counts as active within 5 % of it
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What the planner needs of one run. points (m+1,3) mm; feed, e: per segment (m,)."""
+
+    points: np.ndarray
+    feed: np.ndarray
+    e: np.ndarray
+    tool: float
+    layer: int
+
+
+@dataclass(frozen=True)
+class RunPiece:
+    """A planned run: toppra's solution on its grid.
+
+    x: (n+1,) grid in path units; xd: (n+1,) path speed; xdd: (n,) constant path
+    acceleration per stage; t: (n+1,) time at grid points, s; S: run length mm.
+    e_start: filament position at the start; cum_e: (k+1,) filament pushed at each piece start.
+    """
+
+    path: BlendedPath
+    S: float
+    x: np.ndarray
+    xd: np.ndarray
+    xdd: np.ndarray
+    t: np.ndarray
+    cum_e: np.ndarray
+    e_ratio: np.ndarray
+    tool: float
+    layer: int
+    active_time: float = 0.0
+    kind: str = "run"
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+    def arc_length_at(self, tau: np.ndarray) -> np.ndarray:
+        """Arc length s (mm) at times tau (s, relative to the run start). (n,)"""
+        tau = np.clip(tau, 0.0, self.duration)
+        i = np.clip(np.searchsorted(self.t, tau, side="right") - 1, 0, len(self.xdd) - 1)
+        dt = tau - self.t[i]
+        x = self.x[i] + self.xd[i] * dt + 0.5 * self.xdd[i] * dt * dt
+        return np.clip(x, 0.0, 1.0) * self.S
+
+    def filament_at(self, s: np.ndarray, piece: np.ndarray) -> np.ndarray:
+        """Filament pushed since the run start at arc lengths s, mm."""
+        return self.cum_e[piece] + (s - self.path.piece_start[piece]) * self.e_ratio[piece]
+
+    def sample(self, kin, tau: np.ndarray):
+        """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))"""
+        s = self.arc_length_at(tau)
+        k = self.path.locate(s)
+        q = kin.inverse(self.path.evaluate(s, 0, k))
+        return q, self.filament_at(s, k), np.full(len(s), self.tool)
+
+    @property
+    def filament_total(self) -> float:
+        return float(self.cum_e[-1])
+
+
+class RunPath(AbstractGeometricPath):
+    """The run as toppra sees it: x in [0, 1] -> (q_1..q_J[, e]) with analytic first
+    derivatives (inverse Jacobian times tangent) and one-sided second derivatives
+    taken inside the piece a grid point starts (toppra's collocation uses the stage
+    ahead of each grid point)."""
+
+    def __init__(self, kin, path: BlendedPath, e_ratio: np.ndarray | None, layer: int):
+        self.kin, self.path, self.e_ratio, self.layer = kin, path, e_ratio, layer
+        self.S = path.length
+        self._dof = kin.n_joints + (0 if e_ratio is None else 1)
+
+    @property
+    def dof(self) -> int:
+        return self._dof
+
+    @property
+    def path_interval(self):
+        return np.array([0.0, 1.0])
+
+    def _ik(self, s, piece):
+        p = self.path.evaluate(s, 0, piece)
+        q = self.kin.inverse(p)
+        bad = ~np.all(np.isfinite(q), axis=1)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise UnreachableError(
+                f"layer {self.layer}: point x = {p[i, 0]:.2f}, y = {p[i, 1]:.2f}, z = {p[i, 2]:.2f} mm is out of reach"
+            )
+        return p, q
+
+    def _first(self, s, piece):
+        p, q = self._ik(s, piece)
+        jinv = self.kin.inverse_jacobian(q) if not hasattr(self.kin, "inverse_jacobian_at") else self.kin.inverse_jacobian_at(p, q)
+        dq = np.einsum("nij,nj->ni", jinv, self.path.evaluate(s, 1, piece)) * self.S
+        return q, dq
+
+    def __call__(self, xs, order=0):
+        xs = np.atleast_1d(np.asarray(xs, dtype=float))
+        s = np.clip(xs, 0.0, 1.0) * self.S
+        piece = self.path.locate(s)
+        if order == 0:
+            out = self._ik(s, piece)[1]
+            if self.e_ratio is not None:
+                out = np.column_stack([out, s * 0])  # e enters only through its derivatives
+            return out
+        if order == 1:
+            dq = self._first(s, piece)[1]
+            if self.e_ratio is not None:
+                dq = np.column_stack([dq, self.e_ratio[piece] * self.S])
+            return dq
+        # Second derivative: forward difference of the exact first derivative, inside the piece.
+        end = self.path.piece_start[piece + 1]
+        h = np.minimum(1e-4, np.maximum((end - s) / 3, 0))
+        back = h <= 1e-9
+        h = np.where(back, 1e-4, h)
+        s2 = np.where(back, np.maximum(s - h, 0), s + h)
+        d1 = self._first(s, piece)[1]
+        d2 = self._first(s2, piece)[1]
+        ddq = (d2 - d1) / (np.where(back, -h, h)[:, None] / self.S)
+        if self.e_ratio is not None:
+            ddq = np.column_stack([ddq, np.zeros(len(s))])
+        return ddq
+
+
+class PathVelocityConstraint(LinearConstraint):
+    """Every first-order limit at once, over the whole grid: joint (and filament)
+    velocity limits through q'(x), and the feed cap on the Cartesian speed S x_dot.
+    Returns only toppra's ``xbound`` (bounds on x_dot^2)."""
+
+    def __init__(self, vmax: np.ndarray, feed_at_grid: np.ndarray, S: float):
+        super().__init__()
+        self.vmax = np.asarray(vmax, dtype=float)
+        self.dof = len(self.vmax)
+        self.feed = np.asarray(feed_at_grid, dtype=float)
+        self.S = S
+        self._format_string = "    path velocity (joints, filament, feed)\n"
+
+    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+        dq = np.abs(path(gridpoints, 1))
+        with np.errstate(divide="ignore"):
+            cap = np.min(self.vmax[None] / dq, axis=1)
+        cap = np.minimum(cap, self.feed / self.S)
+        xbound = np.zeros((len(gridpoints), 2))
+        xbound[:, 1] = cap**2
+        return None, None, None, None, None, None, xbound
+
+
+def grid(path: BlendedPath) -> np.ndarray:
+    """Grid in arc length (mm): from every join, steps growing geometrically from
+    MIN_STEP to MAX_STEP on both sides, so every join has close neighbours on
+    both sides and long lines get few stages. (n,) sorted, includes 0 and S."""
+    joins = np.concatenate([[0.0], path.joins(), [path.length]])
+    half = np.diff(joins) / 2  # each interval is refined from both its ends toward its middle
+    steps = [MIN_STEP]
+    total = MIN_STEP
+    while total < half.max():
+        steps.append(min(steps[-1] * GROWTH, MAX_STEP))
+        total += steps[-1]
+    offsets = np.cumsum(steps)
+    inside = offsets[None, :] < half[:, None] * 0.999
+    left = joins[:-1, None] + offsets[None, :]
+    right = joins[1:, None] - offsets[None, :]
+    g = np.concatenate([joins, left[inside], right[inside]])
+    return np.unique(g)
+
+
+def plan_run(kin, printer, spec: RunSpec, speed_limit: str) -> RunPiece:
+    """Plan one run from rest to rest. kin: kinematics; printer: Printer."""
+    from .blend import dedupe
+
+    pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
+    if len(pts) < 2:
+        raise PlanningError(f"layer {spec.layer}: empty run")
+    path = blend_polyline(pts, printer.planning.blend_tolerance)
+    S = path.length
+    margin = 1.0 - printer.planning.limit_margin
+
+    # Filament per mm of each piece: each segment's filament spread over the pieces that
+    # belong to it, so the total is exactly the toolpath's.
+    seg_len = np.bincount(path.segment, weights=np.diff(path.piece_start), minlength=len(feed))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        seg_ratio = np.where(seg_len > 0, e / seg_len, 0.0)
+    e_ratio = seg_ratio[path.segment]
+    cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
+
+    extruder = not printer.is_laser
+    vmax = printer.joint_array("velocity_max") * margin
+    amax = printer.joint_array("acceleration_max") * margin
+    if extruder:
+        vmax = np.append(vmax, printer.tool.max_filament_speed * margin)
+        amax = np.append(amax, printer.tool.max_filament_acceleration * margin)
+
+    s_grid = grid(path)
+    piece = path.locate(s_grid)
+    seg_feed = feed if speed_limit == "feed" else np.full(len(feed), np.inf)
+    # An arc is capped by the slower of the segments it joins.
+    prev_seg = np.maximum(path.segment - 1, 0)
+    piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev_seg]), seg_feed[path.segment])
+    feed_grid = piece_feed[piece]
+
+    rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
+    x_grid = s_grid / S
+    constraints = [
+        PathVelocityConstraint(vmax, feed_grid, S),
+        toppra.constraint.JointAccelerationConstraint(
+            amax, discretization_scheme=toppra.constraint.DiscretizationType.Interpolation
+        ),
+    ]
+    algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
+    sdd, sd, _ = algo.compute_parameterization(0.0, 0.0)
+    if sd is None or not np.all(np.isfinite(sd)):
+        raise PlanningError(
+            f"layer {spec.layer}: no feasible speed profile for the run starting at "
+            f"x = {pts[0, 0]:.2f}, y = {pts[0, 1]:.2f} mm (near a singularity or limit)"
+        )
+    dx = np.diff(x_grid)
+    vsum = sd[:-1] + sd[1:]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dt = np.where(vsum > 0, 2 * dx / vsum, np.inf)
+    if not np.all(np.isfinite(dt)):
+        raise PlanningError(f"layer {spec.layer}: path speed stays zero along a run (limits too tight)")
+    # Constant acceleration per stage consistent with the end speeds.
+    xdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2 * dx)
+    t = np.concatenate([[0.0], np.cumsum(dt)])
+
+    # Which stages have a limit active (the optimality certificate): the speed at its
+    # first-order cap, or some joint's acceleration at its limit.
+    cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
+    dq, ddq = rp(x_grid[:-1], 1), rp(x_grid[:-1], 2)
+    acc = np.abs(dq * xdd[:, None] + ddq * (sd[:-1] ** 2)[:, None]) / amax[None]
+    active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
+    return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()))

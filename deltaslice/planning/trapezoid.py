@@ -1,0 +1,230 @@
+"""The conventional planner, as Marlin and Klipper do it: the baseline.
+
+Every move is a constant-acceleration trapezoid in Cartesian space with one
+uniform max velocity V (capped by the move's feed) and acceleration A; corners
+are taken at the junction-deviation speed ``v^2 = A * jd * sin(t/2) / (1 - sin(t/2))``
+(t: angle between the directions as Marlin defines it), an instantaneous change
+of velocity direction. Lookahead (backward then forward pass) makes every move
+reachable from its neighbours. Both passes are the min-plus recurrence
+``w_k = min(J_k, w_{k+1} + 2 A L_k)`` on squared speeds, solved for all moves at
+once as a reversed cumulative minimum.
+
+Two settings:
+
+* :func:`plan_firmware`: typical delta settings, corners as firmware runs them
+  (the joint-limit violations users get today),
+* :func:`plan_safe`: the largest uniform limits (one scale k on A and jd, sqrt(k)
+  on V, keeping the braking distance V^2/A) whose samples keep every joint within
+  its velocity and acceleration limits at the output rate, found by bisection.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .trajectory import Trajectory, finite_differences
+
+FIRMWARE_ACCEL = 3000.0  # mm/s^2, Marlin's delta default
+FIRMWARE_SCV = 5.0  # mm/s, Klipper's default square corner velocity
+FIRMWARE_VMAX = 300.0  # mm/s
+SAFE_TOLERANCE = 1.0  # samples may reach 100 % of a limit, no more
+
+
+@dataclass(frozen=True)
+class TrapezoidPiece:
+    """All moves of a toolpath as one piece. Arrays per move (n,)."""
+
+    p0: np.ndarray  # (n,3) start points
+    d: np.ndarray  # (n,3) unit directions (zero for filament-only moves)
+    length: np.ndarray  # path length of the move, mm (|e| for filament-only moves)
+    v_in: np.ndarray
+    v_top: np.ndarray
+    v_out: np.ndarray
+    accel: np.ndarray
+    t0: np.ndarray  # (n+1,) start times
+    e0: np.ndarray  # (n,) filament at the move start, relative to the piece start
+    e: np.ndarray  # filament of each move
+    tool: np.ndarray
+    filament_only: np.ndarray
+    layer: int = 0
+    kind: str = "trapezoid"
+
+    @property
+    def duration(self) -> float:
+        return float(self.t0[-1])
+
+    @property
+    def filament_total(self) -> float:
+        return float(self.e.sum())
+
+    @property
+    def active_time(self) -> float:
+        return 0.0  # not a certificate this planner provides
+
+    def sample(self, kin, tau):
+        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+        k = np.clip(np.searchsorted(self.t0, tau, side="right") - 1, 0, len(self.length) - 1)
+        dt = tau - self.t0[k]
+        vi, vt, vo, a, L = self.v_in[k], self.v_top[k], self.v_out[k], self.accel[k], self.length[k]
+        ta = (vt - vi) / a
+        td = (vt - vo) / a
+        la = (vt**2 - vi**2) / (2 * a)
+        ld = (vt**2 - vo**2) / (2 * a)
+        tc = np.maximum(L - la - ld, 0) / np.maximum(vt, 1e-12)
+        s = np.where(
+            dt < ta,
+            vi * dt + 0.5 * a * dt * dt,
+            np.where(
+                dt < ta + tc,
+                la + vt * (dt - ta),
+                la + vt * tc + vt * (dt - ta - tc) - 0.5 * a * (dt - ta - tc) ** 2,
+            ),
+        )
+        s = np.clip(s, 0, L)
+        del td
+        frac = np.where(L > 0, s / np.where(L > 0, L, 1), 1.0)
+        moving = ~self.filament_only[k]
+        pts = self.p0[k] + (s * moving)[:, None] * self.d[k]
+        q = kin.inverse(pts)
+        e = self.e0[k] + frac * self.e[k]
+        return q, e, self.tool[k]
+
+
+def _moves(toolpath, printer):
+    starts = toolpath.starts
+    delta = toolpath.xyz - starts
+    length = np.linalg.norm(delta, axis=1)
+    filament_only = (length <= 1e-9) & (toolpath.e != 0)
+    keep = (length > 1e-9) | filament_only
+    return starts[keep], delta[keep], length[keep], filament_only[keep], keep
+
+
+def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> TrapezoidPiece:
+    """Plan all moves with uniform Cartesian limits (A = accel, junction deviation jd, V = vmax)."""
+    p0, delta, length, fil, keep = _moves(toolpath, printer)
+    feed = toolpath.feed[keep]
+    e = toolpath.e[keep]
+    tool = toolpath.tool[keep]
+    n = len(length)
+    d = np.where(length[:, None] > 0, delta / np.where(length > 0, length, 1)[:, None], 0.0)
+    extr = not printer.is_laser
+    top = np.minimum(feed, vmax) if speed_limit == "feed" else np.full(n, vmax)
+    a = np.full(n, float(accel))
+    if extr:
+        # Firmware caps every move so the extruder stays within its max feed rate (Marlin's
+        # max_feedrate E); here that is the hot end's volumetric limit.
+        with np.errstate(divide="ignore"):
+            ratio = np.where(length > 0, np.abs(e) / np.where(length > 0, length, 1), 0.0)
+            top = np.minimum(top, np.where(ratio > 0, printer.tool.max_filament_speed / ratio, np.inf))
+        top = np.where(fil, printer.tool.retract_speed, top)
+        a = np.where(fil, printer.tool.max_filament_acceleration, a)
+    L = np.where(fil, np.abs(e), length)
+
+    # Junction speed limits at the start of each move (squared).
+    cos_t = -np.einsum("ij,ij->i", d[:-1], d[1:])  # Marlin: -dot(prev, next)
+    sin_half = np.sqrt(np.clip(0.5 * (1 - cos_t), 0, 1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vj2 = np.where(sin_half < 1 - 1e-9, accel * jd * sin_half / (1 - sin_half), np.inf)
+    both_move = ~fil[:-1] & ~fil[1:]
+    vj2 = np.where(both_move, vj2, 0.0)
+    vj2 = np.minimum(vj2, np.minimum(top[:-1], top[1:]) ** 2)
+    J = np.concatenate([[0.0], vj2, [0.0]])  # junction k is the start of move k; rest at both ends
+
+    # Backward pass: w_k <= w_{k+1} + 2 a_k L_k  (reachable deceleration).
+    two_al = 2 * a * L
+    C = np.concatenate([[0.0], np.cumsum(two_al)])
+    back = np.minimum.accumulate((J + C)[::-1])[::-1] - C
+    # Forward pass: w_{k+1} <= w_k + 2 a_k L_k.
+    fwd = np.minimum.accumulate(back - C) + C
+    w = np.maximum(np.minimum(back, fwd), 0.0)
+    v_in, v_out = np.sqrt(w[:-1]), np.sqrt(w[1:])
+    # Peak speed of each trapezoid: the cruise speed or where acceleration meets deceleration.
+    v_peak = np.sqrt(np.maximum((2 * a * L + v_in**2 + v_out**2) / 2, 0))
+    v_top = np.maximum(np.minimum(top, v_peak), np.maximum(v_in, v_out))
+    la = (v_top**2 - v_in**2) / (2 * a)
+    ld = (v_top**2 - v_out**2) / (2 * a)
+    tc = np.maximum(L - la - ld, 0) / np.maximum(v_top, 1e-12)
+    t = (v_top - v_in) / a + (v_top - v_out) / a + tc
+    t0 = np.concatenate([[0.0], np.cumsum(t)])
+    e0 = np.concatenate([[0.0], np.cumsum(e)])[:-1]
+    return TrapezoidPiece(p0, d, L, v_in, v_top, v_out, a, t0, e0, e, tool, fil)
+
+
+def plan_firmware(toolpath, printer, *, speed_limit="feed", accel=FIRMWARE_ACCEL, scv=FIRMWARE_SCV, vmax=FIRMWARE_VMAX):
+    """The conventional planner with typical delta firmware settings (Klipper-style
+    square corner velocity converted to junction deviation)."""
+    jd = scv**2 * (np.sqrt(2) - 1) / accel
+    piece = build(toolpath, printer, accel=accel, jd=jd, vmax=vmax, speed_limit=speed_limit)
+    info = {"accel": accel, "junction_deviation": jd, "vmax": vmax, "setting": "firmware"}
+    return Trajectory(printer, [piece], planner="trapezoid-firmware", speed_limit=speed_limit, info=info)
+
+
+def peak_ratio(traj: Trajectory, rate: float) -> float:
+    """Largest sampled |joint velocity| / limit or |joint acceleration| / limit."""
+    worst = 0.0
+    vmax = traj.printer.joint_array("velocity_max")
+    amax = traj.printer.joint_array("acceleration_max")
+    prev = None
+    for block in traj.iter_samples(rate, block=20000):
+        # Overlap two samples so differences across block edges are counted.
+        q = block.q if prev is None else np.concatenate([prev, block.q])
+        from ..samples import Samples
+
+        s = Samples(np.arange(len(q)) / rate, q, np.zeros(len(q)), np.zeros(len(q)))
+        v, a = finite_differences(s, rate)
+        worst = max(worst, float(np.max(np.abs(v[1:-1]) / vmax)), float(np.max(np.abs(a[1:-1]) / amax)))
+        prev = block.q[-2:]
+    return worst
+
+
+def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iterations=14):
+    """The conventional planner with the largest uniform limits that keep every joint
+    within its limits at the output rate (bisection on one scale k)."""
+    rate = printer.planning.output_rate
+    lo, hi = 0.0, 1.0
+    jd0 = FIRMWARE_SCV**2 * (np.sqrt(2) - 1) / FIRMWARE_ACCEL
+
+    def make(k):
+        piece = build(
+            toolpath, printer, accel=FIRMWARE_ACCEL * k, jd=jd0 * k, vmax=FIRMWARE_VMAX * np.sqrt(k), speed_limit=speed_limit
+        )
+        info = {"accel": FIRMWARE_ACCEL * k, "junction_deviation": jd0 * k, "vmax": FIRMWARE_VMAX * np.sqrt(k), "scale": k}
+        return Trajectory(printer, [piece], planner="trapezoid-safe", speed_limit=speed_limit, info=info)
+
+    if peak_ratio(make(1.0), rate) <= SAFE_TOLERANCE:
+        return make(1.0)
+    for it in range(iterations):
+        mid = 0.5 * (lo + hi) if lo > 0 else hi / 4
+        if peak_ratio(make(mid), rate) <= SAFE_TOLERANCE:
+            lo = mid
+        else:
+            hi = mid
+        if progress:
+            progress(it + 1, iterations)
+    if lo == 0.0:
+        lo = hi / 4
+        while peak_ratio(make(lo), rate) > SAFE_TOLERANCE and lo > 1e-8:
+            lo /= 4
+    return make(lo)
+
+
+def corner_violations(traj: Trajectory, rate: float | None = None) -> dict:
+    """Joint-limit violations of a trajectory sampled at the output rate: how many
+    samples and distinct events (consecutive violating samples count once) exceed a
+    velocity or acceleration limit, and the worst ratio."""
+    printer = traj.printer
+    rate = rate or printer.planning.output_rate
+    s = traj.samples(rate)
+    v, a = finite_differences(s, rate)
+    rv = np.abs(v) / printer.joint_array("velocity_max")[None]
+    ra = np.abs(a) / printer.joint_array("acceleration_max")[None]
+    bad = (rv.max(axis=1) > 1.0) | (ra.max(axis=1) > 1.0)
+    events = int(np.sum(np.diff(np.concatenate([[0], bad.astype(np.int8)])) == 1))
+    return {
+        "violating_samples": int(bad.sum()),
+        "events": events,
+        "worst_velocity_ratio": float(rv.max(initial=0)),
+        "worst_acceleration_ratio": float(ra.max(initial=0)),
+    }
