@@ -153,4 +153,6 @@ def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit):
         retract=float(e[e < 0].sum()),
         unretract=float(e[e > 0].sum()),
         speed_limit=speed_limit,
+        via=toolpath.xyz[i : j - 1],
+        feed=float(toolpath.feed[i:j][np.linalg.norm(toolpath.xyz[i:j] - np.concatenate([[pos], toolpath.xyz[i : j - 1]]), axis=1) > 0].max(initial=0.0)) or None,
     )

@@ -4,8 +4,9 @@ lower, unretract.
 A joint-space move is a curve in Cartesian space: forward kinematics of its
 samples must stay above the printed part (half the lift above the current layer
 top, never below the work surface for a laser) and inside the reachable volume.
-When it does not, the travel is planned as the straight Cartesian path
-(up, across, down) with toppra instead.
+The toolpath's own travel (straight, with the slicer's z-hop if it has one, as
+firmware would run it) is always planned too, with toppra; the faster of the
+two is used.
 """
 
 from __future__ import annotations
@@ -133,9 +134,11 @@ def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
     return bool(ok and kin.reachable(p).all())
 
 
-def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit):
+def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit, via=None, feed=None):
     """Pieces that take the tool from point a to point b (both (3,) mm, bed frame).
 
+    via: (k,3) the toolpath's own travel points between a and b (the slicer's z-hop, if any);
+    feed: the travel's feed rate, mm/s (default: the printer's travel speed).
     printed_top: height of the top of what is printed so far, mm; retract/unretract: filament mm
     (retract <= 0 <= unretract) taken from the toolpath's travel moves.
     """
@@ -154,33 +157,35 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
         a_up = np.array([a[0], a[1], max(a[2], z_travel)])
         b_up = np.array([b[0], b[1], max(b[2], z_travel)])
         z_clear = top + (0.5 * lift if lift > 0 else 0.0) if not short else min(a[2], b[2])
-        joint = None
+        # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
+        own = np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
+        cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed)
+        best = [cartesian]
+        # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.
         if not short:
             q_up_a, q_up_b = kin.inverse(a_up[None])[0], kin.inverse(b_up[None])[0]
             if np.all(np.isfinite(q_up_a)) and np.all(np.isfinite(q_up_b)):
                 joint = _ruckig_move(printer, q_up_a, q_up_b, layer)
-                if not joint_move_clear(kin, joint, z_clear):
-                    joint = None
-        if joint is None:
-            pts = np.array([a, a_up, b_up, b])
-            pieces.append(_cartesian(kin, printer, pts, layer, speed_limit))
-        else:
-            if a_up[2] > a[2] + 1e-9:
-                pieces.append(_cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit))
-            pieces.append(joint)
-            if b_up[2] > b[2] + 1e-9:
-                pieces.append(_cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit))
+                if joint_move_clear(kin, joint, z_clear):
+                    cand = [joint]
+                    if a_up[2] > a[2] + 1e-9:
+                        cand.insert(0, _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed))
+                    if b_up[2] > b[2] + 1e-9:
+                        cand.append(_cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed))
+                    if sum(p.duration for p in cand) < cartesian.duration:
+                        best = cand
+        pieces.extend(best)
     if extruder and unretract > 0:
         pieces.append(FilamentPiece(q_b, unretract, printer.tool.retract_speed, printer.tool.max_filament_acceleration, layer))
     return pieces
 
 
-def _cartesian(kin, printer, pts, layer, speed_limit) -> RunPiece:
+def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None) -> RunPiece:
     """A straight Cartesian travel (tool off) planned with toppra."""
     keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
     pts = pts[keep]
     m = len(pts) - 1
-    feed = np.full(m, printer.slicing.travel_speed)
+    feed = np.full(m, feed or printer.slicing.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
-    piece = plan_run(kin, printer, spec, speed_limit)
+    piece = plan_run(kin, printer, spec, speed_limit, tolerance)
     return RunPiece(**{**piece.__dict__, "kind": "travel"})

@@ -1,0 +1,236 @@
+"""Planner invariants: limits never exceeded at the output rate, the path followed
+within the blend tolerance, extrusion conserved, grid convergence, travel clearance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from deltaslice import UnreachableError, load_printer
+from deltaslice.planning import plan, topp
+from deltaslice.planning.blend import blend_polyline
+from deltaslice.planning.trajectory import finite_differences
+from deltaslice.planning.trapezoid import corner_violations, plan_firmware, plan_safe
+from deltaslice.toolpath import Role, ToolpathBuilder
+
+MARGIN = 1.02  # toppra enforces limits at grid points; samples may exceed by discretisation only
+
+
+def layered_part(z0, dz, n_layers, size, filament_per_mm=0.02, center=(0.0, 0.0), retract=1.0):
+    """Square perimeters plus a circle per layer, with retracts on travels."""
+    b = ToolpathBuilder((center[0], center[1], z0 + 2))
+    cx, cy = center
+    th = np.linspace(0, 2 * np.pi, 73)
+    for k in range(n_layers):
+        z = z0 + k * dz
+        b.new_layer(z)
+        h = size / 2
+        sq = np.array([[-h, -h], [h, -h], [h, h], [-h, h], [-h, -h]]) + [cx, cy]
+        b.add([[sq[0, 0], sq[0, 1], z]], 100, 0, 0, Role.TRAVEL)
+        b.add([[sq[0, 0], sq[0, 1], z]], 30, retract, 0, Role.RETRACT)
+        seg = np.linalg.norm(np.diff(sq, axis=0), axis=1)
+        b.add(np.c_[sq[1:], np.full(4, z)], 30, seg * filament_per_mm, 1, Role.PERIMETER)
+        b.add([[sq[-1, 0], sq[-1, 1], z]], 30, -retract, 0, Role.RETRACT)
+        r = size / 4
+        circ = np.c_[cx + r * np.cos(th), cy + r * np.sin(th)]
+        b.add([[circ[0, 0], circ[0, 1], z]], 100, 0, 0, Role.TRAVEL)
+        b.add([[circ[0, 0], circ[0, 1], z]], 30, retract, 0, Role.RETRACT)
+        seg = np.linalg.norm(np.diff(circ, axis=0), axis=1)
+        b.add(np.c_[circ[1:], np.full(72, z)], 45, seg * filament_per_mm, 1, Role.INFILL)
+        b.add([[circ[-1, 0], circ[-1, 1], z]], 30, -retract, 0, Role.RETRACT)
+    return b.build()
+
+
+def laser_part(size):
+    b = ToolpathBuilder((0, 0, 0))
+    b.new_layer(0.0)
+    h = size / 2
+    sq = np.array([[-h, -h], [h, -h], [h, h], [-h, h], [-h, -h]])
+    b.add([[sq[0, 0], sq[0, 1], 0]], 80, 0, 0, Role.TRAVEL)
+    b.add(np.c_[sq[1:], np.zeros(4)], 15, 0, 0.8, Role.LASER)
+    b.add([[0, 0, 0]], 80, 0, 0, Role.TRAVEL)
+    b.add([[h / 2, 0, 0], [h / 2, h / 2, 0]], 15, 0, 1.0, Role.LASER)
+    return b.build()
+
+
+CASES = {
+    "delta_etitc": lambda: layered_part(0.5, 0.4, 3, 40),
+    "delta_ucb": lambda: layered_part(0.25, 0.2, 3, 30),
+    "delta_uady": lambda: layered_part(0.25, 0.2, 2, 40),
+    "fivebar_atlas": lambda: layered_part(0.3, 0.3, 2, 40),
+    "linear_kossel": lambda: layered_part(0.3, 0.2, 2, 40),
+    "delta_espe_laser": lambda: laser_part(40),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
+def planned(request):
+    printer = load_printer(f"printers/{request.param}.toml")
+    toolpath = CASES[request.param]()
+    out = {}
+    for mode in ("feed", "machine"):
+        traj = plan(toolpath, printer, speed_limit=mode, workers=1)
+        out[mode] = (traj, traj.samples())
+    return printer, toolpath, out
+
+
+def _distance_to_polyline(points, poly):
+    """points (n,3), poly (m+1,3) -> (n,) distance to the nearest segment."""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    ll = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
+    ap = points[:, None, :] - a[None]
+    t = np.clip(np.einsum("nij,ij->ni", ap, ab) / ll, 0, 1)
+    d = ap - t[..., None] * ab[None]
+    return np.sqrt(np.einsum("nij,nij->ni", d, d)).min(axis=1)
+
+
+def test_joint_limits_never_exceeded(planned):
+    printer, _, out = planned
+    rate = printer.planning.output_rate
+    for mode, (traj, s) in out.items():
+        v, a = finite_differences(s, rate)
+        rv = np.abs(v).max(axis=0) / printer.joint_array("velocity_max")
+        ra = np.abs(a).max(axis=0) / printer.joint_array("acceleration_max")
+        assert rv.max() <= MARGIN, f"{printer.name} {mode}: joint velocity at {100 * rv.max():.1f} % of its limit"
+        assert ra.max() <= MARGIN, f"{printer.name} {mode}: joint acceleration at {100 * ra.max():.1f} % of its limit"
+        kin = printer.kinematics()
+        assert kin.within_joint_limits(s.q).all()
+
+
+def test_tool_limits_and_extrusion(planned):
+    printer, toolpath, out = planned
+    if printer.is_laser:
+        for traj, s in out.values():
+            assert set(np.unique(s.tool)) <= {0.0, 0.8, 1.0}
+        return
+    rate = printer.planning.output_rate
+    for mode, (traj, s) in out.items():
+        ev = np.abs(np.diff(s.e)) * rate
+        on = s.tool[1:] > 0
+        assert ev[on].max() <= printer.tool.max_filament_speed * MARGIN, mode
+        # Monotone while extruding; total equals the toolpath's.
+        assert np.all(np.diff(s.e)[on] >= -1e-12)
+        assert s.e[-1] == pytest.approx(toolpath.extruded_length(), abs=1e-9)
+
+
+def test_path_followed_within_blend_tolerance(planned):
+    printer, toolpath, out = planned
+    kin = printer.kinematics()
+    tol = printer.planning.blend_tolerance
+    from deltaslice.planning import split_runs
+
+    for mode, (traj, s) in out.items():
+        run_pieces = [p for p in traj.pieces if p.kind == "run"]
+        ranges = split_runs(toolpath)
+        assert len(run_pieces) == len(ranges)
+        for piece, (i, j), start in zip(run_pieces, ranges, np.array([traj.starts[k] for k, p in enumerate(traj.pieces) if p.kind == "run"])):
+            tau = np.linspace(0, piece.duration, 400)
+            q, _, _ = piece.sample(kin, tau)
+            pts = kin.forward(q)
+            poly = np.concatenate([(toolpath.start if i == 0 else toolpath.xyz[i - 1])[None], toolpath.xyz[i:j]])
+            dev = _distance_to_polyline(pts, poly)
+            assert dev.max() <= tol + 1e-6, f"{printer.name} {mode}: deviation {dev.max():.4f} mm"
+
+
+def test_travels_clear_the_part(planned):
+    printer, toolpath, out = planned
+    kin = printer.kinematics()
+    for traj, _ in out.values():
+        top = 0.0
+        for piece in traj.pieces:
+            if piece.kind == "run":
+                q, _, _ = piece.sample(kin, np.linspace(0, piece.duration, 50))
+                top = max(top, kin.forward(q)[:, 2].max())
+            elif piece.kind == "travel" and hasattr(piece, "traj"):
+                q, _, _ = piece.sample(kin, np.linspace(0, piece.duration, 200))
+                z = kin.forward(q)[:, 2]
+                lift = printer.planning.travel_lift if not printer.is_laser else 0.0
+                assert z.min() >= top + 0.5 * lift - 1e-6
+
+
+def test_machine_limit_is_faster_and_feed_never_slower_than_baseline(planned):
+    printer, toolpath, out = planned
+    feed_traj, _ = out["feed"]
+    machine_traj, _ = out["machine"]
+    assert machine_traj.duration <= feed_traj.duration * 1.0001
+    safe = plan_safe(toolpath, printer, speed_limit="feed")
+    assert corner_violations(safe)["violating_samples"] == 0
+    assert feed_traj.duration <= safe.duration * 1.001, (feed_traj.duration, safe.duration)
+
+
+def test_grid_refinement_changes_duration_under_one_percent(monkeypatch):
+    printer = load_printer("printers/delta_etitc.toml")
+    toolpath = layered_part(0.5, 0.4, 1, 40)
+    coarse = plan(toolpath, printer, speed_limit="machine", workers=1)
+    monkeypatch.setattr(topp, "REFINE", 10)
+    fine = plan(toolpath, printer, speed_limit="machine", workers=1)
+    runs = lambda t: sum(p.duration for p in t.pieces if p.kind == "run")  # noqa: E731
+    assert sum(len(p.x) for p in fine.pieces if p.kind == "run") > 9 * sum(len(p.x) for p in coarse.pieces if p.kind == "run")
+    assert abs(runs(fine) - runs(coarse)) / runs(fine) < 0.01
+
+
+def test_active_constraint_fraction_is_high():
+    printer = load_printer("printers/delta_etitc.toml")
+    traj = plan(layered_part(0.5, 0.4, 2, 40), printer, speed_limit="machine", workers=1)
+    assert traj.active_fraction > 0.9
+
+
+def test_parallel_equals_serial():
+    printer = load_printer("printers/delta_ucb.toml")
+    toolpath = layered_part(0.25, 0.2, 6, 30)
+    a = plan(toolpath, printer, workers=1)
+    b = plan(toolpath, printer, workers=2)
+    assert a.duration == pytest.approx(b.duration, rel=1e-12)
+
+
+def test_unreachable_point_is_named_before_any_output(tmp_path):
+    printer = load_printer("printers/delta_ucb.toml")
+    b = ToolpathBuilder((0, 0, 1))
+    b.new_layer(0.25)
+    b.add([[0, 0, 0.25], [200, 0, 0.25]], 30, [0, 1.0], [0, 1], Role.PERIMETER)
+    with pytest.raises(UnreachableError, match=r"layer 0: x = 200.00, y = 0.00"):
+        plan(b.build(), printer)
+
+
+def test_firmware_baseline_violates_where_corners_are_sharp():
+    # A weak machine: the UCB geometry with slow joints; firmware's instantaneous corner
+    # velocity changes exceed its joint acceleration at the output rate.
+    printer = load_printer("printers/delta_uady.toml")
+    toolpath = layered_part(0.25, 0.2, 1, 40)
+    fw = plan_firmware(toolpath, printer, speed_limit="feed")
+    assert corner_violations(fw)["events"] > 0
+    safe = plan_safe(toolpath, printer, speed_limit="feed")
+    assert corner_violations(safe)["violating_samples"] == 0
+    ours = plan(toolpath, printer, speed_limit="feed", workers=1)
+    assert ours.duration < safe.duration
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=3, max_size=12),
+    st.floats(0.005, 0.5),
+)
+def test_blend_stays_in_tolerance_band_and_is_tangent_continuous(xy, tol):
+    pts = np.c_[np.array(xy), np.zeros(len(xy))]
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-3])
+    pts = pts[keep]
+    if len(pts) < 2:
+        return
+    path = blend_polyline(pts, tol)
+    s = np.linspace(0, path.length, 2000)
+    dev = _distance_to_polyline(path.evaluate(s), pts)
+    assert dev.max() <= tol * (1 + 1e-6) + 1e-9
+    assert path.length <= np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() + 1e-9
+    # Tangent continuity at every join, unless the polyline reverses exactly (a point turn).
+    d = np.diff(pts, axis=0)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    if np.all(np.einsum("ij,ij->i", d[:-1], d[1:]) > -1 + 1e-6):
+        j = path.joins()
+        before = path.evaluate(j - 1e-9, 1)
+        after = path.evaluate(j, 1)
+        assert np.all(np.einsum("ij,ij->i", before, after) > 1 - 1e-5)
+    # Endpoints unchanged.
+    assert np.allclose(path.evaluate(np.array([0.0, path.length])), pts[[0, -1]], atol=1e-9)
