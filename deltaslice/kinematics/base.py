@@ -21,6 +21,18 @@ from __future__ import annotations
 import numpy as np
 
 
+def solve_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Batched ``np.linalg.solve(a, b)`` that never raises: rows whose matrix is
+    singular or holds NaN give NaN (a: (N,k,k), b: (N,k,m) -> (N,k,m))."""
+    out = np.full(np.broadcast_shapes(a.shape[:1], b.shape[:1]) + b.shape[1:], np.nan)
+    with np.errstate(invalid="ignore", over="ignore"):
+        det = np.linalg.det(a) if len(a) else np.zeros(0)
+    ok = np.isfinite(det) & (det != 0) & np.all(np.isfinite(b), axis=(1, 2))
+    if ok.any():
+        out[ok] = np.linalg.solve(a[ok], b[ok])
+    return out
+
+
 class Kinematics:
     """Shared behaviour; subclasses provide ``inverse``, ``forward``, ``jacobian``."""
 
@@ -47,11 +59,7 @@ class Kinematics:
     def inverse_jacobian(self, q: np.ndarray) -> np.ndarray:
         """q: (N,J) -> (N,J,3), d(q)/d(point); NaN where the Jacobian is singular."""
         jac = self.jacobian(q)
-        out = np.full(jac.shape[:1] + (jac.shape[2], jac.shape[1]), np.nan)
-        det = np.linalg.det(jac)
-        ok = np.isfinite(det) & (np.abs(det) > 1e-300)
-        out[ok] = np.linalg.inv(jac[ok])
-        return out
+        return solve_rows(jac, np.broadcast_to(np.eye(jac.shape[1]), jac.shape[:1] + (jac.shape[1], jac.shape[1])))
 
     def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Family-specific limits beyond joint positions (default: none). (N,) bool."""
@@ -63,6 +71,16 @@ class Kinematics:
         with np.errstate(invalid="ignore"):
             return np.all((q >= self.position_min - tol) & (q <= self.position_max + tol), axis=1)
 
+    def _condition_of(self, jac: np.ndarray) -> np.ndarray:
+        """(N,a,b) -> (N,) ratio of extreme singular values; inf where singular or NaN."""
+        out = np.full(len(jac), np.inf)
+        good = np.all(np.isfinite(jac), axis=(1, 2))
+        if good.any():
+            s = np.linalg.svd(jac[good], compute_uv=False)
+            with np.errstate(divide="ignore"):
+                out[good] = np.where(s[:, -1] > 0, s[:, 0] / s[:, -1], np.inf)
+        return out
+
     def condition(self, q: np.ndarray) -> np.ndarray:
         """Condition number of the Jacobian (N,); inf at singular or unreachable poses.
 
@@ -73,9 +91,7 @@ class Kinematics:
         out = np.full(len(q), np.inf)
         good = np.all(np.isfinite(q), axis=1)
         if good.any():
-            s = np.linalg.svd(self.jacobian(q[good]), compute_uv=False)
-            with np.errstate(divide="ignore"):
-                out[good] = np.where(s[:, -1] > 0, s[:, 0] / s[:, -1], np.inf)
+            out[good] = self._condition_of(self.jacobian(q[good]))
         return out
 
     def reachable(self, points: np.ndarray) -> np.ndarray:
@@ -86,5 +102,7 @@ class Kinematics:
         if ok.any():
             sub = np.flatnonzero(ok)
             ok[sub] &= self.extra_ok(points[sub], q[sub])
+        if ok.any():
+            sub = np.flatnonzero(ok)
             ok[sub] &= self.condition(q[sub]) < self.singularity_limit
         return ok

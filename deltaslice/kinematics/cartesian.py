@@ -17,11 +17,15 @@ class Cartesian(Kinematics):
 
     def inverse(self, points):
         """points: (N,3) mm -> q: (N,3) mm."""
-        return np.atleast_2d(np.asarray(points, dtype=float)) + self.offset
+        q = np.atleast_2d(np.asarray(points, dtype=float)) + self.offset
+        q[~np.all(np.isfinite(q), axis=1)] = np.nan
+        return q
 
     def forward(self, q):
         """q: (N,3) mm -> points: (N,3) mm."""
-        return np.atleast_2d(np.asarray(q, dtype=float)) - self.offset
+        p = np.atleast_2d(np.asarray(q, dtype=float)) - self.offset
+        p[~np.all(np.isfinite(p), axis=1)] = np.nan
+        return p
 
     def jacobian(self, q):
         return np.broadcast_to(np.eye(3), (len(np.atleast_2d(q)), 3, 3)).copy()

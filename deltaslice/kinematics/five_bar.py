@@ -4,16 +4,22 @@ Motors at A (``origin``) and C (``origin + base_length x``), in the bed plane's
 frame; links A-B, B-P (arm a) and C-D, D-P (arm c). Inverse (Atlas paper, sec.
 IV): per arm, ``theta = atan2(P - M) + codo * acos((l1^2 + |MP|^2 - l2^2) / (2 l1 |MP|))``;
 the two signs CODO1, CODO2 choose one of the four working modes. Forward: the
-two circles around B and D of radii l2 and l4 meet in two points; the one whose
-inverse returns the same joint angles under the chosen mode is kept. Joint 3 is
-the tool height above the bed, mm.
+two circles around B and D of radii l2 and l4 meet in two points (the two
+assembly modes); the one whose inverse returns the same joint angles under the
+chosen working mode *and* whose assembly mode is the machine's is kept. The
+assembly mode is the side of the distal links' elbow at P: the sign of
+``(B - P) x (D - P)``; it only changes through a type-2 singularity (B, P, D in
+line), so the machine keeps the one it has over the bed centre, and points of
+the other mode are unreachable (without this, the same joint angles served two
+points, and ``forward(inverse(p))`` could land some 390 mm away from p behind the
+motors). Joint 3 is the tool height above the bed, mm.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .base import Kinematics
+from .base import Kinematics, solve_rows
 
 
 def _wrap(a, centre=0.0):
@@ -33,6 +39,15 @@ class FiveBar(Kinematics):
         # Arm angles are reported in the turn centred on the middle of each joint's range, so a
         # range that crosses 180 deg stays continuous.
         self.centre = (self.position_min[:2] + self.position_max[:2]) / 2
+        # Assembly mode: the one at the bed centre (+1 if the centre is out of reach).
+        sign = self._assembly(np.zeros((1, 3)), self.inverse(np.zeros((1, 3))))[0]
+        self.assembly = sign if sign != 0 else 1.0
+
+    def _assembly(self, points, q):
+        """Sign of (B - P) x (D - P) per row (N,): +1, -1, or 0 (singular or NaN)."""
+        b, d = self._elbows(q)
+        u, v = b - points[:, :2], d - points[:, :2]
+        return np.nan_to_num(np.sign(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]))
 
     def _arm(self, rel, l1, l2, codo):
         d = np.hypot(rel[:, 0], rel[:, 1])
@@ -51,7 +66,7 @@ class FiveBar(Kinematics):
         q[:, 0] = _wrap(self._arm(points[:, :2] - self.A, g.proximal_a, g.distal_a, g.codo1), self.centre[0])
         q[:, 1] = _wrap(self._arm(points[:, :2] - self.C, g.proximal_c, g.distal_c, g.codo2), self.centre[1])
         q[:, 2] = points[:, 2]
-        q[np.isnan(q).any(axis=1)] = np.nan
+        q[~np.all(np.isfinite(q), axis=1)] = np.nan
         return q
 
     def _elbows(self, q):
@@ -79,11 +94,16 @@ class FiveBar(Kinematics):
             pts = np.concatenate([cands[:, k], q[:, 2:3]], axis=1)
             qq = self.inverse(pts)
             err[:, k] = np.abs(_wrap(qq[:, 0] - q[:, 0])) + np.abs(_wrap(qq[:, 1] - q[:, 1]))
+            err[self._assembly(pts, q) != self.assembly, k] = np.inf
         err = np.nan_to_num(err, nan=np.inf)
         pick = np.argmin(err, axis=1)
         out = np.concatenate([cands[np.arange(len(q)), pick], q[:, 2:3]], axis=1)
         out[~(np.min(err, axis=1) < 1e-6)] = np.nan
         return out
+
+    def extra_ok(self, points, q):
+        """Only the machine's assembly mode (see the module docstring)."""
+        return self._assembly(points, q) == self.assembly
 
     def _closure(self, q, points):
         g = self.geometry
@@ -100,7 +120,7 @@ class FiveBar(Kinematics):
         q = np.atleast_2d(np.asarray(q, dtype=float))
         rows, diag = self._closure(q, self.forward(q))
         out = np.zeros((len(q), 3, 3))
-        out[:, :2, :2] = -np.linalg.solve(rows, diag[:, :, None] * np.eye(2)[None])
+        out[:, :2, :2] = -solve_rows(rows, diag[:, :, None] * np.eye(2)[None])
         out[:, 2, 2] = 1.0
         return out
 
@@ -120,7 +140,5 @@ class FiveBar(Kinematics):
         out = np.full(len(q), np.inf)
         good = np.all(np.isfinite(q), axis=1)
         if good.any():
-            s = np.linalg.svd(self.jacobian(q[good])[:, :2, :2], compute_uv=False)
-            with np.errstate(divide="ignore"):
-                out[good] = np.where(s[:, -1] > 0, s[:, 0] / s[:, -1], np.inf)
+            out[good] = self._condition_of(self.jacobian(q[good])[:, :2, :2])
         return out

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Kinematics
+from .base import Kinematics, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
@@ -32,11 +32,12 @@ class LinearDelta(Kinematics):
         h2 = self.L**2 - d2
         with np.errstate(invalid="ignore"):
             q = points[:, 2:3] + self.t + np.sqrt(h2)
-        q[(h2 <= 0).any(axis=1)] = np.nan
+        q[(h2 <= 0).any(axis=1) | ~np.all(np.isfinite(q), axis=1)] = np.nan
         return q
 
     def forward(self, q):
-        """q: (N,3) mm -> points (N,3) mm: trilateration, effector below the carriages."""
+        """q: (N,3) mm -> points (N,3) mm: trilateration, effector below every carriage
+        (NaN where the rods cannot meet or only meet with a carriage below the effector)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         c = np.concatenate([np.broadcast_to(self.towers[None], (len(q), 3, 2)), q[..., None]], axis=2)
         p0, p1, p2 = c[:, 0], c[:, 1], c[:, 2]
@@ -55,7 +56,11 @@ class LinearDelta(Kinematics):
         with np.errstate(invalid="ignore"):
             out = p0 + x[:, None] * ex + y[:, None] * ey + np.sqrt(zz2)[:, None] * ez
         out[:, 2] -= self.t
-        out[~(zz2 > 0)] = np.nan
+        # The lower root can still leave a carriage below the effector joints when the carriage
+        # heights differ much; no rod hangs upward in this machine (and inverse never returns it).
+        with np.errstate(invalid="ignore"):
+            below = np.all(q - out[:, 2:3] - self.t > 0, axis=1)
+        out[~((zz2 > 0) & below)] = np.nan
         return out
 
     def inverse_jacobian(self, q):
@@ -70,4 +75,5 @@ class LinearDelta(Kinematics):
 
     def jacobian(self, q):
         """q: (N,3) -> (N,3,3) d(point)/d(q), dimensionless."""
-        return np.linalg.inv(self.inverse_jacobian(q))
+        inv = self.inverse_jacobian(q)
+        return solve_rows(inv, np.broadcast_to(np.eye(3), inv.shape))

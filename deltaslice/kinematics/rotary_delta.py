@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Kinematics
+from .base import Kinematics, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
@@ -59,7 +59,7 @@ class RotaryDelta(Kinematics):
         with np.errstate(invalid="ignore", divide="ignore"):
             q = np.arctan2(b, a) - np.arccos(c / rho)
         q[~(np.abs(c) <= rho)] = np.nan
-        q[np.isnan(q).any(axis=1)] = np.nan
+        q[~np.all(np.isfinite(q), axis=1)] = np.nan
         return q
 
     def forward(self, q):
@@ -100,7 +100,7 @@ class RotaryDelta(Kinematics):
         """q: (N,3) rad -> (N,3,3) d(point)/d(q), mm/rad."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         a, b = self._closure(q, self.forward(q))
-        return -np.linalg.solve(a, b[:, :, None] * np.eye(3)[None])
+        return -solve_rows(a, b[:, :, None] * np.eye(3)[None])
 
     def inverse_jacobian(self, q):
         """q: (N,3) rad -> (N,3,3) d(q)/d(point), rad/mm; analytic, no matrix inverse."""

@@ -62,6 +62,10 @@ def _nested_reach(kin, z, radii, shape, n_angles=60):
 
     z: (nz,), radii: (nr,) increasing -> (nz,) float, mm."""
     t = np.linspace(0, 2 * np.pi, n_angles, endpoint=False)
+    if shape != "cylinder":
+        # The square's corners are where a convex region cuts it first: always sample them
+        # (60 even angles step 6 deg and miss 45 deg, which overstated the ETITC cube by 3 mm).
+        t = np.union1d(t, np.pi / 4 * np.array([1.0, 3.0, 5.0, 7.0]))
     if shape == "cylinder":
         ux, uy = np.cos(t), np.sin(t)
     else:  # unit square perimeter, parametrised by angle
@@ -69,7 +73,7 @@ def _nested_reach(kin, z, radii, shape, n_angles=60):
         ux, uy = np.cos(t) / m, np.sin(t) / m
     Zg, Rg, _ = np.meshgrid(z, radii, t, indexing="ij")
     pts = np.stack([Rg * ux[None, None], Rg * uy[None, None], Zg], axis=-1).reshape(-1, 3)
-    ok = kin.reachable(pts).reshape(len(z), len(radii), n_angles).all(axis=2)
+    ok = kin.reachable(pts).reshape(len(z), len(radii), len(t)).all(axis=2)
     # Count leading reachable rings: the first failure bounds the half-width.
     first_bad = np.where(ok.all(axis=1), len(radii), np.argmin(ok, axis=1))
     out = np.where(first_bad > 0, radii[np.maximum(first_bad - 1, 0)], 0.0)

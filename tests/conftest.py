@@ -1,0 +1,25 @@
+"""Shared helpers: the shipped printer files, loaded once."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import pytest
+
+from deltaslice.printer import load_printer
+
+ROOT = Path(__file__).resolve().parents[1]
+PRINTER_DIR = ROOT / "printers"
+PRINTER_NAMES = sorted(p.stem for p in PRINTER_DIR.glob("*.toml"))
+
+
+@functools.cache
+def printer(name: str):
+    """The shipped printer ``printers/<name>.toml`` (cached; Printer is frozen)."""
+    return load_printer(PRINTER_DIR / f"{name}.toml")
+
+
+@pytest.fixture(params=PRINTER_NAMES)
+def any_printer(request):
+    return printer(request.param)

@@ -1,0 +1,324 @@
+"""The kinematics contract (deltaslice/kinematics/base.py), checked on every family:
+the six shipped printers plus a Cartesian machine built here.
+
+Round trips to 1e-9 mm / rad, the Jacobian against finite differences of
+``forward``, ``inverse_jacobian @ jacobian == I``, the delta forward solutions
+against an independent least-squares solve of the closure equations, NaN and
+``reachable == False`` instead of exceptions, and batch == point by point.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from scipy.optimize import least_squares
+
+from deltaslice.kinematics import Cartesian, make_kinematics
+from deltaslice.kinematics.five_bar import FiveBar
+from deltaslice.kinematics.linear_delta import LinearDelta
+from deltaslice.kinematics.rotary_delta import RotaryDelta
+from deltaslice.printer import CartesianGeometry, RotaryDeltaGeometry
+
+from conftest import PRINTER_NAMES, printer
+
+SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+
+CARTESIAN = Cartesian(CartesianGeometry(offset_x=110.0, offset_y=-7.5, offset_z=3.0), [0.0, -120.0, 0.0], [220.0, 105.0, 200.0])
+CASES = PRINTER_NAMES + ["cartesian"]
+
+
+def kin_of(name):
+    return CARTESIAN if name == "cartesian" else printer(name).kinematics()
+
+
+def box_of(name):
+    """A box of tool points that mostly lies in the workspace: the bed up to max_height."""
+    if name == "cartesian":
+        return np.array([-110.0, -110.0, 0.0]), np.array([110.0, 110.0, 195.0])
+    bed = printer(name).bed
+    hx, hy = (bed.radius, bed.radius) if bed.shape == "circle" else (bed.size_x / 2, bed.size_y / 2)
+    return np.array([-hx, -hy, 0.0]), np.array([hx, hy, bed.max_height])
+
+
+def point_batches(lo, hi, max_size=12):
+    coord = [st.floats(float(a), float(b), allow_nan=False) for a, b in zip(lo, hi)]
+    return st.lists(st.tuples(*coord), min_size=1, max_size=max_size).map(lambda rows: np.array(rows, dtype=float))
+
+
+def reachable_batch(name, data):
+    """Draw a batch of points from the printer's box and keep the reachable ones."""
+    kin = kin_of(name)
+    pts = data.draw(point_batches(*box_of(name)))
+    ok = kin.reachable(pts)
+    assume(ok.any())
+    return kin, pts[ok]
+
+
+def fd_jacobian(kin, q, h=1e-6):
+    """Central finite differences of forward: (N,3,J)."""
+    out = np.empty((len(q), 3, q.shape[1]))
+    for j in range(q.shape[1]):
+        dq = np.zeros(q.shape[1])
+        dq[j] = h
+        out[:, :, j] = (kin.forward(q + dq) - kin.forward(q - dq)) / (2 * h)
+    return out
+
+
+# --------------------------------------------------------------------------- round trips
+
+
+@pytest.mark.parametrize("name", CASES)
+@SETTINGS
+@given(data=st.data())
+def test_forward_of_inverse_is_identity(name, data):
+    kin, pts = reachable_batch(name, data)
+    q = kin.inverse(pts)
+    assert np.all(np.isfinite(q))
+    assert np.max(np.abs(kin.forward(q) - pts)) <= 1e-9
+
+
+@pytest.mark.parametrize("name", CASES)
+@SETTINGS
+@given(data=st.data())
+def test_inverse_of_forward_is_identity(name, data):
+    kin = kin_of(name)
+    n = data.draw(st.integers(1, 12))
+    u = np.array(data.draw(st.lists(st.floats(0.0, 1.0), min_size=3 * n, max_size=3 * n))).reshape(n, 3)
+    q = kin.position_min + u * (kin.position_max - kin.position_min)
+    pts = kin.forward(q)
+    ok = np.all(np.isfinite(pts), axis=1)
+    ok[ok] = kin.reachable(pts[ok])
+    assume(ok.any())
+    assert np.max(np.abs(kin.inverse(pts[ok]) - q[ok])) <= 1e-9
+
+
+# --------------------------------------------------------------------------- Jacobians
+
+
+@pytest.mark.parametrize("name", CASES)
+@SETTINGS
+@given(data=st.data())
+def test_jacobian_matches_finite_differences(name, data):
+    kin, pts = reachable_batch(name, data)
+    q = kin.inverse(pts)
+    jac = kin.jacobian(q)
+    assert jac.shape == (len(q), 3, 3)
+    fd = fd_jacobian(kin, q)
+    scale = np.max(np.abs(jac), axis=(1, 2), keepdims=True)
+    assert np.all(np.abs(jac - fd) <= 1e-6 * scale)
+
+
+@pytest.mark.parametrize("name", CASES)
+@SETTINGS
+@given(data=st.data())
+def test_inverse_jacobian_times_jacobian_is_identity(name, data):
+    kin, pts = reachable_batch(name, data)
+    q = kin.inverse(pts)
+    prod = kin.inverse_jacobian(q) @ kin.jacobian(q)
+    assert np.max(np.abs(prod - np.eye(3))) <= 1e-9
+
+
+# --------------------------------------------------------------------------- independent forward solve
+
+
+def closure_residuals(kin, q):
+    """|E_i - B_i| - L per arm as a function of the tool point, written from the
+    geometry alone (no code of the kinematics module)."""
+    g = kin.geometry
+    ang = np.radians([0.0, 120.0, 240.0])
+    u = np.stack([np.cos(ang), np.sin(ang), np.zeros(3)], axis=1)
+    ez = np.array([0.0, 0.0, 1.0])
+    if isinstance(kin, RotaryDelta):
+        elbows = g.base_radius * u + g.shoulder_height * ez + g.upper_arm * (
+            np.cos(q)[:, None] * u - np.sin(q)[:, None] * ez
+        )
+        return lambda p: np.linalg.norm(elbows - (p + g.platform_radius * u + g.tool_offset * ez), axis=1) - g.forearm
+    carriages = g.delta_radius * u + q[:, None] * ez
+    return lambda p: np.linalg.norm(carriages - (p + g.tool_offset * ez), axis=1) - g.diagonal_rod
+
+
+def start_below_base(kin, q):
+    g = kin.geometry
+    if isinstance(kin, RotaryDelta):
+        return np.array([0.0, 0.0, g.shoulder_height - g.tool_offset - g.forearm])
+    return np.array([0.0, 0.0, q.min() - g.tool_offset - 0.7 * g.diagonal_rod])
+
+
+DELTAS = [n for n in PRINTER_NAMES if isinstance(printer(n).kinematics(), (RotaryDelta, LinearDelta))]
+
+
+@pytest.mark.parametrize("name", DELTAS)
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(data=st.data())
+def test_delta_forward_matches_numeric_solve(name, data):
+    kin, pts = reachable_batch(name, data)
+    qs = kin.inverse(pts)
+    ours = kin.forward(qs)
+    for q, p in zip(qs, ours):
+        sol = least_squares(closure_residuals(kin, q), start_below_base(kin, q), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        assert np.max(np.abs(sol.fun)) < 1e-9
+        assert np.max(np.abs(sol.x - p)) < 1e-7
+
+
+# --------------------------------------------------------------------------- unreachable: NaN, never an exception
+
+
+def _quiet(fn, *args):
+    """Call fn with every numpy warning turned into an error: on finite input, hot loops
+    must stay silent."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return fn(*args)
+
+
+def _no_raise(fn, *args):
+    """Call fn on NaN/inf input: warnings allowed, exceptions not."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return fn(*args)
+
+
+@pytest.mark.parametrize("name", CASES)
+@SETTINGS
+@given(data=st.data())
+def test_anywhere_no_exception_and_consistent_masks(name, data):
+    kin = kin_of(name)
+    coord = st.floats(-3000.0, 3000.0, allow_nan=False)
+    pts = np.array(data.draw(st.lists(st.tuples(coord, coord, coord), min_size=1, max_size=16)))
+    q = _quiet(kin.inverse, pts)
+    ok = _quiet(kin.reachable, pts)
+    assert q.shape == (len(pts), 3) and ok.dtype == bool and ok.shape == (len(pts),)
+    finite = np.isfinite(q)
+    assert np.all(finite.all(axis=1) | ~finite.any(axis=1)), "a row is all NaN or all finite"
+    assert not np.any(ok & ~finite.all(axis=1)), "NaN inverse must be unreachable"
+    assert np.all(kin.within_joint_limits(q[ok]))
+    if ok.any():  # where reachable, forward and both Jacobians are finite
+        qq = q[ok]
+        assert np.all(np.isfinite(_quiet(kin.forward, qq)))
+        assert np.all(np.isfinite(_quiet(kin.jacobian, qq)))
+        assert np.all(np.isfinite(_quiet(kin.inverse_jacobian, qq)))
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_far_and_invalid_points(name):
+    kin = kin_of(name)
+    pts = np.array(
+        [
+            [1e5, 0.0, 0.0],
+            [0.0, -1e5, 50.0],
+            [0.0, 0.0, 1e5] if name != "cartesian" else [0.0, 0.0, -1e5],
+            [np.nan, 0.0, 0.0],
+            [0.0, np.inf, 0.0],
+            [0.0, 0.0, -np.inf],
+        ]
+    )
+    q = _no_raise(kin.inverse, pts)
+    ok = _no_raise(kin.reachable, pts)
+    assert not ok.any()
+    assert not _quiet(kin.reachable, pts[:3]).any()
+    if name != "cartesian":  # a Cartesian machine's inverse is defined everywhere; only its limits refuse
+        assert np.all(np.isnan(q[:2]))  # (a prismatic z axis reaches any height; its limits refuse 1e5)
+    assert np.all(np.isnan(q[3:]))
+    bad_q = np.array([[np.nan, 0.0, 0.0], [0.0, np.inf, 0.0]])
+    assert np.all(np.isnan(_no_raise(kin.forward, bad_q)))
+    assert np.all(np.isinf(_no_raise(kin.condition, bad_q)))
+    assert _quiet(kin.reachable, np.empty((0, 3))).shape == (0,)
+
+
+def test_rotary_forward_nan_where_forearms_cannot_meet():
+    # Forearms (40 mm) shorter than the distance from the axis to the sphere centres (85 mm).
+    g = RotaryDeltaGeometry(base_radius=60.0, platform_radius=35.0, upper_arm=60.0, forearm=40.0, shoulder_height=110.0)
+    kin = make_kinematics(g, np.radians([-90.0] * 3), np.radians([90.0] * 3))
+    assert np.all(np.isnan(_quiet(kin.forward, np.zeros((2, 3)))))
+    assert not _quiet(kin.reachable, np.array([[0.0, 0.0, -60.0]])).any()  # 162 mm from a shoulder > 100
+    assert _quiet(kin.reachable, np.array([[0.0, 0.0, 50.0]])).all()
+
+
+# --------------------------------------------------------------------------- vectorisation
+
+
+@pytest.mark.parametrize("name", CASES)
+@settings(max_examples=15, deadline=None)
+@given(data=st.data())
+def test_batch_equals_point_by_point(name, data):
+    kin = kin_of(name)
+    lo, hi = box_of(name)
+    pad = 0.3 * (hi - lo)  # reach past the box so some rows are unreachable
+    pts = data.draw(point_batches(lo - pad, hi + pad, max_size=10))
+    q = kin.inverse(pts)
+    ok = kin.reachable(pts)
+    for i in range(len(pts)):
+        one = pts[i : i + 1]
+        np.testing.assert_allclose(kin.inverse(one)[0], q[i], rtol=1e-13, atol=1e-12)
+        assert kin.reachable(one)[0] == ok[i]
+    good = np.all(np.isfinite(q), axis=1)
+    qg = q[good]
+    batch = {f: getattr(kin, f)(qg) for f in ("forward", "jacobian", "inverse_jacobian", "condition")}
+    for i in range(len(qg)):
+        for f, value in batch.items():
+            np.testing.assert_allclose(getattr(kin, f)(qg[i : i + 1])[0], value[i], rtol=1e-12, atol=1e-12)
+
+
+# --------------------------------------------------------------------------- source numbers and regressions
+
+
+@pytest.mark.parametrize(
+    "deg, thesis_z",
+    [(0.0, 291.6830), (0.2929, 292.5844), (0.087, 291.9504), (0.061, 291.8705)],
+)
+def test_etitc_thesis_platform_heights(deg, thesis_z):
+    """ETITC sec. 8.4.5: all three joints at deg move the platform centre to thesis Z
+    (origin at the base centre, Z down, platform plane)."""
+    p = printer("delta_etitc")
+    g = p.geometry
+    pt = p.kinematics().forward(np.radians([[deg, deg, deg]]))[0]
+    assert abs(pt[0]) < 1e-9 and abs(pt[1]) < 1e-9
+    assert abs((g.shoulder_height - pt[2] - g.tool_offset) - thesis_z) < 1e-3
+
+
+def test_etitc_thesis_steps():
+    """The resolution steps the thesis quotes: 0.90, 0.2674, 0.1875 mm along the axis."""
+    kin = printer("delta_etitc").kinematics()
+    z = kin.forward(np.radians([[0.0] * 3, [0.2929] * 3, [0.087] * 3, [0.061] * 3]))[:, 2]
+    steps = z[0] - z[1:]
+    np.testing.assert_allclose(steps, [0.9014, 0.2674, 0.1875], atol=1e-3)
+
+
+def test_five_bar_forward_keeps_the_assembly_mode():
+    """Regression: the same joint angles served two points (the two assembly modes),
+    and forward picked the one behind the motors, ~378 mm from the point asked for."""
+    kin = printer("fivebar_atlas").kinematics()
+    p = np.array([[0.17209363, 146.84703378, 20.0]])
+    assert kin.reachable(p)[0]
+    np.testing.assert_allclose(kin.forward(kin.inverse(p)), p, atol=1e-9)
+    # The mirror point of the other assembly mode has the same joint angles under the
+    # same working mode: it is not the machine's and is unreachable.
+    mirror = np.array([[0.0579238564, -231.173904, 20.0]])
+    np.testing.assert_allclose(kin.inverse(mirror)[:, :2], kin.inverse(p)[:, :2], atol=1e-6)
+    assert not kin.reachable(mirror)[0]
+    assert isinstance(kin, FiveBar) and kin.assembly in (1.0, -1.0)
+
+
+def test_linear_delta_forward_never_puts_a_carriage_below_the_effector():
+    """Regression: forward returned points whose rods ran up from a low carriage, so
+    inverse(forward(q)) != q for about half of the joint box of the Kossel."""
+    kin = printer("linear_kossel").kinematics()
+    rng = np.random.default_rng(3)
+    q = kin.position_min + rng.random((4000, 3)) * (kin.position_max - kin.position_min)
+    pts = kin.forward(q)
+    good = np.all(np.isfinite(pts), axis=1)
+    assert good.any() and not good.all()
+    assert np.all(q[good] - pts[good, 2:3] - kin.t > 0)
+    np.testing.assert_allclose(kin.inverse(pts[good]), q[good], atol=1e-9)
+    assert isinstance(kin, LinearDelta)
+
+
+def test_cartesian_is_an_offset():
+    q = CARTESIAN.inverse(np.array([[1.0, 2.0, 3.0]]))
+    np.testing.assert_allclose(q, [[111.0, -5.5, 6.0]])
+    assert math.isclose(CARTESIAN.condition(q)[0], 1.0)
