@@ -180,7 +180,7 @@ def _varint(value: int) -> bytes:
 def _read_varint(buf: bytes, pos: int, end: int) -> tuple[int, int]:
     value, shift = 0, 0
     while True:
-        if pos >= end or shift > 35:
+        if pos >= end or shift > 28:  # at most 5 bytes (32 bits)
             raise ValueError("bad varint")
         b = buf[pos]
         pos += 1
