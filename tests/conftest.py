@@ -1,13 +1,16 @@
-"""Shared helpers: the shipped printer files, loaded once."""
+"""Shared helpers: the shipped printer files, loaded once; tests/ on sys.path for helper modules."""
 
 from __future__ import annotations
 
 import functools
+import sys
 from pathlib import Path
 
 import pytest
 
-from deltaslice.printer import load_printer
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from deltaslice.printer import load_printer  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PRINTER_DIR = ROOT / "printers"

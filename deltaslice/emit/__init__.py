@@ -1,0 +1,79 @@
+"""Emit: write a planned trajectory as setpoints CSV or a binary stream, and read either back.
+
+* :func:`format_for` picks the format from the output file's extension,
+* :func:`write_trajectory` takes the planner's ``Trajectory`` (``iter_samples(rate)``,
+  ``metadata()``) and calls :func:`write_samples`,
+* :func:`write_samples` writes any iterable of :class:`~deltaslice.samples.Samples`
+  blocks (consecutive, uniform at ``rate`` from t = 0), block by block, atomically,
+* :func:`read_output` reads a CSV or stream back as ``(metadata, Samples)``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import DeltasliceError, StreamError
+
+FORMATS = ("csv", "stream", "gcode")
+SUFFIXES = {
+    ".csv": "csv",
+    ".dsl": "stream",
+    ".stream": "stream",
+    ".gcode": "gcode",
+    ".gco": "gcode",
+    ".g": "gcode",
+    ".nc": "gcode",
+}
+STREAM_MAGIC = b"\x89DSL\r\n\x1a\n"
+
+
+def format_for(path) -> str:
+    """"csv" | "stream" | "gcode" from the output file's extension."""
+    suffix = Path(str(path)).suffix.lower()
+    try:
+        return SUFFIXES[suffix]
+    except KeyError:
+        raise DeltasliceError(
+            f"{path}: cannot tell the output format from {suffix or '(no extension)'!r}: use .csv (setpoints), "
+            ".dsl or .stream (binary stream), .gcode, or --format csv|stream|gcode"
+        ) from None
+
+
+def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
+    """Write consecutive Samples blocks to ``output`` as ``fmt`` ("csv" or "stream").
+
+    The file appears only when complete (temp file + rename). Returns bytes written."""
+    if fmt == "csv":
+        from .csv import write_csv
+
+        return write_csv(blocks, printer, output, rate=rate, metadata=metadata)
+    if fmt == "stream":
+        from .stream import write_stream
+
+        return write_stream(blocks, printer, output, rate=rate, metadata=metadata)
+    raise DeltasliceError(f"cannot write samples as {fmt!r}: expected 'csv' or 'stream'")
+
+
+def write_trajectory(trajectory, printer, output, fmt: str | None = None) -> int:
+    """Sample a planned trajectory at the printer's output rate and write it."""
+    fmt = fmt or format_for(output)
+    rate = printer.planning.output_rate
+    metadata = dict(trajectory.metadata()) if hasattr(trajectory, "metadata") else {}
+    metadata.setdefault("duration_s", f"{trajectory.duration:.6f}")
+    return write_samples(trajectory.iter_samples(rate), printer, output, fmt=fmt, rate=rate, metadata=metadata)
+
+
+def read_output(path):
+    """(metadata dict, Samples) of a setpoints CSV or a binary stream (sniffed by content)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(STREAM_MAGIC))
+    except OSError as exc:
+        raise StreamError(f"{path}: cannot read: {exc}") from None
+    if head == STREAM_MAGIC:
+        from .stream import read_stream
+
+        return read_stream(path)
+    from .csv import read_csv
+
+    return read_csv(path)

@@ -1,0 +1,147 @@
+"""Setpoints CSV: one row per sample, joint units, written block by block.
+
+Layout (the binary stream's ``decode --units`` prints exactly this)::
+
+    # deltaslice setpoints v1
+    # printer: delta_etitc
+    # fingerprint: 0x6b02c06b
+    # rate_hz: 1000
+    # columns: t s, q1 rad, q2 rad, q3 rad, e mm, tool 0..1
+    # planner: toppra                     <- planner metadata, one "# key: value" each
+    t,q1,q2,q3,e,tool
+    0.000000000,1.0180981100,1.0180981100,1.0180981100,0.0000000000,0.000000000
+
+t in s with 9 decimals, joints (rad or mm) and e (mm of filament, cumulative)
+with 10 decimals (round trip within 5e-11), tool (0 off, 1 extruding, or laser
+power 0..1) with 9 decimals.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+from ..errors import StreamError
+from ..samples import Samples
+from ._atomic import atomic_output
+
+TITLE = "deltaslice setpoints v1"
+RESERVED = ("printer", "fingerprint", "rate_hz", "columns")
+
+
+def column_names(n_joints: int) -> list[str]:
+    return ["t", *[f"q{j + 1}" for j in range(n_joints)], "e", "tool"]
+
+
+def check_metadata(metadata: dict) -> dict[str, str]:
+    """Metadata as str -> str, one line each; keys are words (no ':', '=', spaces)."""
+    out = {}
+    for k, v in (metadata or {}).items():
+        k, v = str(k), str(v)
+        if not k or any(c in k for c in ":=# \t\r\n") or k in RESERVED:
+            raise StreamError(f"metadata key {k!r}: expected a word without ':', '=', '#' or spaces, not one of {RESERVED}")
+        out[k] = " ".join(v.split())
+    return out
+
+
+def comment_lines(printer_name: str, fingerprint: int, rate: float, joint_units: list[str], metadata: dict) -> str:
+    """The ``#`` lines and the header row."""
+    names = column_names(len(joint_units))
+    units = ["s", *joint_units, "mm", "0..1"]
+    lines = [
+        f"# {TITLE}",
+        f"# printer: {printer_name}",
+        f"# fingerprint: 0x{fingerprint & 0xFFFFFFFF:08x}",
+        f"# rate_hz: {rate:.10g}",
+        "# columns: " + ", ".join(f"{n} {u}" for n, u in zip(names, units)),
+    ]
+    lines += [f"# {k}: {v}" for k, v in check_metadata(metadata).items()]
+    lines.append(",".join(names))
+    return "\n".join(lines) + "\n"
+
+
+def format_rows(t, q, e, tool) -> str:
+    """Rows of the CSV for arrays t (n,), q (n,J), e (n,), tool (n,)."""
+    n, nj = q.shape
+    if n == 0:
+        return ""
+    table = np.empty((n, nj + 3))
+    table[:, 0] = t
+    table[:, 1 : nj + 1] = q
+    table[:, nj + 1] = e
+    table[:, nj + 2] = tool
+    row = "%.9f," + "%.10f," * (nj + 1) + "%.9f\n"
+    return (row * n) % tuple(table.ravel().tolist())
+
+
+def check_finite(samples: Samples, first_index: int) -> None:
+    for name in ("t", "q", "e", "tool"):
+        arr = getattr(samples, name)
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            i = int(np.flatnonzero(bad.reshape(len(arr), -1).any(axis=1))[0])
+            raise StreamError(f"sample {first_index + i}: non-finite {name} value: the trajectory cannot be written")
+
+
+def write_csv(blocks, printer, output, *, rate: float, metadata: dict | None = None) -> int:
+    """Write Samples blocks as setpoints CSV, atomically. Returns bytes written."""
+    units = [j.unit for j in printer.joints]
+    header = comment_lines(printer.name, printer.fingerprint(), rate, units, metadata or {})
+    size = 0
+    index = 0
+    with atomic_output(output, "wb") as f:
+        data = header.encode()
+        f.write(data)
+        size += len(data)
+        for samples in blocks:
+            if samples.n_joints != printer.n_joints:
+                raise StreamError(f"samples have {samples.n_joints} joints, printer {printer.name} has {printer.n_joints}")
+            check_finite(samples, index)
+            data = format_rows(samples.t, samples.q, samples.e, samples.tool).encode()
+            f.write(data)
+            size += len(data)
+            index += len(samples)
+    return size
+
+
+def parse_comments(lines: list[str]) -> dict[str, str]:
+    meta = {}
+    for line in lines:
+        body = line[1:].strip()
+        if ":" in body:
+            k, v = body.split(":", 1)
+            meta[k.strip()] = v.strip()
+    return meta
+
+
+def read_csv(path) -> tuple[dict[str, str], Samples]:
+    """(metadata, Samples) of a setpoints CSV. Raises StreamError on a malformed file."""
+    try:
+        text = open(path, encoding="utf-8").read()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StreamError(f"{path}: cannot read setpoints CSV: {exc}") from None
+    comments, pos = [], 0
+    while text.startswith("#", pos):
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end
+        comments.append(text[pos:end])
+        pos = end + 1
+    end = text.find("\n", pos)
+    header = text[pos : (len(text) if end < 0 else end)].strip()
+    names = header.split(",")
+    if len(names) < 4 or names[0] != "t" or names[-2:] != ["e", "tool"]:
+        raise StreamError(f"{path}: line {len(comments) + 1}: expected the header row t,q1,...,qJ,e,tool, got {header[:80]!r}")
+    ncol = len(names)
+    body = text[end + 1 :] if end >= 0 else ""
+    try:
+        table = np.loadtxt(io.StringIO(body), delimiter=",", dtype=float, ndmin=2)
+    except ValueError as exc:
+        raise StreamError(f"{path}: malformed setpoint row: {exc}") from None
+    if table.size == 0:
+        table = np.zeros((0, ncol))
+    if table.shape[1] != ncol:
+        raise StreamError(f"{path}: rows have {table.shape[1]} columns, the header names {ncol}")
+    meta = parse_comments(comments)
+    meta["format"] = "csv"
+    return meta, Samples(table[:, 0], table[:, 1:-2], table[:, -2], table[:, -1])

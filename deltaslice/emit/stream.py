@@ -1,0 +1,612 @@
+"""The deltaslice binary setpoint stream (``.dsl``): encoder, decoder, text dump.
+
+The format is specified in ``docs/stream-format.md``; this module is its
+reference implementation and ``examples/firmware/dsl_player.h`` the C one.
+In short: a header (magic, version, printer fingerprint, rate, channels with
+kind and scale, printer name, metadata, CRC-32), then self-contained blocks of
+integer actuator counts (per block and channel: first value, optional first
+difference, then bit-packed zig-zag residuals of first or second differences at
+one bit width, CRC-32 per block, at most 512 bytes per block record), then an
+end record with the sample count and a CRC-32 of everything before it.
+
+Encoding and decoding are vectorised per block with numpy.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import StreamError
+from ..samples import Samples, to_counts
+from . import csv as csvfmt
+from ._atomic import atomic_output
+
+MAGIC = b"\x89DSL\r\n\x1a\n"
+VERSION = 1
+MAX_RECORD = 512  # bytes: the player's block buffer (DSL_MAX_RECORD in dsl_player.h)
+MAX_CHANNELS = 8
+BLOCK_SAMPLES = 512  # nominal samples per block; halved until the record fits MAX_RECORD
+COUNT_LIMIT = 1 << 29  # |counts| must stay below this (int32 arithmetic in the player)
+
+REC_BLOCK = 0x42  # 'B'
+REC_END = 0x45  # 'E'
+END_LEN = 15
+
+KIND_REVOLUTE, KIND_PRISMATIC, KIND_EXTRUDER, KIND_LASER = 1, 2, 3, 4
+KIND_NAMES = {KIND_REVOLUTE: "revolute", KIND_PRISMATIC: "prismatic", KIND_EXTRUDER: "extruder", KIND_LASER: "laser"}
+KIND_UNITS = {KIND_REVOLUTE: "rad", KIND_PRISMATIC: "mm", KIND_EXTRUDER: "mm", KIND_LASER: "0..1"}
+
+_FIXED = struct.Struct("<8sHHIIBBH")  # magic, version, header_len, fingerprint, rate_mhz, channels, flags, max_record
+_CHANNEL = struct.Struct("<Bdd")  # kind, counts_per_unit, zero_count
+
+
+# --------------------------------------------------------------------------- header
+
+
+@dataclass(frozen=True)
+class Channel:
+    kind: int
+    counts_per_unit: float
+    zero_count: float
+
+    @property
+    def kind_name(self) -> str:
+        return KIND_NAMES[self.kind]
+
+
+@dataclass(frozen=True)
+class StreamHeader:
+    fingerprint: int
+    rate_mhz: int
+    channels: tuple[Channel, ...]
+    printer_name: str
+    metadata: dict = field(default_factory=dict)
+    max_record: int = MAX_RECORD
+    flags: int = 0
+
+    @property
+    def rate(self) -> float:
+        """Samples per second."""
+        return self.rate_mhz / 1000.0
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.channels)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.channels) - 1
+
+    @property
+    def is_laser(self) -> bool:
+        return self.channels[-1].kind == KIND_LASER
+
+    def encode(self) -> bytes:
+        name = self.printer_name.encode("utf-8")[:255]
+        meta = "".join(f"{k}={v}\n" for k, v in csvfmt.check_metadata(self.metadata).items()).encode("utf-8")
+        if len(meta) > 0xFFFF:
+            raise StreamError(f"stream metadata too long ({len(meta)} bytes, at most 65535)")
+        body = b"".join(_CHANNEL.pack(c.kind, c.counts_per_unit, c.zero_count) for c in self.channels)
+        body += bytes([len(name)]) + name + struct.pack("<H", len(meta)) + meta
+        total = _FIXED.size + len(body) + 4
+        if total > 0xFFFF:
+            raise StreamError(f"stream header too long ({total} bytes)")
+        fixed = _FIXED.pack(MAGIC, VERSION, total, self.fingerprint & 0xFFFFFFFF, self.rate_mhz,
+                            len(self.channels), self.flags, self.max_record)
+        data = fixed + body
+        return data + struct.pack("<I", zlib.crc32(data))
+
+    @classmethod
+    def for_printer(cls, printer, rate: float, metadata: dict | None = None) -> "StreamHeader":
+        rate_mhz = int(round(rate * 1000.0))
+        if not 1 <= rate_mhz <= 0xFFFFFFFF:
+            raise StreamError(f"sample rate {rate:g} Hz cannot be stored (0.001 Hz .. 4.29 MHz)")
+        chans = [
+            Channel(KIND_REVOLUTE if j.kind == "revolute" else KIND_PRISMATIC, float(j.counts_per_unit), float(j.zero_count))
+            for j in printer.joints
+        ]
+        if printer.is_laser:
+            chans.append(Channel(KIND_LASER, float(printer.tool.power_counts), 0.0))
+        else:
+            chans.append(Channel(KIND_EXTRUDER, float(printer.tool.counts_per_mm), 0.0))
+        if len(chans) > MAX_CHANNELS:
+            raise StreamError(f"{len(chans)} channels: the stream holds at most {MAX_CHANNELS}")
+        return cls(printer.fingerprint(), rate_mhz, tuple(chans), printer.name, dict(metadata or {}))
+
+
+def parse_header(data: bytes, where: str = "stream") -> StreamHeader:
+    """Parse and check a complete header (``data`` holds at least header_len bytes)."""
+    if len(data) < _FIXED.size:
+        raise StreamError(f"{where}: truncated header: {len(data)} bytes, expected at least {_FIXED.size}")
+    magic, version, hlen, fp, rate_mhz, nch, flags, max_record = _FIXED.unpack_from(data)
+    if magic != MAGIC:
+        raise StreamError(f"{where}: not a deltaslice stream (bad magic {magic!r} at byte offset 0)")
+    if version != VERSION:
+        raise StreamError(f"{where}: stream format version {version} is not supported (this reader knows {VERSION})")
+    if len(data) < hlen:
+        raise StreamError(f"{where}: truncated header: {len(data)} bytes, header length is {hlen}")
+    stored = struct.unpack_from("<I", data, hlen - 4)[0]
+    if zlib.crc32(data[: hlen - 4]) != stored:
+        raise StreamError(f"{where}: header CRC mismatch (bytes 0..{hlen - 1}): the header is corrupt")
+    if not 2 <= nch <= MAX_CHANNELS or rate_mhz == 0 or max_record > MAX_RECORD:
+        raise StreamError(f"{where}: header holds invalid values (channels {nch}, rate {rate_mhz} mHz, max record {max_record})")
+    pos = _FIXED.size
+    chans = []
+    for _ in range(nch):
+        kind, cpu, zero = _CHANNEL.unpack_from(data, pos)
+        if kind not in KIND_NAMES or not cpu > 0:
+            raise StreamError(f"{where}: header byte offset {pos}: invalid channel kind {kind} or scale {cpu}")
+        chans.append(Channel(kind, cpu, zero))
+        pos += _CHANNEL.size
+    nlen = data[pos]
+    name = data[pos + 1 : pos + 1 + nlen].decode("utf-8", "replace")
+    pos += 1 + nlen
+    (mlen,) = struct.unpack_from("<H", data, pos)
+    meta_text = data[pos + 2 : pos + 2 + mlen].decode("utf-8", "replace")
+    meta = dict(line.split("=", 1) for line in meta_text.splitlines() if "=" in line)
+    return StreamHeader(fp, rate_mhz, tuple(chans), name, meta, max_record, flags)
+
+
+# --------------------------------------------------------------------------- block codec
+
+
+def zigzag(v: np.ndarray) -> np.ndarray:
+    """int64 -> uint64: 0, -1, 1, -2, 2 ... -> 0, 1, 2, 3, 4 ..."""
+    v = np.asarray(v, dtype=np.int64)
+    return ((v << 1) ^ (v >> 63)).view(np.uint64)
+
+
+def unzigzag(u: np.ndarray) -> np.ndarray:
+    u = np.asarray(u, dtype=np.uint64)
+    return ((u >> np.uint64(1)).view(np.int64)) ^ (-(u & np.uint64(1)).view(np.int64))
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        b = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def _read_varint(buf: bytes, pos: int, end: int) -> tuple[int, int]:
+    value, shift = 0, 0
+    while True:
+        if pos >= end or shift > 28:  # at most 5 bytes (32 bits)
+            raise ValueError("bad varint")
+        b = buf[pos]
+        pos += 1
+        value |= (b & 0x7F) << shift
+        shift += 7
+        if not b & 0x80:
+            return value, pos
+
+
+def _zz1(v: int) -> int:
+    return 2 * v if v >= 0 else -2 * v - 1
+
+
+def _unzz1(u: int) -> int:
+    return (u >> 1) ^ -(u & 1)
+
+
+def _bitlen(u: np.ndarray) -> int:
+    return int(u.max()).bit_length() if u.size else 0
+
+
+def _plan_block(x: np.ndarray, orders=(1, 2)):
+    """Per channel: (order, width, residuals uint64 (n-1,), v0). x: (n, C) int64.
+    ``orders`` restricts the choice (for measurements)."""
+    n, nch = x.shape
+    plans = []
+    d1 = np.diff(x, axis=0)  # (n-1, C)
+    for c in range(nch):
+        r1 = zigzag(d1[:, c])
+        w1 = _bitlen(r1) if (1 in orders or n < 3) else 99
+        if n >= 3 and 2 in orders:
+            r2 = np.empty(n - 1, dtype=np.uint64)
+            r2[0] = 0
+            r2[1:] = zigzag(np.diff(d1[:, c]))
+            w2 = _bitlen(r2)
+        else:
+            w2 = 99
+        if w2 < w1:
+            plans.append((2, w2, r2, int(d1[0, c])))
+        else:
+            plans.append((1, w1, r1, 0))
+    return plans
+
+
+def _record_size(n: int, x0: np.ndarray, plans) -> int:
+    size = 1 + 2 + 2 + 4  # type, length, count, crc
+    for c, (order, width, _r, v0) in enumerate(plans):
+        size += 1 + len(_varint(_zz1(int(x0[c]))))
+        if order == 2:
+            size += len(_varint(_zz1(v0)))
+    bits = (n - 1) * sum(p[1] for p in plans)
+    return size + (bits + 7) // 8
+
+
+def _pack(plans, n: int) -> bytes:
+    """Sample-major LSB-first bit packing of the residual rows."""
+    widths = [p[1] for p in plans]
+    row_bits = sum(widths)
+    if row_bits == 0 or n < 2:
+        return b""
+    if row_bits <= 64:
+        rows = np.zeros(n - 1, dtype=np.uint64)
+        off = 0
+        for order, w, r, _ in plans:
+            if w:
+                rows |= r << np.uint64(off)
+                off += w
+        bits = np.unpackbits(rows.astype("<u8").view(np.uint8).reshape(n - 1, 8), axis=1, bitorder="little")[:, :row_bits]
+    else:
+        cols = []
+        for order, w, r, _ in plans:
+            if w:
+                cols.append(((r[:, None] >> np.arange(w, dtype=np.uint64)) & np.uint64(1)).astype(np.uint8))
+        bits = np.concatenate(cols, axis=1)
+    return np.packbits(bits.ravel(), bitorder="little").tobytes()
+
+
+def encode_block(x: np.ndarray) -> bytes:
+    """One block record for counts x (n, C) int64, 1 <= n <= 65535. May exceed MAX_RECORD
+    (callers split: see :func:`encode_blocks`)."""
+    return _assemble(x, _plan_block(x))
+
+
+def _assemble(x, plans) -> bytes:
+    n = len(x)
+    head = bytearray()
+    for c, (order, width, _r, v0) in enumerate(plans):
+        head.append((order << 6) | width)
+        head += _varint(_zz1(int(x[0, c])))
+        if order == 2:
+            head += _varint(_zz1(v0))
+    payload = _pack(plans, n)
+    length = 1 + 2 + 2 + len(head) + len(payload) + 4
+    if length > 0xFFFF:
+        raise StreamError(f"block of {n} samples needs {length} bytes: too large")
+    rec = bytes([REC_BLOCK]) + struct.pack("<HH", length, n) + bytes(head) + payload
+    return rec + struct.pack("<I", zlib.crc32(rec))
+
+
+def encode_blocks(counts: np.ndarray, block_samples: int = BLOCK_SAMPLES, max_record: int = MAX_RECORD,
+                  orders=(1, 2)) -> list[bytes]:
+    """Block records for counts (n, C): nominal ``block_samples`` per block, halved
+    until each record fits ``max_record`` bytes."""
+    counts = np.asarray(counts, dtype=np.int64)
+    out: list[bytes] = []
+    stack = [(i, min(i + block_samples, len(counts))) for i in range(0, len(counts), block_samples)]
+    stack.reverse()
+    while stack:
+        a, b = stack.pop()
+        x = counts[a:b]
+        plans = _plan_block(x, orders)
+        if _record_size(b - a, x[0], plans) > max_record:
+            if b - a == 1:
+                raise StreamError(f"one sample of {counts.shape[1]} channels does not fit a {max_record}-byte block")
+            m = (a + b) // 2
+            stack += [(m, b), (a, m)]
+            continue
+        out.append(_assemble(x, plans))
+    return out
+
+
+def decode_block(rec: bytes, n_channels: int) -> np.ndarray:
+    """Counts (n, C) int64 of one block record whose CRC was checked. Raises ValueError
+    when its inner structure is inconsistent."""
+    length, n = struct.unpack_from("<HH", rec, 1)
+    end = length - 4
+    pos = 5
+    plans = []
+    for _c in range(n_channels):
+        if pos >= end:
+            raise ValueError("channel headers run past the record")
+        mode = rec[pos]
+        pos += 1
+        order, width = mode >> 6, mode & 0x3F
+        if order not in (1, 2) or width > 32:
+            raise ValueError(f"invalid channel mode byte 0x{mode:02x}")
+        x0, pos = _read_varint(rec, pos, end)
+        v0 = 0
+        if order == 2:
+            v0, pos = _read_varint(rec, pos, end)
+        plans.append((order, width, _unzz1(x0), _unzz1(v0)))
+    if n < 1:
+        raise ValueError("block holds no samples")
+    row_bits = sum(p[1] for p in plans)
+    need = ((n - 1) * row_bits + 7) // 8
+    if end - pos != need:
+        raise ValueError(f"payload is {end - pos} bytes, {need} expected for {n} samples of {row_bits} bits")
+    out = np.empty((n, n_channels), dtype=np.int64)
+    if row_bits and n > 1:
+        bits = np.unpackbits(np.frombuffer(rec, dtype=np.uint8, count=need, offset=pos), bitorder="little")
+        bits = bits[: (n - 1) * row_bits].reshape(n - 1, row_bits)
+    off = 0
+    for c, (order, width, x0, v0) in enumerate(plans):
+        if width and n > 1:
+            weights = np.uint64(1) << np.arange(width, dtype=np.uint64)
+            r = unzigzag((bits[:, off : off + width].astype(np.uint64) * weights).sum(axis=1, dtype=np.uint64))
+            off += width
+        else:
+            r = np.zeros(n - 1, dtype=np.int64)
+        if order == 2:
+            r = v0 + np.cumsum(r)
+        out[0, c] = x0
+        out[1:, c] = x0 + np.cumsum(r)
+    return out
+
+
+# --------------------------------------------------------------------------- writer
+
+
+class StreamWriter:
+    """Encodes Samples blocks to an open binary file; :meth:`close` writes the end record."""
+
+    def __init__(self, f, printer, rate: float, metadata: dict | None = None, block_samples: int = BLOCK_SAMPLES):
+        self.f = f
+        self.printer = printer
+        self.header = StreamHeader.for_printer(printer, rate, metadata)
+        self.rate = self.header.rate
+        self.block_samples = block_samples
+        self.crc = 0
+        self.size = 0
+        self.n_samples = 0  # samples received
+        self.n_written = 0  # samples in written blocks
+        self.pending = np.zeros((0, self.header.n_channels), dtype=np.int64)
+        self._put(self.header.encode())
+
+    def _put(self, data: bytes) -> None:
+        self.f.write(data)
+        self.crc = zlib.crc32(data, self.crc)
+        self.size += len(data)
+
+    def write(self, samples: Samples) -> None:
+        if samples.n_joints != self.printer.n_joints:
+            raise StreamError(f"samples have {samples.n_joints} joints, printer {self.printer.name} has {self.printer.n_joints}")
+        if len(samples) == 0:
+            return
+        csvfmt.check_finite(samples, self.n_samples)
+        expect = (self.n_samples + np.arange(len(samples))) / self.rate
+        off = np.abs(samples.t - expect)
+        if off.max() > 1e-3 / self.rate:
+            i = int(np.argmax(off > 1e-3 / self.rate))
+            raise StreamError(
+                f"sample {self.n_samples + i}: t = {samples.t[i]:.9f} s, expected {expect[i]:.9f} s: a stream holds "
+                f"samples uniformly spaced at {self.rate:g} Hz from t = 0"
+            )
+        counts = to_counts(self.printer, samples)
+        big = np.abs(counts) >= COUNT_LIMIT
+        if big.any():
+            i = int(np.flatnonzero(big.any(axis=1))[0])
+            raise StreamError(f"sample {self.n_samples + i}: actuator count {counts[i].tolist()} beyond +-2^29")
+        self.n_samples += len(samples)
+        pending = np.concatenate([self.pending, counts]) if len(self.pending) else counts
+        full = len(pending) // self.block_samples * self.block_samples
+        self._emit(pending[:full])
+        self.pending = pending[full:]
+
+    def _emit(self, counts):
+        if len(counts):
+            for rec in encode_blocks(counts, self.block_samples):
+                self._put(rec)
+            self.n_written += len(counts)
+
+    def close(self) -> int:
+        self._emit(self.pending)
+        self.pending = self.pending[:0]
+        body = bytes([REC_END]) + struct.pack("<HII", END_LEN, self.n_written, self.crc)
+        self._put(body + struct.pack("<I", zlib.crc32(body)))
+        return self.size
+
+
+def write_stream(blocks, printer, output, *, rate: float, metadata: dict | None = None,
+                 block_samples: int = BLOCK_SAMPLES) -> int:
+    """Write Samples blocks as a binary stream, atomically. Returns bytes written."""
+    with atomic_output(output, "wb") as f:
+        w = StreamWriter(f, printer, rate, metadata, block_samples)
+        for samples in blocks:
+            w.write(samples)
+        return w.close()
+
+
+# --------------------------------------------------------------------------- reader
+
+
+class StreamReader:
+    """Reads a stream from a binary file object. ``header`` after construction;
+    :meth:`blocks` yields ``(block_index, first_sample_index, counts (n, C) int64)``
+    and raises :class:`StreamError` at the first bad record, before yielding any
+    sample of it."""
+
+    def __init__(self, f, name: str = "stream"):
+        self.f = f
+        self.name = name
+        fixed = f.read(_FIXED.size)
+        if len(fixed) < 8 or fixed[:8] != MAGIC:
+            raise StreamError(f"{name}: not a deltaslice stream (bad magic at byte offset 0)")
+        if len(fixed) < _FIXED.size:
+            raise StreamError(f"{name}: truncated header ({len(fixed)} bytes)")
+        hlen = _FIXED.unpack(fixed)[2]
+        rest = f.read(max(0, hlen - _FIXED.size))
+        data = fixed + rest
+        self.header = parse_header(data, name)
+        self.offset = len(data)
+        self.crc = zlib.crc32(data)
+
+    def _fail(self, block: int, offset: int, what: str):
+        raise StreamError(f"{self.name}: block {block} at byte offset {offset}: {what}")
+
+    def blocks(self):
+        nch = self.header.n_channels
+        index, sample = 0, 0
+        while True:
+            at = self.offset
+            head = self.f.read(3)
+            if len(head) == 0:
+                self._fail(index, at, f"stream truncated: ends after {index} blocks ({sample} samples) without an end record")
+            if head[0] == REC_END:
+                rest = self.f.read(END_LEN - len(head))
+                rec = head + rest
+                if len(rec) < END_LEN:
+                    self._fail(index, at, "stream truncated inside the end record")
+                _t, length, total, stream_crc, crc = struct.unpack("<BHIII", rec)
+                if zlib.crc32(rec[:-4]) != crc or length != END_LEN:
+                    self._fail(index, at, "end record corrupt (CRC mismatch)")
+                if total != sample:
+                    self._fail(index, at, f"end record counts {total} samples, the blocks hold {sample}")
+                if stream_crc != self.crc:
+                    self._fail(index, at, f"whole-stream CRC mismatch (stored 0x{stream_crc:08x}, computed 0x{self.crc:08x})")
+                if self.f.read(1):
+                    self._fail(index, at + END_LEN, "unexpected bytes after the end record")
+                return
+            if head[0] != REC_BLOCK:
+                self._fail(index, at, f"unknown record type 0x{head[0]:02x} (corrupt or out of sync)")
+            if len(head) < 3:
+                self._fail(index, at, "stream truncated inside a block header")
+            length = struct.unpack_from("<H", head, 1)[0]
+            if not 5 + 2 * nch + 4 <= length <= self.header.max_record:
+                self._fail(index, at, f"block length {length} outside {5 + 2 * nch + 4}..{self.header.max_record} (corrupt)")
+            rest = self.f.read(length - 3)
+            rec = head + rest
+            if len(rec) < length:
+                self._fail(index, at, f"stream truncated inside the block ({len(rec)} of {length} bytes)")
+            stored = struct.unpack_from("<I", rec, length - 4)[0]
+            computed = zlib.crc32(memoryview(rec)[: length - 4])
+            if stored != computed:
+                self._fail(index, at, f"CRC mismatch (stored 0x{stored:08x}, computed 0x{computed:08x}): block is corrupt")
+            try:
+                counts = decode_block(rec, nch)
+            except ValueError as exc:
+                self._fail(index, at, f"inconsistent block: {exc}")
+            self.crc = zlib.crc32(rec, self.crc)
+            self.offset += length
+            yield index, sample, counts
+            index += 1
+            sample += len(counts)
+
+
+def open_stream(path) -> tuple[StreamReader, object]:
+    try:
+        f = open(path, "rb")
+    except OSError as exc:
+        raise StreamError(f"{path}: cannot open stream: {exc}") from None
+    try:
+        return StreamReader(f, str(path)), f
+    except BaseException:
+        f.close()
+        raise
+
+
+def read_counts(path) -> tuple[StreamHeader, np.ndarray]:
+    """Header and all counts (n, C) int64 of a stream file."""
+    reader, f = open_stream(path)
+    with f:
+        parts = [c for _i, _s, c in reader.blocks()]
+    counts = np.concatenate(parts) if parts else np.zeros((0, reader.header.n_channels), dtype=np.int64)
+    return reader.header, counts
+
+
+class UnitConverter:
+    """Counts -> Samples using only the stream header (carries the extruder's last
+    position across blocks so the derived tool column is continuous)."""
+
+    def __init__(self, header: StreamHeader):
+        self.h = header
+        ch = header.channels
+        self.cpu = np.array([c.counts_per_unit for c in ch[:-1]])
+        self.zero = np.array([c.zero_count for c in ch[:-1]])
+        self.last_e = None
+
+    def __call__(self, counts: np.ndarray, first: int) -> Samples:
+        h = self.h
+        n = len(counts)
+        t = (first + np.arange(n)) * 1000.0 / h.rate_mhz
+        q = (counts[:, :-1] - self.zero) / self.cpu
+        tool_ch = h.channels[-1]
+        if h.is_laser:
+            tool = counts[:, -1] / tool_ch.counts_per_unit
+            e = np.zeros(n)
+        else:
+            e = counts[:, -1] / tool_ch.counts_per_unit
+            prev = np.concatenate([[e[0] if self.last_e is None else self.last_e], e[:-1]])
+            tool = (e > prev).astype(float)
+            if n:
+                self.last_e = e[-1]
+        return Samples(t, q, e, tool)
+
+
+def read_stream(path) -> tuple[dict[str, str], Samples]:
+    """(metadata, Samples in joint units) of a stream file."""
+    header, counts = read_counts(path)
+    conv = UnitConverter(header)
+    meta = stream_metadata(header)
+    return meta, conv(counts, 0)
+
+
+def stream_metadata(header: StreamHeader) -> dict[str, str]:
+    meta = {
+        "format": "stream",
+        "printer": header.printer_name,
+        "fingerprint": f"0x{header.fingerprint:08x}",
+        "rate_hz": f"{header.rate:.10g}",
+        "channels": ", ".join(c.kind_name for c in header.channels),
+    }
+    meta.update(header.metadata)
+    return meta
+
+
+def format_count_lines(first: int, counts: np.ndarray) -> str:
+    """The text of ``deltaslice decode``: ``index c1 ... cC`` per sample, single spaces, '\\n'."""
+    n, nch = counts.shape
+    if n == 0:
+        return ""
+    table = np.empty((n, nch + 1), dtype=np.int64)
+    table[:, 0] = first + np.arange(n)
+    table[:, 1:] = counts
+    return (("%d " * nch + "%d\n") * n) % tuple(table.ravel().tolist())
+
+
+def decode_to_text(stream_path, out, units: bool = False, printer_path=None) -> int:
+    """Print a stream's samples to the text file ``out``; returns the sample count.
+
+    Without ``units``: one line per sample, ``index c1 ... cC`` (integer counts).
+    With ``units``: exactly the setpoints CSV format (see :mod:`deltaslice.emit.csv`).
+    Samples of blocks before a bad one are printed before the StreamError is raised.
+    """
+    reader, f = open_stream(stream_path)
+    with f:
+        h = reader.header
+        if printer_path is not None:
+            from ..printer import load_printer
+
+            printer = load_printer(printer_path)
+            if printer.fingerprint() != h.fingerprint:
+                raise StreamError(
+                    f"{stream_path}: stream compiled for printer {h.printer_name!r} (fingerprint 0x{h.fingerprint:08x}), "
+                    f"not {printer.name!r} (0x{printer.fingerprint():08x})"
+                )
+        conv = UnitConverter(h)
+        if units:
+            joint_units = [KIND_UNITS[c.kind] for c in h.channels[:-1]]
+            out.write(csvfmt.comment_lines(h.printer_name, h.fingerprint, h.rate, joint_units, h.metadata))
+        total = 0
+        for _i, first, counts in reader.blocks():
+            if units:
+                s = conv(counts, first)
+                out.write(csvfmt.format_rows(s.t, s.q, s.e, s.tool))
+            else:
+                out.write(format_count_lines(first, counts))
+            total += len(counts)
+        out.flush()
+        return total

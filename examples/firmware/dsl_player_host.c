@@ -1,0 +1,86 @@
+/*
+ * dsl_player_host.c - decode a deltaslice stream on a PC with the firmware's player.
+ *
+ *     cc -std=c99 -O2 -Wall -o dsl_player_host dsl_player_host.c
+ *     ./dsl_player_host part.dsl [--chunk N] [--buffers]   (or - for stdin)
+ *
+ * Prints exactly what `deltaslice decode part.dsl` prints: one line per sample,
+ * "index c1 ... cC". On a corrupt or truncated stream it prints the samples of the
+ * intact blocks before the damage, then a message on stderr, and exits 1
+ * (2: usage or I/O error). --chunk N feeds the player N bytes at a time (default
+ * 4096; 1 = byte by byte, as from a serial port).
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "dsl_player.h"
+
+static dsl_player player; /* static: ~600 bytes, as it would be in firmware */
+
+int main(int argc, char **argv)
+{
+    const char *path = NULL;
+    size_t chunk = 4096;
+    static uint8_t in[65536];
+    size_t avail = 0, off = 0;
+    int eof = 0, a;
+    FILE *f;
+
+    for (a = 1; a < argc; a++) {
+        if (strcmp(argv[a], "--chunk") == 0 && a + 1 < argc) {
+            chunk = (size_t)strtoul(argv[++a], NULL, 10);
+            if (chunk < 1 || chunk > sizeof in) chunk = sizeof in;
+        } else if (!path) {
+            path = argv[a];
+        } else {
+            path = NULL;
+            break;
+        }
+    }
+    if (!path) {
+        fprintf(stderr, "usage: %s STREAM.dsl [--chunk N]\n", argv[0]);
+        return 2;
+    }
+    f = strcmp(path, "-") == 0 ? stdin : fopen(path, "rb");
+    if (!f) {
+        fprintf(stderr, "error: %s: cannot open\n", path);
+        return 2;
+    }
+    dsl_init(&player);
+    for (;;) {
+        int32_t counts[DSL_MAX_CHANNELS];
+        int r, c;
+        while ((r = dsl_next(&player, counts)) == DSL_SAMPLE) {
+            printf("%lu", (unsigned long)(player.sample_index - 1));
+            for (c = 0; c < player.n_channels; c++) printf(" %ld", (long)counts[c]);
+            putchar('\n');
+        }
+        if (r == DSL_DONE) break;
+        if (r == DSL_ERROR) {
+            fflush(stdout);
+            fprintf(stderr, "error: %s: %s\n", path, player.error);
+            return 1;
+        }
+        if (avail == 0 && !eof) {
+            avail = fread(in, 1, chunk, f);
+            off = 0;
+            if (avail == 0) {
+                if (ferror(f)) {
+                    fprintf(stderr, "error: %s: read error\n", path);
+                    return 2;
+                }
+                eof = 1;
+            }
+        }
+        if (avail) {
+            size_t used = dsl_feed(&player, in + off, avail);
+            off += used;
+            avail -= used;
+        } else {
+            dsl_finish(&player);
+        }
+    }
+    if (f != stdin) fclose(f);
+    return 0;
+}
