@@ -89,6 +89,7 @@ class MoveWriter:
         self.retracted = False
         self.z = 0.0
         self.first_layer = True
+        self.extruded = False  # no retract before anything was extruded
 
     def new_layer(self, z: float, first: bool) -> None:
         self.b.new_layer(z)
@@ -102,7 +103,7 @@ class MoveWriter:
         if dist < 1e-9:
             return
         long = dist > t.retract_min_travel
-        if long and t.retract_length > 0 and not self.retracted:
+        if long and t.retract_length > 0 and not self.retracted and self.extruded:
             b.add(b.pos, t.retract_speed, -t.retract_length, 0.0, Role.RETRACT)
             self.retracted = True
         lift = t.z_hop if long else 0.0
@@ -130,3 +131,4 @@ class MoveWriter:
         xyz = np.column_stack([pts[1:][keep], np.full(int(keep.sum()), self.z)])
         e = seg[keep] * filament_per_mm(width, height, self.area, self.s.extrusion_multiplier)
         b.add(xyz, feed, e, 1.0, role)
+        self.extruded = True
