@@ -33,13 +33,11 @@ def perimeter_loops(island: CrossSection, width: float, count: int) -> list[tupl
 
 
 def infill_boundary(island: CrossSection, width: float, count: int, overlap: float) -> CrossSection:
-    """Region inside the innermost perimeter, grown by ``overlap`` mm into it."""
-    if count == 0:
-        return island.offset(-width / 2 + overlap, JoinType.Miter, 3.0) if overlap < width / 2 else island
-    inner = island.offset(-count * width, JoinType.Miter, 3.0)
-    if inner.is_empty() or overlap <= 0:
-        return inner
-    return inner.offset(overlap, JoinType.Miter, 3.0)
+    """Where infill line centres may go: the inner edge of the innermost perimeter
+    moved by ``overlap`` mm outward (negative: inward). The slicer passes
+    ``infill_overlap * perimeter_width - infill_width / 2``, so a line's edge
+    overlaps the perimeter by ``infill_overlap`` of a perimeter width."""
+    return island.offset(-count * width + overlap, JoinType.Miter, 3.0)
 
 
 def seam_index(poly: np.ndarray, mode: str, position: np.ndarray) -> int:

@@ -97,7 +97,7 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
             _emit(writer, nearest_order(paths, writer.b.pos, s.seam), h, s, first)
 
         # infill
-        fill = infill_boundary(island, w_p, P, s.infill_overlap * w_p)
+        fill = infill_boundary(island, w_p, P, s.infill_overlap * w_p - w_i / 2)
         if fill.is_empty():
             continue
         solid = clean(fill ^ need_solid, w_i / 4) if not need_solid.is_empty() else CrossSection()
