@@ -1,0 +1,237 @@
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+from matplotlib.path import Path as MplPath
+
+from deltaslice.printer import load_printer
+from deltaslice.slicing import slice_mesh
+from deltaslice.slicing.layers import layer_heights
+from deltaslice.toolpath import Role
+
+from . import meshes
+
+SOLID = (Role.SOLID_INFILL, Role.TOP_SOLID_INFILL)
+
+
+@pytest.fixture(scope="module")
+def etitc():
+    return load_printer("printers/delta_etitc.toml")
+
+
+@pytest.fixture(scope="module")
+def cube_tp(etitc):
+    return slice_mesh(meshes.box(20, 20, 20), etitc)
+
+
+def run_roles(tp, layer):
+    """Role of each run (continuous extrusion) in a layer."""
+    sl = tp.layer_slices()[layer]
+    return [int(tp.role[a]) for a, b in tp.runs() if sl.start <= a < sl.stop]
+
+
+def roles_in(tp, layer):
+    sl = tp.layer_slices()[layer]
+    return set(tp.role[sl][tp.working[sl]].tolist())
+
+
+def test_layer_heights():
+    top, mid, th = layer_heights(20.0, 0.4, 0.5)
+    assert len(top) == 50
+    assert top[0] == pytest.approx(0.5) and np.allclose(np.diff(top), 0.4)
+    assert np.all(mid < 20) and th[0] == 0.5
+
+
+def test_cube_layers_and_moves(cube_tp, etitc):
+    tp = cube_tp
+    s = etitc.slicing
+    assert tp.n_layers == 50
+    assert np.allclose(tp.layer_z[:3], [0.5, 0.9, 1.3])
+    work = tp.working
+    assert np.all(tp.e[work] > 0)
+    assert np.all(tp.tool[~work] == 0)
+    travel = tp.role == Role.TRAVEL
+    assert np.all(tp.e[travel] == 0)
+    retract = tp.role == Role.RETRACT
+    assert np.allclose(tp.lengths[retract], 0) and np.allclose(np.abs(tp.e[retract]), etitc.tool.retract_length)
+    assert tp.e[retract].sum() == pytest.approx(0)  # every retract is undone
+    # feeds: first layer speed on layer 0, travel speed on travels
+    l0 = tp.layer == 0
+    assert np.allclose(tp.feed[l0 & work], s.first_layer_speed)
+    assert np.allclose(tp.feed[travel], s.travel_speed)
+    later = (tp.layer > 0) & work
+    assert np.allclose(tp.feed[later & (tp.role == Role.INFILL)], s.infill_speed)
+    assert np.allclose(tp.feed[later & (tp.role == Role.PERIMETER)], s.perimeter_speed)
+    # working moves sit at their layer's top
+    assert np.allclose(tp.xyz[work, 2], tp.layer_z[tp.layer[work]])
+    # skirt on the first layer only, skirt_distance outside the part
+    sk = tp.role == Role.SKIRT
+    assert np.all(tp.layer[sk] == 0)
+    out = np.maximum(np.abs(tp.xyz[sk, :2]) - 10, 0)
+    assert np.hypot(out[:, 0], out[:, 1]).min() >= s.skirt_distance - 0.01
+
+
+def test_cube_perimeter_loops(cube_tp):
+    for layer in (0, 10, 49):
+        rr = run_roles(cube_tp, layer)
+        assert rr.count(Role.EXTERNAL_PERIMETER) == 1
+        assert rr.count(Role.PERIMETER) == 2
+        # innermost first, external last
+        i_ext = rr.index(Role.EXTERNAL_PERIMETER)
+        assert all(r == Role.PERIMETER for r in rr[i_ext - 2:i_ext])
+
+
+def test_cube_solid_layers(cube_tp):
+    for layer in range(50):
+        roles = roles_in(cube_tp, layer)
+        if layer < 3 or layer >= 47:
+            assert roles & set(SOLID) and Role.INFILL not in roles, layer
+        else:
+            assert Role.INFILL in roles and not roles & set(SOLID), layer
+    assert Role.TOP_SOLID_INFILL in roles_in(cube_tp, 49)
+    assert Role.TOP_SOLID_INFILL not in roles_in(cube_tp, 48)
+
+
+def test_infill_angle_alternates(cube_tp):
+    def angles(layer):
+        sl = cube_tp.layer_slices()[layer]
+        m = (cube_tp.role[sl] == Role.INFILL)
+        d = (cube_tp.xyz[sl] - cube_tp.starts[sl])[m][:, :2]
+        long = np.linalg.norm(d, axis=1) > 5
+        a = np.degrees(np.arctan2(d[long, 1], d[long, 0])) % 180
+        return np.round(a).astype(int)
+
+    assert set(angles(10)) == {45}
+    assert set(angles(11)) == {135}
+
+
+def test_hole_gets_its_own_perimeters(etitc):
+    tp = slice_mesh(meshes.cube_with_hole(20, 4), etitc)
+    rr = run_roles(tp, 20)
+    assert rr.count(Role.EXTERNAL_PERIMETER) == 2
+    assert rr.count(Role.PERIMETER) == 4
+    # nothing extruded inside the hole
+    w = tp.working & (tp.layer > 0)
+    r = np.hypot(tp.xyz[w, 0], tp.xyz[w, 1])
+    assert r.min() >= 4 + etitc.slicing.perimeter_width / 2 - 0.05
+
+
+def _inside_outline(points, section, tol):
+    """Even-odd containment in the outline grown by ``tol`` (manifold3d offset)."""
+    polys = section.offset(tol).to_polygons()
+    inside = np.zeros(len(points), int)
+    for p in polys:
+        inside += MplPath(p).contains_points(points)
+    return inside % 2 == 1
+
+
+@pytest.mark.parametrize("maker", [lambda: meshes.cube_with_hole(20, 4), lambda: meshes.step(), lambda: meshes.cylinder(8, 6)])
+def test_every_extrusion_inside_the_layer_outline(etitc, maker):
+    mesh = maker()
+    tp = slice_mesh(mesh, etitc)
+    man = mesh.to_manifold()
+    for layer in range(0, tp.n_layers, 3):
+        sl = tp.layer_slices()[layer]
+        w = tp.working[sl] & (tp.role[sl] != Role.SKIRT)
+        z_mid = tp.layer_z[layer] - (0.5 if layer == 0 else 0.4) / 2
+        sec = man.slice(z_mid)
+        for pts in (tp.xyz[sl][w, :2], tp.starts[sl][w, :2]):
+            ok = _inside_outline(pts, sec, 0.02)
+            assert ok.all(), f"layer {layer}: {int((~ok).sum())} points outside, e.g. {pts[~ok][0]}"
+
+
+def test_mid_height_top_surface_is_solid(etitc):
+    tp = slice_mesh(meshes.step(20, 8, 16), etitc)
+    # the step's top at z = 8 covers x in (0, 10); the tall half is x in (-10, 0)
+    mids = tp.layer_z - 0.2  # layer mid-heights (the first layer is far below)
+    layers_below = [l for l in range(tp.n_layers) if 8 - 3 * 0.4 < mids[l] < 8]
+    assert len(layers_below) == 3
+    for l in layers_below:
+        sl = tp.layer_slices()[l]
+        solid = np.isin(tp.role[sl], SOLID) & tp.working[sl]
+        pts = tp.xyz[sl][solid]
+        assert len(pts) > 10
+        assert pts[:, 0].min() > -0.5, "solid infill only under the exposed half"
+        sparse = tp.xyz[sl][(tp.role[sl] == Role.INFILL)]
+        assert len(sparse) and sparse[:, 0].max() < 0.5
+    top_layer = layers_below[-1]
+    assert Role.TOP_SOLID_INFILL in roles_in(tp, top_layer)
+    # well below and above the step: no solid
+    mid = [l for l in range(tp.n_layers) if 3 < tp.layer_z[l] < 5 or 10 < tp.layer_z[l] < 14]
+    for l in mid:
+        assert not roles_in(tp, l) & set(SOLID), l
+
+
+def test_thin_wall_keeps_outer_loop_only(etitc):
+    tp = slice_mesh(meshes.thin_wall(1.2, 20, 6), etitc)
+    rr = run_roles(tp, 5)
+    assert rr.count(Role.EXTERNAL_PERIMETER) == 1
+    assert Role.PERIMETER not in rr and Role.INFILL not in rr
+
+
+def expected_volume(tp, sections_area, inner_area, settings):
+    """Volume from areas: solid layers fill the whole outline; other layers fill the
+    perimeter band fully and the inside at the fill density."""
+    vol = 0.0
+    for l in range(tp.n_layers):
+        h = settings.first_layer_height if l == 0 else settings.layer_height
+        roles = roles_in(tp, l)
+        if Role.INFILL in roles:
+            vol += h * ((sections_area - inner_area) + settings.fill_density * inner_area)
+        else:
+            vol += h * sections_area
+    return vol
+
+
+def extruded_without_skirt(tp, filament_diameter):
+    w = tp.working & (tp.role != Role.SKIRT)
+    return float(tp.e[w].sum() * np.pi * filament_diameter**2 / 4)
+
+
+def test_cube_volume_from_areas(cube_tp, etitc):
+    s = etitc.slicing
+    inner_side = 20 - 2 * s.perimeters * s.perimeter_width
+    exp = expected_volume(cube_tp, 400.0, inner_side**2, s)
+    got = extruded_without_skirt(cube_tp, etitc.tool.filament_diameter)
+    # the zig-zag links between sparse lines (extruded along the perimeter) add a little
+    assert exp < got < 1.05 * exp
+
+
+def test_extrusion_multiplier_and_settings_override(etitc):
+    mesh = meshes.box(10, 10, 4)
+    base = slice_mesh(mesh, etitc)
+    more = slice_mesh(mesh, etitc, settings=dataclasses.replace(etitc.slicing, extrusion_multiplier=1.1))
+    assert more.e[more.working].sum() == pytest.approx(1.1 * base.e[base.working].sum())
+    one = slice_mesh(mesh, etitc, settings=dataclasses.replace(etitc.slicing, perimeters=1, skirt_loops=0))
+    rr = run_roles(one, 4)
+    assert rr.count(Role.EXTERNAL_PERIMETER) == 1 and Role.PERIMETER not in rr
+    assert not np.any(one.role == Role.SKIRT)
+
+
+def test_z_hop_on_long_travels(etitc):
+    tool = dataclasses.replace(etitc.tool, z_hop=0.6)
+    printer = dataclasses.replace(etitc, tool=tool)
+    tp = slice_mesh(meshes.box(10, 10, 3), printer)
+    trav = (tp.role == Role.TRAVEL) & (tp.layer > 0)
+    lifted = tp.xyz[trav, 2] > tp.layer_z[tp.layer[trav]] + 0.5
+    assert lifted.any()
+
+
+def test_progress_called_per_layer(etitc):
+    calls = []
+    tp = slice_mesh(meshes.box(10, 10, 4), etitc, progress=lambda d, t: calls.append((d, t)))
+    assert calls == [(i + 1, tp.n_layers) for i in range(tp.n_layers)]
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    x=st.floats(8, 30), y=st.floats(8, 30), z=st.floats(3, 12),
+)
+def test_solid_box_volume_conserved(etitc, x, y, z):
+    """At 100 % fill every layer is solid: the plastic equals the sliced volume."""
+    s = dataclasses.replace(etitc.slicing, fill_density=1.0, skirt_loops=0, first_layer_width=etitc.slicing.perimeter_width)
+    tp = slice_mesh(meshes.box(x, y, z), etitc, settings=s)
+    sliced_height = tp.layer_z[-1]
+    got = tp.extruded_volume(etitc.tool.filament_diameter)
+    assert got == pytest.approx(x * y * sliced_height, rel=0.06)
