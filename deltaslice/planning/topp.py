@@ -38,8 +38,8 @@ logging.getLogger("toppra").setLevel(logging.ERROR)
 # Grid: spacing grows geometrically from each join up to MAX_STEP (mm).
 MIN_STEP = 0.01
 MAX_STEP = 2.0
-GROWTH = 1.6
-ARC_STEP = 0.05  # rad of tangent turn between grid points inside a blend arc
+GROWTH = 2.0
+ARC_STEP = 0.15  # rad of tangent turn between grid points inside a blend arc
 REFINE = 1  # stages per grid interval; tests set 10 to check grid convergence
 ACTIVE = 0.95  # a limit counts as active within 5 % of it
 

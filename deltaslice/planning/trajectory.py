@@ -131,7 +131,8 @@ def utilisation_of(printer, samples: Samples, rate: float, feed_cap=None, active
         peak[f"{joint.name} acc"] = 100 * float(ra[:, j].max(initial=0))
     ratios = [rv.max(axis=1), ra.max(axis=1)]
     if not printer.is_laser and len(samples) > 2:
-        ev = np.abs(np.gradient(samples.e, 1.0 / rate))
+        # The melt-flow limit applies while extruding; retracts move cold filament at retract speed.
+        ev = np.abs(np.gradient(samples.e, 1.0 / rate)) * (samples.tool > 0)
         ratios.append(ev / printer.tool.max_filament_speed)
         peak["filament vel"] = 100 * float(ratios[-1].max(initial=0))
     if feed_cap is not None:
