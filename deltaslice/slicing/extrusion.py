@@ -2,14 +2,29 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..toolpath import Role
 
 
+def bead_spacing(width: float, height: float) -> float:
+    """Distance between neighbouring beads of nominal ``width`` (Slic3r's flow model).
+
+    A bead ``width`` wide (outer edge to outer edge) and ``height`` tall has a
+    rounded-rectangle section of area ``(width - height) * height + pi * height**2 / 4``
+    = ``height * spacing`` with ``spacing = width - height * (1 - pi / 4)``: beads laid
+    ``spacing`` apart fill the layer exactly. Never less than half the width.
+    """
+    return max(width - height * (1.0 - math.pi / 4.0), 0.5 * width)
+
+
 def filament_per_mm(width: float, height: float, filament_area: float, multiplier: float) -> float:
-    """Filament length pushed per mm of path: width * height / filament_area * multiplier."""
-    return width * height / filament_area * multiplier
+    """Filament length pushed per mm of path: spacing * height / filament_area * multiplier,
+    with the bead spacing of :func:`bead_spacing` as the effective width (so that
+    extruded volume = filled area * height, as in Slic3r/PrusaSlicer)."""
+    return bead_spacing(width, height) * height / filament_area * multiplier
 
 
 def feed_for(role: int, settings, first_layer: bool) -> float:

@@ -15,11 +15,15 @@ from manifold3d import CrossSection, JoinType
 MIN_LOOP_LENGTH_FACTOR = 2.0  # drop loops shorter than this many widths
 
 
-def perimeter_loops(island: CrossSection, width: float, count: int) -> list[tuple[int, np.ndarray]]:
-    """[(depth, (k, 2) closed polygon without repeated end point)], depth 0 = external."""
+def perimeter_loops(island: CrossSection, width: float, count: int, spacing: float | None = None) -> list[tuple[int, np.ndarray]]:
+    """[(depth, (k, 2) closed polygon without repeated end point)], depth 0 = external.
+
+    Loop k runs ``width / 2 + k * spacing`` inside the outline (spacing: the bead
+    spacing, default ``width``)."""
+    spacing = width if spacing is None else spacing
     loops = []
     for k in range(count):
-        ring = island.offset(-(width / 2 + k * width), JoinType.Miter, 3.0)
+        ring = island.offset(-(width / 2 + k * spacing), JoinType.Miter, 3.0)
         if ring.is_empty():
             break
         for poly in ring.to_polygons():
@@ -32,12 +36,14 @@ def perimeter_loops(island: CrossSection, width: float, count: int) -> list[tupl
     return loops
 
 
-def infill_boundary(island: CrossSection, width: float, count: int, overlap: float) -> CrossSection:
+def infill_boundary(island: CrossSection, width: float, count: int, overlap: float, spacing: float | None = None) -> CrossSection:
     """Where infill line centres may go: the inner edge of the innermost perimeter
     moved by ``overlap`` mm outward (negative: inward). The slicer passes
-    ``infill_overlap * perimeter_width - infill_width / 2``, so a line's edge
+    ``infill_overlap * perimeter_width - infill_spacing / 2``, so a line's edge
     overlaps the perimeter by ``infill_overlap`` of a perimeter width."""
-    return island.offset(-count * width + overlap, JoinType.Miter, 3.0)
+    spacing = width if spacing is None else spacing
+    inner_edge = (width / 2 + (count - 0.5) * spacing) if count else 0.0
+    return island.offset(-inner_edge + overlap, JoinType.Miter, 3.0)
 
 
 def seam_index(poly: np.ndarray, mode: str, position: np.ndarray) -> int:

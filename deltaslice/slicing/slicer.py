@@ -9,7 +9,7 @@ from manifold3d import CrossSection
 
 from ..errors import DeltasliceError, MeshError
 from ..toolpath import Role, Toolpath, ToolpathBuilder
-from .extrusion import feed_for
+from .extrusion import bead_spacing, feed_for
 from .infill import clean, rectilinear, solid_masks
 from .layers import cross_sections, layer_heights
 from .ordering import MoveWriter, Path, nearest_order
@@ -68,6 +68,7 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
     here = sections[li]
     w_p = s.first_layer_width if first else s.perimeter_width
     w_i = s.first_layer_width if first else s.infill_width
+    sp_p, sp_i = bead_spacing(w_p, h), bead_spacing(w_i, h)
     angle = s.fill_angle + (math.pi / 2 if li % 2 else 0.0)
 
     if first and s.skirt_loops > 0:
@@ -90,14 +91,14 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
         island = islands[j]
 
         # perimeters: innermost depth first, the external loop last
-        loops = perimeter_loops(island, w_p, P)
+        loops = perimeter_loops(island, w_p, P, sp_p)
         for depth in sorted({d for d, _ in loops}, reverse=True):
             role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
             paths = [Path(p, role, w_p, closed=True) for d, p in loops if d == depth]
             _emit(writer, nearest_order(paths, writer.b.pos, s.seam), h, s, first)
 
         # infill
-        fill = infill_boundary(island, w_p, P, s.infill_overlap * w_p - w_i / 2)
+        fill = infill_boundary(island, w_p, P, s.infill_overlap * w_p - sp_i / 2, sp_p)
         if fill.is_empty():
             continue
         solid = clean(fill ^ need_solid, w_i / 4) if not need_solid.is_empty() else CrossSection()
@@ -106,9 +107,9 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
         sparse = fill - solid if not solid.is_empty() else fill
         paths = []
         for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL)):
-            paths += [Path(p, role, w_i) for p in rectilinear(region, angle, w_i, w_i)]
+            paths += [Path(p, role, w_i) for p in rectilinear(region, angle, sp_i, w_i)]
         if s.fill_density > 0 and not sparse.is_empty():
             dens = min(float(s.fill_density), 1.0)
             role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
-            paths += [Path(p, role, w_i) for p in rectilinear(sparse, angle, w_i / dens, w_i)]
+            paths += [Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i)]
         _emit(writer, nearest_order(paths, writer.b.pos), h, s, first)
