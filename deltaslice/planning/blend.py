@@ -123,7 +123,7 @@ def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     kind[1::2] = 1
     lengths = np.empty(n_pieces)
     lengths[0::2] = line_len
-    lengths[1::2] = np.where(blended, radius * turn, 0.0)
+    lengths[1::2] = np.where(blended, np.where(np.isfinite(radius), radius, 0.0) * turn, 0.0)
     p0 = np.empty((n_pieces, 3))
     p0[0::2] = line_p0
     p0[1::2] = points[1:-1] - setback[:, None] * din

@@ -100,8 +100,7 @@ class Trajectory:
             f"planner: {self.planner}, speed limit: {self.speed_limit}",
             f"print time: {self.duration:.2f} s ({self.duration / 60:.1f} min)",
             "peak use of limits: " + ", ".join(f"{k} {v:.0f} %" for k, v in util["peak_percent"].items()),
-            f"time with a limit active: {100 * self.active_fraction:.1f} % (planner), "
-            f"{100 * util['active_fraction']:.1f} % (samples, joints and filament only)",
+            f"time with a limit active (joint, filament or feed cap): {100 * self.active_fraction:.1f} %",
         ]
         for k, v in (extra or {}).items():
             lines.append(f"{k}: {v}")
