@@ -126,7 +126,7 @@ def test_path_followed_within_blend_tolerance(planned):
         run_pieces = [p for p in traj.pieces if p.kind == "run"]
         ranges = split_runs(toolpath)
         assert len(run_pieces) == len(ranges)
-        for piece, (i, j), start in zip(run_pieces, ranges, np.array([traj.starts[k] for k, p in enumerate(traj.pieces) if p.kind == "run"])):
+        for piece, (i, j) in zip(run_pieces, ranges):
             tau = np.linspace(0, piece.duration, 400)
             q, _, _ = piece.sample(kin, tau)
             pts = kin.forward(q)
@@ -234,3 +234,17 @@ def test_blend_stays_in_tolerance_band_and_is_tangent_continuous(xy, tol):
         assert np.all(np.einsum("ij,ij->i", before, after) > 1 - 1e-5)
     # Endpoints unchanged.
     assert np.allclose(path.evaluate(np.array([0.0, path.length])), pts[[0, -1]], atol=1e-9)
+
+
+def test_exact_reversal_stops_at_the_cusp_within_limits():
+    printer = load_printer("printers/delta_etitc.toml")
+    b = ToolpathBuilder((0, 0, 0.5))
+    b.new_layer(0.5)
+    b.add([[10, 0, 0.5], [0, 0, 0.5], [0, 10, 0.5]], 60, 0.2, 1, Role.INFILL)
+    traj = plan(b.build(), printer, speed_limit="machine", workers=1)
+    s = traj.samples()
+    v, a = finite_differences(s, printer.planning.output_rate)
+    assert (np.abs(a).max(axis=0) / printer.joint_array("acceleration_max")).max() <= MARGIN
+    p = printer.kinematics().forward(s.q)
+    cusp = np.argmin(np.linalg.norm(p[:, :2] - [10, 0], axis=1))
+    assert np.linalg.norm(p[cusp, :2] - [10, 0]) < 0.01  # it really goes to the reversal point

@@ -77,7 +77,11 @@ def _init_worker(printer):
 def _plan_chunk(args):
     specs, speed_limit = args
     printer, kin = _WORKER["printer"], _WORKER["kin"]
-    return [plan_run(kin, printer, s, speed_limit) for s in specs]
+    out = []
+    for s in specs:
+        res = plan_run(kin, printer, s, speed_limit)
+        out.append(res if isinstance(res, list) else [res])
+    return out
 
 
 def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None) -> Trajectory:
@@ -127,7 +131,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     e_start = 0.0
     for (i, j), run in zip(ranges, run_pieces):
         pieces.extend(_travel(kin, printer, toolpath, prev_end, i, pos, printed_top, speed_limit))
-        pieces.append(run)
+        pieces.extend(run)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j

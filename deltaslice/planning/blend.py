@@ -75,6 +75,17 @@ class BlendedPath:
                 out[arc] = (-np.sin(a)[:, None] * d + np.cos(a)[:, None] * n) / r
         return out
 
+    def stops(self) -> np.ndarray:
+        """Arc lengths of joins where the tangent breaks (exact reversals, which no arc can
+        blend): the path speed must be zero there. (k,)"""
+        j = self.joins()
+        if len(j) == 0:
+            return j
+        k = self.locate(j)
+        end_of_previous = self.evaluate(j, 1, k - 1)
+        start_of_next = self.evaluate(j, 1, k)
+        return j[np.einsum("ij,ij->i", end_of_previous, start_of_next) < 1 - 1e-9]
+
     def joins(self) -> np.ndarray:
         """Arc lengths of the interior line/arc joins. (k-1,)"""
         return self.piece_start[1:-1]

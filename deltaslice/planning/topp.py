@@ -225,9 +225,29 @@ def grid(path: BlendedPath) -> np.ndarray:
     return g
 
 
-def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece:
+def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece | list:
     """Plan one run from rest to rest. kin: kinematics; printer: Printer;
-    tolerance: blend tolerance, mm (default: the printer's)."""
+    tolerance: blend tolerance, mm (default: the printer's).
+
+    Returns a RunPiece, or, in the rare case toppra's numerics fail on the whole run, the
+    list of RunPieces of its two halves (split at a vertex, each from rest to rest)."""
+    try:
+        return _plan_run(kin, printer, spec, speed_limit, tolerance)
+    except PlanningError:
+        m = len(spec.points) - 1
+        if m < 2:
+            raise
+        h = m // 2
+        first = RunSpec(spec.points[: h + 1], spec.feed[:h], spec.e[:h], spec.tool, spec.layer)
+        second = RunSpec(spec.points[h:], spec.feed[h:], spec.e[h:], spec.tool, spec.layer)
+        out = []
+        for part in (first, second):
+            res = plan_run(kin, printer, part, speed_limit, tolerance)
+            out.extend(res if isinstance(res, list) else [res])
+        return out
+
+
+def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece:
     from .blend import dedupe
 
     pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
@@ -258,7 +278,8 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
     # An arc is capped by the slower of the segments it joins.
     prev_seg = np.maximum(path.segment - 1, 0)
     piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev_seg]), seg_feed[path.segment])
-    feed_grid = piece_feed[piece]
+    feed_grid = piece_feed[piece].copy()
+    feed_grid[np.isin(s_grid, path.stops())] = 0.0  # a tangent break is taken at rest
 
     rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
     x_grid = s_grid / S

@@ -160,7 +160,7 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
         # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
         own = np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
         cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed)
-        best = [cartesian]
+        best = cartesian
         # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.
         if not short:
             q_up_a, q_up_b = kin.inverse(a_up[None])[0], kin.inverse(b_up[None])[0]
@@ -169,10 +169,10 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
                 if joint_move_clear(kin, joint, z_clear):
                     cand = [joint]
                     if a_up[2] > a[2] + 1e-9:
-                        cand.insert(0, _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed))
+                        cand = _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed) + cand
                     if b_up[2] > b[2] + 1e-9:
-                        cand.append(_cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed))
-                    if sum(p.duration for p in cand) < cartesian.duration:
+                        cand = cand + _cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed)
+                    if sum(p.duration for p in cand) < sum(p.duration for p in cartesian):
                         best = cand
         pieces.extend(best)
     if extruder and unretract > 0:
@@ -180,12 +180,13 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     return pieces
 
 
-def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None) -> RunPiece:
+def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None) -> list:
     """A straight Cartesian travel (tool off) planned with toppra."""
     keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
     pts = pts[keep]
     m = len(pts) - 1
     feed = np.full(m, feed or printer.slicing.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
-    piece = plan_run(kin, printer, spec, speed_limit, tolerance)
-    return RunPiece(**{**piece.__dict__, "kind": "travel"})
+    res = plan_run(kin, printer, spec, speed_limit, tolerance)
+    parts = res if isinstance(res, list) else [res]
+    return [RunPiece(**{**p.__dict__, "kind": "travel"}) for p in parts]
