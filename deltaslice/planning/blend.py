@@ -107,12 +107,13 @@ def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     din, dout = d[:-1], d[1:]
     cos_t = np.clip(np.einsum("ij,ij->i", din, dout), -1.0, 1.0)
     turn = np.arccos(cos_t)
-    blended = turn > _MIN_TURN
+    blended = (turn > _MIN_TURN) & (turn <= np.pi - 1e-9)
     half = turn / 2
     with np.errstate(divide="ignore", invalid="ignore"):
         # Set-back that puts the arc midpoint exactly `tolerance` from the corner.
         sb_tol = tolerance * np.tan(half) / (1 / np.cos(half) - 1)
-        sb_tol = np.where(turn > np.pi - 1e-9, tolerance, sb_tol)
+        # An exact reversal cannot be blended: go to the point and turn there, at rest.
+        sb_tol = np.where(turn > np.pi - 1e-9, 0.0, sb_tol)
     room = 0.5 * np.minimum(seg_len[:-1], seg_len[1:])
     setback = np.where(blended, np.minimum(sb_tol, room), 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
