@@ -322,8 +322,8 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
     frac = _fracs(k)
     pts = a[seg] + frac[:, None] * (b - a)[seg]
     tree = cKDTree(pts)
-    kq = min(8, len(pts))
-    _d, nn = tree.query(np.nan_to_num(p, nan=1e9), k=kq)
+    kq = min(4, len(pts))
+    _d, nn = tree.query(np.nan_to_num(p, nan=1e9), k=kq, workers=-1)
     nn = nn.reshape(len(p), kq)
     cand = seg[nn]  # (N, kq) candidate segments
     ca, cb = a[cand], b[cand]
