@@ -24,7 +24,8 @@ from trajectories import blocks, long_print, printer, realistic  # noqa: E402
 
 from deltaslice.emit import csv as csvfmt  # noqa: E402
 from deltaslice.emit import stream  # noqa: E402
-from deltaslice.samples import Samples, to_counts  # noqa: E402
+from deltaslice.samples import to_counts  # noqa: E402
+from deltaslice.verify import verify_samples  # noqa: E402
 
 
 def varint_size(counts, order):
@@ -41,22 +42,18 @@ def main():
         ("delta_etitc", "feed (30/60/130 mm/s, 1500 mm/s^2)", dict(accel=1500.0), (30.0, 60.0, 130.0)),
         ("delta_etitc", "fast (60/120/300 mm/s, 5000 mm/s^2)", dict(accel=5000.0), (60.0, 120.0, 300.0)),
         ("linear_kossel", "feed", dict(accel=1500.0), (30.0, 60.0, 130.0)),
-        ("linear_kossel", "fast", dict(accel=5000.0), (60.0, 120.0, 300.0)),
-        ("delta_ucb", "feed", dict(accel=1500.0, size=20.0), (30.0, 60.0, 130.0)),
+        ("linear_kossel", "fast", dict(accel=3000.0), (60.0, 120.0, 300.0)),
+        ("delta_ucb", "feed", dict(accel=1500.0), (30.0, 60.0, 130.0)),
+        ("delta_ucb", "fast", dict(accel=5000.0), (60.0, 120.0, 300.0)),
         ("fivebar_atlas", "feed", dict(accel=1500.0), (30.0, 60.0, 130.0)),
+        ("fivebar_atlas", "fast", dict(accel=3000.0), (60.0, 120.0, 300.0)),
     ]
-    import trajectories
-
     print("| printer | profile | samples | varint d1 | varint d2 | bits d1 | bits d2 | bits best | 256/blk | 512/blk (default) | CSV |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, label, kw, feeds in cases:
-        orig = trajectories.layout
-        trajectories.layout = lambda layers=2, size=30.0, feeds=feeds: orig(layers, size, feeds)
-        try:
-            s, _ = realistic(name, layers=2, **kw)
-        finally:
-            trajectories.layout = orig
+        s, _ = realistic(name, layers=2, feeds=feeds, **kw)
         p = printer(name)
+        assert verify_samples(s, p, rate=1000.0, fmt="csv").ok, f"{name} {label}: synthetic trajectory breaks a limit"
         c = to_counts(p, s)
         n = len(s)
 

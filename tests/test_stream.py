@@ -296,3 +296,27 @@ def test_zigzag_round_trip(values):
     u = stream.zigzag(v)
     assert np.array_equal(stream.unzigzag(u), v)
     assert all(int(a) == stream._zz1(int(b)) for a, b in zip(u, v))
+
+
+def test_write_trajectory_uses_the_planner_interface(etitc, tmp_path):
+    from deltaslice.emit import write_trajectory
+
+    p, s = etitc
+
+    class FakeTrajectory:
+        duration = float(s.t[-1])
+
+        def iter_samples(self, rate):
+            assert rate == p.planning.output_rate
+            return blocks(s, 4000)
+
+        def metadata(self):
+            return {"planner": "toppra", "speed_limit": "feed"}
+
+    for name in ("part.dsl", "part.csv"):
+        size = write_trajectory(FakeTrajectory(), p, tmp_path / name)
+        assert size == (tmp_path / name).stat().st_size
+        meta, back = read_output(tmp_path / name)
+        assert meta["planner"] == "toppra" and meta["duration_s"] == f"{s.t[-1]:.6f}" and len(back) == len(s)
+    size = write_trajectory(FakeTrajectory(), p, tmp_path / "forced.out", fmt="csv")
+    assert (tmp_path / "forced.out").read_text().startswith("# deltaslice setpoints v1")

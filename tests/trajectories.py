@@ -26,6 +26,11 @@ ROOT = Path(__file__).resolve().parents[1]
 PRINTERS = ROOT / "printers"
 
 
+# Cartesian acceleration bound (mm/s^2) that keeps each machine's joints inside their limits
+ACCEL: dict[str, float] = {}  # default 1500; all shipped printers stay within limits at 3000
+SIZE = {"delta_ucb": 20.0}
+
+
 @lru_cache(maxsize=None)
 def printer(name: str = "delta_etitc"):
     return load_printer(PRINTERS / f"{name}.toml")
@@ -110,28 +115,38 @@ def _speed_profile(s, pts, feed, accel):
     return np.sqrt(np.maximum(ur[::-1], 0.0))
 
 
-def realistic(printer_name: str = "delta_etitc", layers: int = 2, accel: float = 1500.0, size: float = 30.0,
-              rate: float | None = None):
+def realistic(printer_name: str = "delta_etitc", layers: int = 2, accel: float | None = None, size: float | None = None,
+              rate: float | None = None, feeds=(30.0, 60.0, 130.0)):
     """(Samples, Toolpath) of a small print on that printer, sampled at its output rate.
 
     Consecutive moves start and end at rest, so joint motion is continuous."""
     p = printer(printer_name)
     rate = rate or p.planning.output_rate
+    accel = accel or ACCEL.get(printer_name, 1500.0)
+    size = size or SIZE.get(printer_name, 30.0)
     tool_cfg = p.tool
     layer_h, width = 0.4, 0.5
-    e_per_mm = 0.0 if p.is_laser else layer_h * width / tool_cfg.filament_area
+    # filament per mm of path: a 0.4 x 0.5 mm bead, reduced if the fastest working feed would
+    # then exceed 80 % of the hot end's melt rate
+    e_per_mm = 0.0 if p.is_laser else min(layer_h * width / tool_cfg.filament_area,
+                                          0.8 * tool_cfg.max_filament_speed / max(feeds[:2]))
     builder = ToolpathBuilder(start=(0.0, 0.0, 0.5))
     builder.new_layer(0.5)
     t_all, x_all, e_all, tool_all = [], [], [], []
     t0, e0 = 0.0, 0.0
-    for poly, feed, extruding in layout(layers, size):
+    for poly, feed, extruding in layout(layers, size, feeds):
         s, pts = _densify(poly, 0.05)
         v = _speed_profile(s, pts, feed, accel)
         dt = 2 * np.diff(s) / np.maximum(v[1:] + v[:-1], 1e-12)
         t = np.concatenate([[0.0], np.cumsum(dt)])
         k0 = int(math.ceil(t0 * rate - 1e-9))
         ts = np.arange(k0, int(math.floor((t0 + t[-1]) * rate)) + 1) / rate
-        ss = np.interp(ts - t0, t, s)
+        # exact constant-acceleration motion inside each interval (no kinks from linear interpolation)
+        tau_all = np.clip(ts - t0, 0.0, t[-1])
+        k = np.clip(np.searchsorted(t, tau_all, side="right") - 1, 0, len(s) - 2)
+        acc_k = (v[1:] ** 2 - v[:-1] ** 2) / (2 * np.maximum(np.diff(s), 1e-300))
+        tau = tau_all - t[k]
+        ss = np.minimum(s[k] + v[k] * tau + 0.5 * acc_k[k] * tau**2, s[k + 1])
         xyz = np.column_stack([np.interp(ss, s, pts[:, d]) for d in range(3)])
         tool_on = 1.0 if extruding else 0.0
         t_all.append(ts)

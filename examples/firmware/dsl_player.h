@@ -20,7 +20,8 @@
  *     }
  *
  * Memory: DSL_BUFFERS record buffers of DSL_MAX_RECORD (512) bytes each, plus about
- * 100 bytes of state. DSL_BUFFERS = 1 (default) suits a player that may stop reading
+ * 150 bytes of state and a DSL_ERROR_LEN-byte message (sizeof(dsl_player) on a PC:
+ * 804 bytes with one buffer, 1316 with two). DSL_BUFFERS = 1 (default) suits a player that may stop reading
  * while it plays a block (file, SD card); 2 lets it receive the next block while the
  * current one plays (serial link).
  *
@@ -37,6 +38,9 @@
 
 #ifndef DSL_BUFFERS
 #define DSL_BUFFERS 1
+#endif
+#ifndef DSL_ERROR_LEN
+#define DSL_ERROR_LEN 112 /* error message buffer; 40 is enough for "block N at byte offset M" on small MCUs */
 #endif
 #define DSL_MAX_RECORD 512
 #define DSL_MAX_CHANNELS 8
@@ -76,7 +80,7 @@ typedef struct {
     uint8_t order[DSL_MAX_CHANNELS], width[DSL_MAX_CHANNELS];
     int32_t x[DSL_MAX_CHANNELS], v[DSL_MAX_CHANNELS];
     uint32_t sample_index;  /* index of the next sample released */
-    char error[112];
+    char error[DSL_ERROR_LEN];
 } dsl_player;
 
 /* ---- CRC-32 (IEEE, reflected 0xEDB88320), 16-entry nibble table: 64 bytes ---- */

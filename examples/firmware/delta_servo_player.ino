@@ -9,7 +9,7 @@
  * releases a block's samples only after its CRC-32 has been checked.
  *
  * Memory (Uno, 2 KiB RAM): player with two 512-byte record buffers (receive the
- * next block while the current one plays) ~1.15 KiB, ring 8 samples x 4 channels
+ * next block while the current one plays) and a 40-byte message ~1.2 KiB, ring 8 samples x 4 channels
  * 128 bytes, Serial 2 x 64 bytes, Servo ~50 bytes. Tight but fits; on a Mega or an
  * ESP32 raise RING and use SD freely.
  *
@@ -19,6 +19,7 @@
  * At ~1 byte per sample the link (11.5 kB/s) carries 10x the 1 kHz need.
  */
 #define DSL_BUFFERS 2
+#define DSL_ERROR_LEN 40
 #include "dsl_player.h"   /* copy examples/firmware/dsl_player.h next to this sketch */
 #include <Servo.h>
 
