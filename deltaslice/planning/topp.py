@@ -280,6 +280,13 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev_seg]), seg_feed[path.segment])
     feed_grid = piece_feed[piece].copy()
     feed_grid[np.isin(s_grid, path.stops())] = 0.0  # a tangent break is taken at rest
+    if extruder and len(path.kind) > 1:
+        # Where the filament per mm changes (a new extrusion width) the filament speed would step,
+        # an unbounded filament acceleration: such a join is taken at rest (rare: a role change
+        # inside one run).
+        jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
+        at = np.clip(np.searchsorted(s_grid, path.piece_start[1:-1][jump]), 0, len(s_grid) - 1)
+        feed_grid[at] = 0.0
 
     rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
     x_grid = s_grid / S

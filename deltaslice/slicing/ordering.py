@@ -36,7 +36,6 @@ def nearest_order(paths: list[Path], position: np.ndarray, seam: str = "aligned"
     if not paths:
         return []
     pos = np.asarray(position[:2], float)
-    remaining = list(range(len(paths)))
     heads = np.array([p.points[0] for p in paths])
     tails = np.array([p.points[-1] for p in paths])
     loop_seams = {}
