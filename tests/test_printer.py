@@ -1,0 +1,200 @@
+"""Printer files: the six shipped ones load and source every number; every kind of
+bad file is refused with a message naming the file, the [section] key and the
+bound; the CLI turns that into one `error:` line, never a traceback."""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+
+import pytest
+from click.testing import CliRunner
+
+from deltaslice.cli import main
+from deltaslice.errors import PrinterFileError
+from deltaslice.printer import (
+    Extruder,
+    Laser,
+    LinearDeltaGeometry,
+    FiveBarGeometry,
+    RotaryDeltaGeometry,
+    load_printer,
+)
+
+from conftest import PRINTER_DIR, PRINTER_NAMES, printer
+
+GOOD = PRINTER_DIR / "delta_etitc.toml"
+
+
+def test_six_printers_ship():
+    assert PRINTER_NAMES == [
+        "delta_espe_laser",
+        "delta_etitc",
+        "delta_uady",
+        "delta_ucb",
+        "fivebar_atlas",
+        "linear_kossel",
+    ]
+
+
+@pytest.mark.parametrize("name", PRINTER_NAMES)
+def test_shipped_printer_loads(name):
+    p = printer(name)
+    assert p.name == name
+    assert p.n_joints == len(p.joints) == 3
+    for j in p.joints:
+        assert j.position_min < j.position_max and j.velocity_max > 0 and j.acceleration_max > 0
+    kinds = {
+        "rotary_delta": RotaryDeltaGeometry,
+        "linear_delta": LinearDeltaGeometry,
+        "five_bar": FiveBarGeometry,
+    }
+    assert isinstance(p.geometry, kinds[p.family])
+    assert isinstance(p.tool, Laser if name == "delta_espe_laser" else Extruder)
+
+
+def test_units_are_converted_at_the_edge():
+    p = printer("delta_etitc")
+    j = p.joints[0]
+    assert j.unit == "rad"
+    assert j.position_min == pytest.approx(math.radians(-45.0))
+    assert j.velocity_max == pytest.approx(math.radians(300.0))
+    assert j.counts_per_unit == pytest.approx(11.111 / math.radians(1.0))
+    assert p.geometry.ball_joint_tilt_max == pytest.approx(math.radians(13.0))
+    assert printer("linear_kossel").joints[0].unit == "mm"
+
+
+def _numeric_leaves(data, prefix=""):
+    """Dotted keys of every number (or list of numbers) outside [sources]."""
+    for key, value in data.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, dict):
+            if dotted != "sources":
+                yield from _numeric_leaves(value, dotted + ".")
+        elif isinstance(value, bool):
+            continue
+        elif isinstance(value, (int, float)) or (isinstance(value, list) and value and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+        )):
+            yield dotted
+
+
+@pytest.mark.parametrize("name", PRINTER_NAMES)
+def test_every_number_has_a_source(name):
+    data = tomllib.loads((PRINTER_DIR / f"{name}.toml").read_text())
+    sources = data["sources"]
+    leaves = list(_numeric_leaves(data))
+    assert len(leaves) >= 25
+    missing = [k for k in leaves if k not in sources]
+    assert not missing, f"{name}: numbers with no [sources] entry: {missing}"
+    # No stale entries, and an "assumed" number always says why.
+    all_keys = {f"{s}.{k}" for s, t in data.items() if isinstance(t, dict) for k in t} | set(data)
+    assert not [k for k in sources if k not in all_keys], "sources for keys that do not exist"
+    for key, text in sources.items():
+        if text.lower().startswith("assumed"):
+            assert re.match(r"assumed: \S.{8,}", text), f"{name}: {key}: an assumption needs its reason"
+
+
+# --------------------------------------------------------------------------- bad files
+
+
+def _bad_file(tmp_path, edit):
+    text = GOOD.read_text()
+    new = edit(text)
+    assert new != text, "the edit did not apply"
+    path = tmp_path / "bad.toml"
+    path.write_text(new)
+    return path
+
+
+def _sub(old, new):
+    return lambda text: text.replace(old, new, 1)
+
+
+BAD = {
+    # name: (edit, the key the message must name, the bound it must state)
+    "missing key": (_sub("upper_arm = 176.0\n", ""), "[kinematics] upper_arm", "required key"),
+    "string for a number": (_sub("upper_arm = 176.0", 'upper_arm = "176"'), "[kinematics] upper_arm", "a number"),
+    "negative length": (_sub("forearm = 360.0", "forearm = -360.0"), "[kinematics] forearm", "> 0"),
+    "position_min >= position_max": (
+        _sub("position_min = -45.0", "position_min = 95.0"),
+        "[joints] position_min",
+        "position_min < position_max",
+    ),
+    "unknown key (typo)": (
+        _sub("tool_offset = 40.0", "tool_offset = 40.0\nshoulder_hieght = 527.0"),
+        "[kinematics] unknown key 'shoulder_hieght'",
+        "expected one of",
+    ),
+    "unknown family": (_sub('family = "rotary_delta"', 'family = "scara"'), "[kinematics] family", "one of rotary_delta"),
+    "bad TOML syntax": (_sub("upper_arm = 176.0", "upper_arm = 176.0.0"), "not valid TOML", "line"),
+    "wrong list length": (
+        _sub("velocity_max = 300.0", "velocity_max = [300.0, 300.0]"),
+        "[joints] velocity_max",
+        "a list of 3 numbers",
+    ),
+    "geometry reaches nothing": (
+        _sub("shoulder_height = 527.0", "shoulder_height = 5000.0"),
+        "[kinematics]",
+        "max_height = 120",
+    ),
+    "missing section": (lambda t: t.replace("[bed]", "[bedd]", 1), "[bed] missing", "required section"),
+    "negative count": (_sub("counts_per_unit = 11.111", "counts_per_unit = -11.111"), "[joints] counts_per_unit", "> 0"),
+    "tilt over 90": (_sub("ball_joint_tilt_max = 13.0", "ball_joint_tilt_max = 100.0"), "[kinematics] ball_joint_tilt_max", "<= 90"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_bad_file_message_names_file_key_and_bound(tmp_path, case):
+    edit, key, bound = BAD[case]
+    path = _bad_file(tmp_path, edit)
+    with pytest.raises(PrinterFileError) as err:
+        load_printer(path)
+    msg = str(err.value)
+    assert msg.startswith(str(path) + ":")
+    assert key in msg, msg
+    assert bound in msg, msg
+    assert "\n" not in msg.strip() or case == "bad TOML syntax"
+
+
+def test_bad_values_are_shown(tmp_path):
+    with pytest.raises(PrinterFileError, match=r"forearm = -360\.0: expected a number > 0"):
+        load_printer(_bad_file(tmp_path, BAD["negative length"][0]))
+    with pytest.raises(PrinterFileError, match=r"upper_arm = '176': expected a number"):
+        load_printer(_bad_file(tmp_path, BAD["string for a number"][0]))
+
+
+def test_missing_file(tmp_path):
+    path = tmp_path / "nope.toml"
+    with pytest.raises(PrinterFileError, match=r"nope\.toml: no such printer file"):
+        load_printer(path)
+
+
+def test_every_family_checks_unknown_keys(tmp_path):
+    for name in PRINTER_NAMES:
+        text = (PRINTER_DIR / f"{name}.toml").read_text().replace("[joints]\n", "[joints]\nacceleration_mx = 1.0\n", 1)
+        path = tmp_path / f"{name}.toml"
+        path.write_text(text)
+        with pytest.raises(PrinterFileError, match=r"\[joints\] unknown key 'acceleration_mx'"):
+            load_printer(path)
+
+
+# --------------------------------------------------------------------------- the CLI
+
+
+@pytest.mark.parametrize("case", ["missing key", "bad TOML syntax", "geometry reaches nothing", "unknown family"])
+def test_cli_prints_one_error_line_and_no_traceback(tmp_path, case):
+    path = _bad_file(tmp_path, BAD[case][0])
+    result = CliRunner().invoke(main, ["workspace", "--printer", str(path), "--plot", str(tmp_path / "ws.png")])
+    assert result.exit_code == 1
+    assert result.stderr.startswith("error: "), result.stderr
+    assert str(path) in result.stderr
+    assert "Traceback" not in result.output and result.exc_info[0] is SystemExit
+    assert not (tmp_path / "ws.png").exists()
+
+
+def test_cli_missing_printer_file(tmp_path):
+    result = CliRunner().invoke(main, ["workspace", "--printer", str(tmp_path / "none.toml")])
+    assert result.exit_code == 1
+    assert result.stderr.startswith("error: ") and "no such printer file" in result.stderr
