@@ -257,12 +257,14 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     S = path.length
     margin = 1.0 - printer.planning.limit_margin
 
-    # Filament per mm of each piece: each segment's filament spread over the pieces that
-    # belong to it, so the total is exactly the toolpath's.
-    seg_len = np.bincount(path.segment, weights=np.diff(path.piece_start), minlength=len(feed))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        seg_ratio = np.where(seg_len > 0, e / seg_len, 0.0)
+    # Filament per mm of each piece: the polyline segment's own ratio (equal widths stay equal),
+    # scaled once for the run so the blended (slightly shorter) path pushes exactly the
+    # toolpath's filament.
+    seg_ratio = e / np.linalg.norm(np.diff(pts, axis=0), axis=1)
     e_ratio = seg_ratio[path.segment]
+    pushed = float(np.dot(e_ratio, np.diff(path.piece_start)))
+    if pushed != 0.0:
+        e_ratio = e_ratio * (float(e.sum()) / pushed)
     cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
 
     extruder = not printer.is_laser
