@@ -153,8 +153,16 @@ def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     return BlendedPath(np.concatenate([[0.0], np.cumsum(lengths)]), kind, p0, d0, nrm, rad, segment)
 
 
-def dedupe(points: np.ndarray, *arrays, eps: float = 1e-9):
-    """Drop zero-length segments of a polyline. points (m+1,3); arrays: per-segment (m,) values."""
+def dedupe(points: np.ndarray, feed: np.ndarray, e: np.ndarray, eps: float = 1e-3):
+    """Drop segments shorter than eps (mm) from a polyline, keeping the filament.
+
+    points (m+1,3); feed, e: per segment (m,). A dropped segment's filament goes to the
+    segment kept before it (or after it, at the start). Returns (points, feed, e)."""
     keep = np.linalg.norm(np.diff(points, axis=0), axis=1) > eps
+    if not keep.any():
+        return points[:1], feed[:0], e[:0]
+    owner = np.maximum(np.cumsum(keep) - 1, 0)  # kept segment index that absorbs each segment
+    e_kept = np.bincount(owner, weights=e, minlength=int(keep.sum()))
     pts = np.concatenate([points[:1], points[1:][keep]])
-    return (pts, *(a[keep] for a in arrays))
+    pts[-1] = points[-1]
+    return pts, feed[keep], e_kept

@@ -31,7 +31,7 @@ from toppra.constraint.linear_constraint import LinearConstraint
 from toppra.interpolator import AbstractGeometricPath
 
 from ..errors import PlanningError, UnreachableError
-from .blend import BlendedPath, blend_polyline
+from .blend import BlendedPath, blend_polyline, dedupe
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
@@ -231,6 +231,16 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
 
     Returns a RunPiece, or, in the rare case toppra's numerics fail on the whole run, the
     list of RunPieces of its two halves (split at a vertex, each from rest to rest)."""
+    if len(dedupe(spec.points, spec.feed, spec.e)[0]) < 2:
+        # Shorter than a micron: the filament (if any) is pushed at rest.
+        from .travel import FilamentPiece
+
+        q = kin.inverse(spec.points[-1:])[0]
+        ex = printer.tool if not printer.is_laser else None
+        amount = float(spec.e.sum())
+        if ex is None or amount == 0:
+            return []
+        return [FilamentPiece(q, amount, ex.max_filament_speed, ex.max_filament_acceleration, spec.layer, kind="run")]
     try:
         return _plan_run(kin, printer, spec, speed_limit, tolerance)
     except PlanningError:
@@ -248,11 +258,7 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
 
 
 def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece:
-    from .blend import dedupe
-
     pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
-    if len(pts) < 2:
-        raise PlanningError(f"layer {spec.layer}: empty run")
     path = blend_polyline(pts, printer.planning.blend_tolerance if tolerance is None else tolerance)
     S = path.length
     margin = 1.0 - printer.planning.limit_margin
