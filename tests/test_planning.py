@@ -248,3 +248,18 @@ def test_exact_reversal_stops_at_the_cusp_within_limits():
     p = printer.kinematics().forward(s.q)
     cusp = np.argmin(np.linalg.norm(p[:, :2] - [10, 0], axis=1))
     assert np.linalg.norm(p[cusp, :2] - [10, 0]) < 5e-3  # it really goes to the reversal point
+
+
+def test_toppra_degenerate_stage_falls_back_to_a_safe_profile():
+    # A travel on which toppra's seidel solver returns a NaN controllable set (found by the
+    # benchmark): the run is still planned, within every limit.
+    printer = load_printer("printers/delta_etitc.toml")
+    b = ToolpathBuilder((10.74668719, -20.97418369, 1.3))
+    b.new_layer(1.3)
+    b.add([[12.16288082, -20.18612611, 1.3]], 130, 0.0, 0, Role.TRAVEL)
+    traj = plan(b.build(), printer, speed_limit="machine", workers=1)
+    s = traj.samples()
+    v, a = finite_differences(s, printer.planning.output_rate)
+    assert (np.abs(a).max(axis=0) / printer.joint_array("acceleration_max")).max() <= MARGIN
+    assert (np.abs(v).max(axis=0) / printer.joint_array("velocity_max")).max() <= MARGIN
+    assert np.allclose(printer.kinematics().forward(s.q[-1:])[0], [12.16288082, -20.18612611, 1.3], atol=1e-6)

@@ -225,6 +225,20 @@ def grid(path: BlendedPath) -> np.ndarray:
     return g
 
 
+def _conservative_profile(rp, x, vmax, amax, xd_cap):
+    """Path speeds (n,) at the grid x for one constant path acceleration A and speed cap V
+    that satisfy every limit at every grid point whatever the signs: |q'| V <= vmax and
+    |q'| A + |q''| V^2 <= amax. Returns None when no positive speed is possible."""
+    d1, d2 = np.abs(rp(x, 1)), np.abs(rp(x, 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = min(float(np.min(vmax[None] / d1)), float(np.min(xd_cap)))
+        v = min(v, float(np.sqrt(0.5 * np.min(amax[None] / d2))))
+        a = float(np.min((amax[None] - d2 * v * v) / d1))
+    if not (v > 0 and a > 0 and np.isfinite(v) and np.isfinite(a)):
+        return None
+    return np.minimum(v, np.sqrt(2 * a * np.minimum(x, 1.0 - x).clip(0)))
+
+
 def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece | list:
     """Plan one run from rest to rest. kin: kinematics; printer: Printer;
     tolerance: blend tolerance, mm (default: the printer's).
@@ -273,7 +287,8 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
         e_ratio = e_ratio * (float(e.sum()) / pushed)
     cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
 
-    extruder = not printer.is_laser
+    # The filament coordinate only where filament moves: all-zero rows make toppra's LP degenerate.
+    extruder = not printer.is_laser and bool(np.any(e != 0))
     vmax = printer.joint_array("velocity_max") * margin
     amax = printer.joint_array("acceleration_max") * margin
     if extruder:
@@ -308,10 +323,14 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
     sdd, sd, _ = algo.compute_parameterization(0.0, 0.0)
     if sd is None or not np.all(np.isfinite(sd)):
-        raise PlanningError(
-            f"layer {spec.layer}: no feasible speed profile for the run starting at "
-            f"x = {pts[0, 0]:.2f}, y = {pts[0, 1]:.2f} mm (near a singularity or limit)"
-        )
+        # Seidel's 2-D LP occasionally meets a degenerate stage; a conservative profile from
+        # the same limits is always feasible (and slower only on this run).
+        sd = _conservative_profile(rp, x_grid, vmax, amax, feed_grid / S)
+        if sd is None:
+            raise PlanningError(
+                f"layer {spec.layer}: no feasible speed profile for the run starting at "
+                f"x = {pts[0, 0]:.2f}, y = {pts[0, 1]:.2f} mm (near a singularity or limit)"
+            )
     dx = np.diff(x_grid)
     vsum = sd[:-1] + sd[1:]
     with np.errstate(divide="ignore", invalid="ignore"):
