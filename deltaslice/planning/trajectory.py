@@ -25,7 +25,6 @@ class Trajectory:
     planner: str = "toppra"
     speed_limit: str = "feed"
     e_start: float = 0.0
-    q_start: np.ndarray | None = None
     info: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -69,16 +68,6 @@ class Trajectory:
     def samples(self, rate: float | None = None) -> Samples:
         """All samples at once (tests and small parts; long prints should use iter_samples)."""
         return Samples.concatenate(list(self.iter_samples(rate)))
-
-    def utilisation(self, rate: float | None = None) -> dict:
-        """Peak use of each limit and the fraction of time at least one limit is active.
-
-        Measured on the samples by finite differences: a limit is "active" at a sample
-        when its velocity or acceleration is within 5 % of it, or the Cartesian speed is
-        within 5 % of the feed cap (pass the cap per sample via info if known)."""
-        s = self.samples(rate)
-        rate = rate or self.printer.planning.output_rate
-        return utilisation_of(self.printer, s, rate, feed_cap=None)
 
     @property
     def active_fraction(self) -> float:
