@@ -84,6 +84,7 @@ def compile_part(
     """Slice (or read), plan and emit. Returns the end-of-run summary text."""
     from .emit import format_for, write_trajectory
     from .planning import plan
+    from .planning.trajectory import LimitMonitor
 
     printer = _printer(printer)
     t0 = time.perf_counter()
@@ -107,11 +108,13 @@ def compile_part(
         progress=stderr_progress(progress, "planning runs"),
     )
     t_plan = time.perf_counter() - t0 - t_slice
-    size = write_trajectory(trajectory, printer, output, fmt=fmt)
+    monitor = LimitMonitor(printer, printer.planning.output_rate)
+    size = write_trajectory(trajectory, printer, output, fmt=fmt, watch=monitor.watch)
     t_all = time.perf_counter() - t0
     return trajectory.summary_text(
         toolpath,
         printer,
+        monitor,
         extra={
             "output": f"{output} ({fmt}, {size / 1024:.1f} KiB)",
             "wall time": f"slice {t_slice:.2f} s, plan {t_plan:.2f} s, total {t_all:.2f} s",

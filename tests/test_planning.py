@@ -263,3 +263,23 @@ def test_toppra_degenerate_stage_falls_back_to_a_safe_profile():
     assert (np.abs(a).max(axis=0) / printer.joint_array("acceleration_max")).max() <= MARGIN
     assert (np.abs(v).max(axis=0) / printer.joint_array("velocity_max")).max() <= MARGIN
     assert np.allclose(printer.kinematics().forward(s.q[-1:])[0], [12.16288082, -20.18612611, 1.3], atol=1e-6)
+
+
+def test_limit_monitor_over_blocks_equals_whole_array_differences():
+    from deltaslice.planning.trajectory import LimitMonitor
+
+    printer = load_printer("printers/delta_etitc.toml")
+    traj = plan(layered_part(0.5, 0.4, 1, 40), printer, speed_limit="machine", workers=1)
+    rate = printer.planning.output_rate
+    s = traj.samples()
+    v, a = finite_differences(s, rate)
+    m = LimitMonitor(printer, rate).consume(traj.iter_samples(rate, block=97))
+    assert np.allclose(m.peak_v, (np.abs(v[1:-1]) / printer.joint_array("velocity_max")).max(axis=0), rtol=1e-12)
+    assert np.allclose(m.peak_a, (np.abs(a[1:-1]) / printer.joint_array("acceleration_max")).max(axis=0), rtol=1e-12)
+    fw = plan_firmware(layered_part(0.25, 0.2, 1, 40), load_printer("printers/delta_uady.toml"))
+    whole = corner_violations(fw)
+    fv, fa = finite_differences(fw.samples(), fw.printer.planning.output_rate)
+    bad = ((np.abs(fv) / fw.printer.joint_array("velocity_max")).max(axis=1) > 1) | (
+        (np.abs(fa) / fw.printer.joint_array("acceleration_max")).max(axis=1) > 1
+    )
+    assert whole["violating_samples"] == int(bad[1:-1].sum()) > 0

@@ -54,13 +54,19 @@ def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: d
     raise DeltasliceError(f"cannot write samples as {fmt!r}: expected 'csv' or 'stream'")
 
 
-def write_trajectory(trajectory, printer, output, fmt: str | None = None) -> int:
-    """Sample a planned trajectory at the printer's output rate and write it."""
+def write_trajectory(trajectory, printer, output, fmt: str | None = None, watch=None) -> int:
+    """Sample a planned trajectory at the printer's output rate and write it.
+
+    watch: optional callable wrapping the block iterator (e.g. ``LimitMonitor.watch``), so
+    the samples are examined as they are written instead of being computed twice."""
     fmt = fmt or format_for(output)
     rate = printer.planning.output_rate
     metadata = dict(trajectory.metadata()) if hasattr(trajectory, "metadata") else {}
     metadata.setdefault("duration_s", f"{trajectory.duration:.6f}")
-    return write_samples(trajectory.iter_samples(rate), printer, output, fmt=fmt, rate=rate, metadata=metadata)
+    blocks = trajectory.iter_samples(rate)
+    if watch is not None:
+        blocks = watch(blocks)
+    return write_samples(blocks, printer, output, fmt=fmt, rate=rate, metadata=metadata)
 
 
 def read_output(path):

@@ -76,9 +76,8 @@ class Trajectory:
         profiles are bang-bang and always at a bound)."""
         return float(sum(p.active_time for p in self.pieces) / self.duration) if self.duration > 0 else 0.0
 
-    def summary_text(self, toolpath, printer, extra=None) -> str:
-        rate = printer.planning.output_rate
-        util = utilisation_of(printer, self.samples(rate), rate)
+    def summary_text(self, toolpath, printer, monitor: "LimitMonitor", extra=None) -> str:
+        """End-of-run summary; ``monitor`` has watched the samples as they were written."""
         kinds = {}
         for p in self.pieces:
             kinds[p.kind] = kinds.get(p.kind, 0) + 1
@@ -88,7 +87,7 @@ class Trajectory:
             + ", ".join(f"{v} {k}" for k, v in sorted(kinds.items())),
             f"planner: {self.planner}, speed limit: {self.speed_limit}",
             f"print time: {self.duration:.2f} s ({self.duration / 60:.1f} min)",
-            "peak use of limits: " + ", ".join(f"{k} {v:.0f} %" for k, v in util["peak_percent"].items()),
+            "peak use of limits: " + ", ".join(f"{k} {v:.0f} %" for k, v in monitor.peak_percent().items()),
             f"time with a limit active (joint, filament or feed cap): {100 * self.active_fraction:.1f} %",
         ]
         for k, v in (extra or {}).items():
@@ -106,26 +105,69 @@ def finite_differences(samples: Samples, rate: float):
     return v, a
 
 
-def utilisation_of(printer, samples: Samples, rate: float, feed_cap=None, active_threshold=0.95) -> dict:
-    """Peak percentage of each joint velocity/acceleration limit and the active fraction."""
-    v, a = finite_differences(samples, rate)
-    vmax = printer.joint_array("velocity_max")
-    amax = printer.joint_array("acceleration_max")
-    rv = np.abs(v) / vmax[None]
-    ra = np.abs(a) / amax[None]
-    peak = {}
-    for j, joint in enumerate(printer.joints):
-        peak[f"{joint.name} vel"] = 100 * float(rv[:, j].max(initial=0))
-        peak[f"{joint.name} acc"] = 100 * float(ra[:, j].max(initial=0))
-    ratios = [rv.max(axis=1), ra.max(axis=1)]
-    if not printer.is_laser and len(samples) > 2:
-        # The melt-flow limit applies while extruding; retracts move cold filament at retract speed.
-        ev = np.abs(np.gradient(samples.e, 1.0 / rate)) * (samples.tool > 0)
-        ratios.append(ev / printer.tool.max_filament_speed)
-        peak["filament vel"] = 100 * float(ratios[-1].max(initial=0))
-    if feed_cap is not None:
-        p = printer.kinematics().forward(samples.q)
-        speed = np.linalg.norm(np.gradient(p, 1.0 / rate, axis=0), axis=1)
-        ratios.append(speed / feed_cap)
-    active = np.max(np.stack(ratios), axis=0) >= active_threshold
-    return {"peak_percent": peak, "active_fraction": float(active.mean()) if len(active) else 0.0}
+class LimitMonitor:
+    """Watches Samples blocks as they stream past (to an emitter, or nowhere) and keeps, per
+    joint, the peak ratio of velocity and acceleration to its limit (central differences at
+    the output rate, across block edges too), the peak filament speed while extruding, and
+    the samples beyond a joint limit. Memory: two samples, whatever the print's length."""
+
+    def __init__(self, printer, rate: float):
+        self.printer, self.rate = printer, float(rate)
+        self.vmax = printer.joint_array("velocity_max")
+        self.amax = printer.joint_array("acceleration_max")
+        self.peak_v = np.zeros(printer.n_joints)
+        self.peak_a = np.zeros(printer.n_joints)
+        self.peak_filament = 0.0
+        self.violating_samples = 0
+        self.events = 0
+        self._tail = None  # last two samples of the previous block: (q, e, tool)
+        self._bad_before = False
+
+    def watch(self, blocks):
+        """Yield the blocks unchanged, observing each."""
+        for block in blocks:
+            self.observe(block)
+            yield block
+
+    def consume(self, blocks) -> "LimitMonitor":
+        for block in blocks:
+            self.observe(block)
+        return self
+
+    def observe(self, block: Samples) -> None:
+        q, e, tool = block.q, block.e, block.tool
+        if self._tail is not None:
+            q = np.concatenate([self._tail[0], q])
+            e = np.concatenate([self._tail[1], e])
+            tool = np.concatenate([self._tail[2], tool])
+        self._tail = (q[-2:], e[-2:], tool[-2:])
+        if len(q) < 3:
+            return
+        # Interior samples only: each is judged once, with both neighbours known.
+        rv = np.abs(q[2:] - q[:-2]) * (0.5 * self.rate) / self.vmax
+        ra = np.abs(q[2:] - 2 * q[1:-1] + q[:-2]) * self.rate**2 / self.amax
+        self.peak_v = np.maximum(self.peak_v, rv.max(axis=0))
+        self.peak_a = np.maximum(self.peak_a, ra.max(axis=0))
+        if not self.printer.is_laser:
+            # The melt-flow limit applies while extruding; retracts move cold filament.
+            ev = np.abs(e[2:] - e[:-2]) * (0.5 * self.rate) * (tool[1:-1] > 0)
+            self.peak_filament = max(self.peak_filament, float(ev.max()) / self.printer.tool.max_filament_speed)
+        bad = (rv.max(axis=1) > 1.0) | (ra.max(axis=1) > 1.0)
+        self.violating_samples += int(bad.sum())
+        starts = np.diff(np.concatenate([[self._bad_before], bad]).astype(np.int8)) == 1
+        self.events += int(starts.sum())
+        self._bad_before = bool(bad[-1])
+
+    @property
+    def worst(self) -> float:
+        """Largest joint velocity or acceleration ratio seen."""
+        return float(max(self.peak_v.max(initial=0), self.peak_a.max(initial=0)))
+
+    def peak_percent(self) -> dict:
+        peak = {}
+        for j, joint in enumerate(self.printer.joints):
+            peak[f"{joint.name} vel"] = 100 * float(self.peak_v[j])
+            peak[f"{joint.name} acc"] = 100 * float(self.peak_a[j])
+        if not self.printer.is_laser:
+            peak["filament vel"] = 100 * self.peak_filament
+        return peak

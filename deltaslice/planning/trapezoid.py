@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .trajectory import Trajectory, finite_differences
+from .trajectory import LimitMonitor, Trajectory
 
 FIRMWARE_ACCEL = 3000.0  # mm/s^2, Marlin's delta default
 FIRMWARE_SCV = 5.0  # mm/s, Klipper's default square corner velocity
@@ -163,20 +163,7 @@ def plan_firmware(toolpath, printer, *, speed_limit="feed", accel=FIRMWARE_ACCEL
 
 def peak_ratio(traj: Trajectory, rate: float) -> float:
     """Largest sampled |joint velocity| / limit or |joint acceleration| / limit."""
-    worst = 0.0
-    vmax = traj.printer.joint_array("velocity_max")
-    amax = traj.printer.joint_array("acceleration_max")
-    prev = None
-    for block in traj.iter_samples(rate, block=20000):
-        # Overlap two samples so differences across block edges are counted.
-        q = block.q if prev is None else np.concatenate([prev, block.q])
-        from ..samples import Samples
-
-        s = Samples(np.arange(len(q)) / rate, q, np.zeros(len(q)), np.zeros(len(q)))
-        v, a = finite_differences(s, rate)
-        worst = max(worst, float(np.max(np.abs(v[1:-1]) / vmax)), float(np.max(np.abs(a[1:-1]) / amax)))
-        prev = block.q[-2:]
-    return worst
+    return LimitMonitor(traj.printer, rate).consume(traj.iter_samples(rate)).worst
 
 
 def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iterations=14):
@@ -213,18 +200,12 @@ def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iteration
 def corner_violations(traj: Trajectory, rate: float | None = None) -> dict:
     """Joint-limit violations of a trajectory sampled at the output rate: how many
     samples and distinct events (consecutive violating samples count once) exceed a
-    velocity or acceleration limit, and the worst ratio."""
-    printer = traj.printer
-    rate = rate or printer.planning.output_rate
-    s = traj.samples(rate)
-    v, a = finite_differences(s, rate)
-    rv = np.abs(v) / printer.joint_array("velocity_max")[None]
-    ra = np.abs(a) / printer.joint_array("acceleration_max")[None]
-    bad = (rv.max(axis=1) > 1.0) | (ra.max(axis=1) > 1.0)
-    events = int(np.sum(np.diff(np.concatenate([[0], bad.astype(np.int8)])) == 1))
+    velocity or acceleration limit, and the worst ratios."""
+    rate = rate or traj.printer.planning.output_rate
+    m = LimitMonitor(traj.printer, rate).consume(traj.iter_samples(rate))
     return {
-        "violating_samples": int(bad.sum()),
-        "events": events,
-        "worst_velocity_ratio": float(rv.max(initial=0)),
-        "worst_acceleration_ratio": float(ra.max(initial=0)),
+        "violating_samples": m.violating_samples,
+        "events": m.events,
+        "worst_velocity_ratio": float(m.peak_v.max(initial=0)),
+        "worst_acceleration_ratio": float(m.peak_a.max(initial=0)),
     }
