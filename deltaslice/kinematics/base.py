@@ -33,6 +33,30 @@ def solve_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def lower_sphere_intersection(centres: np.ndarray, radius: float):
+    """Where three equal spheres meet, the root with the lower z (deltas hang below their arms).
+
+    centres: (N, 3 spheres, 3) float, mm; radius: mm. Returns (points (N,3), h2 (N,)): h2 is the
+    squared height of the root above the centres' plane; where it is negative the spheres do
+    not meet and the points are NaN."""
+    p0, p1, p2 = centres[:, 0], centres[:, 1], centres[:, 2]
+    ex = p1 - p0
+    d = np.linalg.norm(ex, axis=1)
+    ex = ex / d[:, None]
+    i = np.einsum("ni,ni->n", ex, p2 - p0)
+    ey = p2 - p0 - i[:, None] * ex
+    j = np.linalg.norm(ey, axis=1)
+    ey = ey / j[:, None]
+    ez = np.cross(ex, ey)
+    ez[ez[:, 2] > 0] *= -1  # the root below the centres
+    x = d / 2  # equal radii: (r^2 - r^2 + d^2) / 2d
+    y = (i**2 + j**2) / (2 * j) - i * x / j
+    h2 = radius**2 - x**2 - y**2
+    with np.errstate(invalid="ignore"):
+        out = p0 + x[:, None] * ex + y[:, None] * ey + np.sqrt(h2)[:, None] * ez
+    return out, h2
+
+
 class Kinematics:
     """Shared behaviour; subclasses provide ``inverse``, ``forward``, ``jacobian``."""
 

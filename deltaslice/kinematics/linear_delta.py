@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Kinematics, solve_rows
+from .base import Kinematics, lower_sphere_intersection, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
@@ -40,21 +40,7 @@ class LinearDelta(Kinematics):
         (NaN where the rods cannot meet or only meet with a carriage below the effector)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         c = np.concatenate([np.broadcast_to(self.towers[None], (len(q), 3, 2)), q[..., None]], axis=2)
-        p0, p1, p2 = c[:, 0], c[:, 1], c[:, 2]
-        ex = p1 - p0
-        d = np.linalg.norm(ex, axis=1)
-        ex = ex / d[:, None]
-        i = np.einsum("ni,ni->n", ex, p2 - p0)
-        ey = p2 - p0 - i[:, None] * ex
-        j = np.linalg.norm(ey, axis=1)
-        ey = ey / j[:, None]
-        ez = np.cross(ex, ey)
-        ez[ez[:, 2] > 0] *= -1
-        x = d / 2
-        y = (i**2 + j**2) / (2 * j) - i * x / j
-        zz2 = self.L**2 - x**2 - y**2
-        with np.errstate(invalid="ignore"):
-            out = p0 + x[:, None] * ex + y[:, None] * ey + np.sqrt(zz2)[:, None] * ez
+        out, zz2 = lower_sphere_intersection(c, self.L)
         out[:, 2] -= self.t
         # The lower root can still leave a carriage below the effector joints when the carriage
         # heights differ much; no rod hangs upward in this machine (and inverse never returns it).

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import Kinematics, solve_rows
+from .base import Kinematics, lower_sphere_intersection, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
@@ -67,25 +67,8 @@ class RotaryDelta(Kinematics):
         q = np.atleast_2d(np.asarray(q, dtype=float))
         # Sphere centres: where the platform centre (plus tool offset) would be if arm i alone held it.
         c = self.elbows(q) - (self.r * U + self.t * Z)[None]
-        p0, p1, p2 = c[:, 0], c[:, 1], c[:, 2]
-        ex = p1 - p0
-        d = np.linalg.norm(ex, axis=1)
-        ex = ex / d[:, None]
-        i = np.einsum("ni,ni->n", ex, p2 - p0)
-        ey = p2 - p0 - i[:, None] * ex
-        j = np.linalg.norm(ey, axis=1)
-        ey = ey / j[:, None]
-        ez = np.cross(ex, ey)
-        # ez points down when it opposes +z: pick the root below the elbows.
-        flip = ez[:, 2] > 0
-        ez[flip] *= -1
-        x = d / 2  # equal radii: (r1^2 - r2^2 + d^2) / 2d
-        y = (i**2 + j**2) / (2 * j) - i * x / j
-        zz2 = self.L2**2 - x**2 - y**2
-        with np.errstate(invalid="ignore"):
-            zz = np.sqrt(zz2)
-        out = p0 + x[:, None] * ex + y[:, None] * ey + zz[:, None] * ez
-        out[~(zz2 >= 0)] = np.nan
+        out, h2 = lower_sphere_intersection(c, self.L2)
+        out[~(h2 >= 0)] = np.nan
         return out
 
     def _closure(self, q, points):
