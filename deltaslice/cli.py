@@ -31,6 +31,19 @@ class _DefaultGroup(click.Group):
         return super().parse_args(ctx, args)
 
 
+def _placement_options(fn):
+    """--scale, --rotate, --keep-position: how a mesh is placed on the bed."""
+    for option in reversed(
+        [
+            click.option("--scale", type=float, default=1.0, show_default=True, help="Scale the part."),
+            click.option("--rotate", type=float, default=0.0, show_default=True, help="Rotate the part about z, degrees."),
+            click.option("--keep-position", is_flag=True, help="Keep the part's x-y position instead of centring it."),
+        ]
+    ):
+        fn = option(fn)
+    return fn
+
+
 def _run(fn, *args, **kwargs):
     """Call the library; turn any DeltasliceError into a one-line message and exit 1."""
     try:
@@ -59,9 +72,7 @@ def main():
               help="feed: obey the toolpath's feed rates; machine: only the actuators' limits.")
 @click.option("--planner", type=click.Choice(["toppra", "trapezoid"]), default="toppra", show_default=True,
               help="toppra: time-optimal in joint space; trapezoid: the conventional Cartesian planner (made safe).")
-@click.option("--scale", type=float, default=1.0, show_default=True, help="Scale the part.")
-@click.option("--rotate", type=float, default=0.0, show_default=True, help="Rotate the part about z, degrees.")
-@click.option("--keep-position", is_flag=True, help="Keep the part's x-y position instead of centring it.")
+@_placement_options
 @click.option("--workers", type=int, default=None, help="Planning processes (default: all cores).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
 def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers, quiet):
@@ -90,9 +101,7 @@ def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, ro
 @click.argument("part", type=click.Path(dir_okay=False))
 @click.option("--printer", "printer_path", required=True, type=click.Path(dir_okay=False), help="Printer file (printers/*.toml).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code file to write.")
-@click.option("--scale", type=float, default=1.0, show_default=True, help="Scale the part.")
-@click.option("--rotate", type=float, default=0.0, show_default=True, help="Rotate the part about z, degrees.")
-@click.option("--keep-position", is_flag=True, help="Keep the part's x-y position instead of centring it.")
+@_placement_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
 def slice_cmd(part, printer_path, output, scale, rotate, keep_position, quiet):
     """Slice a mesh into G-code (absolute E, ;LAYER:n markers, feeds in mm/min).
