@@ -87,12 +87,12 @@ def compile_part(
     from .planning.trajectory import LimitMonitor
 
     printer = _printer(printer)
+    if output is None:
+        output = str(Path(part).with_suffix(".csv").name)
+    fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
     t_slice = time.perf_counter() - t0
-    if output is None:
-        output = str(Path(part).with_suffix(".csv").name)
-    fmt = fmt or format_for(output)
     if fmt == "gcode":
         from .gcode import write_gcode
 

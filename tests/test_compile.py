@@ -61,3 +61,10 @@ def test_part_that_does_not_fit_is_refused_without_output(tmp_path):
     assert r.exit_code == 1
     assert r.output.startswith("error:") and "Traceback" not in r.output
     assert not out.exists()
+
+
+def test_unknown_output_extension_fails_before_slicing(tmp_path):
+    out = tmp_path / "cube.txt"
+    r = CliRunner().invoke(main, [str(CUBE), "--printer", str(ROOT / "printers" / "delta_etitc.toml"), "-o", str(out)])
+    assert r.exit_code == 1 and "cannot tell the output format" in r.output
+    assert "slicing layers" not in r.output and not out.exists()
