@@ -108,7 +108,7 @@ def volume_and_layers(gcode: Path, filament_diameter: float):
 
 
 def main(argv=None):
-    from deltaslice.printer import load_printer
+    from deltaslice.machine import load_printer
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=5)

@@ -14,7 +14,7 @@ from .errors import (
     StreamError,
     UnreachableError,
 )
-from .printer import Printer, load_printer
+from .machine import Printer, load_printer
 from .toolpath import Role, Toolpath
 
 __version__ = "0.1.0"

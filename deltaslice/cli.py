@@ -78,8 +78,9 @@ def main():
 def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers, quiet):
     """Compile PART (mesh or G-code) into a trajectory for the printer."""
     from .pipeline import compile_part
+    from .report import compile_summary
 
-    summary = _run(
+    result = _run(
         compile_part,
         part,
         printer_path,
@@ -94,7 +95,7 @@ def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, ro
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),
     )
-    click.echo(summary)
+    click.echo(compile_summary(result))
 
 
 @main.command("slice")
@@ -150,9 +151,9 @@ def workspace_cmd(printer_path, plot_path):
               help="Printer file; needed with --units only when the stream's own header is not enough.")
 def decode_cmd(stream, units, printer_path):
     """Print the samples of a binary stream, one line per sample."""
-    from .emit.stream import decode_to_text
+    from .pipeline import decode_stream
 
-    _run(decode_to_text, stream, sys.stdout, units=units, printer_path=printer_path)
+    _run(decode_stream, stream, sys.stdout, units=units, printer=printer_path)
 
 
 @main.command("verify")
@@ -162,9 +163,9 @@ def decode_cmd(stream, units, printer_path):
               help="The part or G-code compiled, to check the path deviation.")
 def verify_cmd(output, printer_path, toolpath_path):
     """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 1 on any violation."""
-    from .verify import verify_file
+    from .pipeline import verify_output
 
-    report = _run(verify_file, output, printer_path, toolpath_path=toolpath_path)
+    report = _run(verify_output, output, printer_path, toolpath=toolpath_path)
     click.echo(report.text())
     sys.exit(0 if report.ok else 1)
 

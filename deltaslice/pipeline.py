@@ -1,71 +1,126 @@
 """The stages chained: what the CLI commands call, and what other programs can call too.
 
-Each function takes paths and options, runs the stages in order
-(printer -> mesh or G-code -> Toolpath -> Trajectory -> file) and returns a short
-text summary. The stages themselves live in their own modules.
+This is the one module that opens paths: it reads the printer file, the part and the
+outputs, hands each stage the previous stage's object, and writes every output
+atomically (printer -> mesh or G-code -> Toolpath -> Trajectory -> samples -> bytes).
+Functions return objects (:class:`~deltaslice.report.CompileResult`,
+:class:`~deltaslice.verify.VerifyReport`); :mod:`deltaslice.report` turns them into text.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import tempfile
 import time
 from pathlib import Path
 
-from .errors import DeltasliceError
-from .printer import Printer, load_printer
+from .errors import StreamError
+from .formats import format_for, part_kind
+from .machine import LimitMonitor, Printer, load_printer
 from .progress import stderr_progress
-
-MESH_SUFFIXES = (".stl", ".obj", ".3mf", ".ply", ".off")
-GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
+from .report import CompileResult, piece_counts, slice_summary
 
 
 def _printer(printer) -> Printer:
     return printer if isinstance(printer, Printer) else load_printer(printer)
 
 
+@contextlib.contextmanager
+def atomic_output(path, mode: str = "wb", **open_kwargs):
+    """Open a temporary file next to ``path``; on success it replaces ``path``. A failure
+    anywhere while writing removes it and leaves any previous file untouched."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, mode, **open_kwargs) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
 def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None):
     """A Toolpath from a mesh (sliced here) or a G-code file (read), in the bed frame.
 
-    part: path to .stl/.obj/.3mf or .gcode; printer: Printer or path.
+    part: path to a mesh or G-code file; printer: Printer or path.
     progress: callable(done, total) or None; echo: callable(str) for notes (repairs, skipped commands).
     """
     printer = _printer(printer)
-    suffix = Path(part).suffix.lower()
-    if suffix in GCODE_SUFFIXES:
+    if part_kind(part) == "gcode":
         from .gcode import read_gcode
 
-        toolpath = read_gcode(part, printer=printer, echo=echo)
-    elif suffix in MESH_SUFFIXES:
-        from .mesh import check_fits, load_mesh
-        from .slicing import slice_mesh
+        return read_gcode(part, printer=printer, echo=echo)
+    from .mesh import check_fits, load_mesh
+    from .slicing import slice_mesh
 
-        mesh = load_mesh(part, scale=scale, rotate_z=rotate, keep_position=keep_position)
-        if echo is not None:
-            for note in mesh.repairs:
-                echo(f"mesh: {note}")
-        check_fits(mesh, printer)
-        toolpath = slice_mesh(mesh, printer, progress=progress)
-    else:
-        raise DeltasliceError(
-            f"{part}: unknown part type {suffix or '(no extension)'!r}: expected a mesh "
-            f"({', '.join(MESH_SUFFIXES)}) or G-code ({', '.join(GCODE_SUFFIXES)})"
-        )
-    return toolpath
+    mesh = load_mesh(part, scale=scale, rotate_z=rotate, keep_position=keep_position)
+    if echo is not None:
+        for note in mesh.repairs:
+            echo(f"mesh: {note}")
+    check_fits(mesh, printer)
+    return slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
+
+
+def _write_gcode(toolpath, output, printer) -> None:
+    from .gcode import write_gcode
+
+    write_gcode(toolpath, output, printer)
 
 
 def slice_to_gcode(part, printer, output, *, progress=False, echo=None, **mesh_options) -> str:
     """Slice a mesh and write G-code. Returns a summary line."""
-    from .gcode import write_gcode
-
     printer = _printer(printer)
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
-    write_gcode(toolpath, output, printer)
-    s = toolpath.summary()
-    return (
-        f"{output}: {s['layers']} layers, {s['moves']} moves, {s['filament_mm']:.1f} mm filament, "
-        f"{time.perf_counter() - t0:.2f} s"
-    )
+    _write_gcode(toolpath, output, printer)
+    return slice_summary(str(output), toolpath.summary(), time.perf_counter() - t0)
+
+
+def write_output(trajectory, output, fmt: str | None = None, watch=None) -> int:
+    """Write a planned trajectory to ``output`` (format from the extension unless given),
+    atomically. Returns bytes written."""
+    from .emit import write_trajectory
+
+    fmt = fmt or format_for(output)
+    with atomic_output(output, "wb") as f:
+        return write_trajectory(trajectory, f, fmt, watch=watch)
+
+
+def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
+    """Write Samples blocks for ``printer`` to ``output`` as ``fmt``, atomically. Returns bytes written."""
+    from .emit import write_samples as encode
+
+    with atomic_output(output, "wb") as f:
+        return encode(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata)
+
+
+def read_counts(path):
+    """(StreamHeader, counts (n, C) int64) of a stream file."""
+    from .emit.stream import read_counts as decode
+
+    try:
+        f = open(path, "rb")
+    except OSError as exc:
+        raise StreamError(f"{path}: cannot open stream: {exc}") from None
+    with f:
+        return decode(f, str(path))
+
+
+def read_output(path):
+    """(metadata, Samples) of a written setpoints CSV or binary stream."""
+    from .emit import read_output as decode
+
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise StreamError(f"{path}: cannot read: {exc}") from None
+    return decode(data, str(path))
 
 
 def compile_part(
@@ -80,11 +135,9 @@ def compile_part(
     progress=False,
     echo=None,
     **mesh_options,
-) -> str:
-    """Slice (or read), plan and emit. Returns the end-of-run summary text."""
-    from .emit import format_for, write_trajectory
+) -> CompileResult:
+    """Slice (or read), plan and emit. Returns what was done (see :mod:`deltaslice.report`)."""
     from .planning import plan
-    from .planning.trajectory import LimitMonitor
 
     printer = _printer(printer)
     if output is None:
@@ -93,12 +146,11 @@ def compile_part(
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
     t_slice = time.perf_counter() - t0
-    if fmt == "gcode":
-        from .gcode import write_gcode
-
-        write_gcode(toolpath, output, printer)
-        s = toolpath.summary()
-        return f"{output}: G-code, {s['layers']} layers, {s['moves']} moves (no trajectory planned for G-code output)"
+    s = toolpath.summary()
+    if fmt == "gcode":  # G-code is a toolpath output: nothing to plan
+        _write_gcode(toolpath, output, printer)
+        return CompileResult(printer.name, str(output), fmt, Path(output).stat().st_size, s["layers"], s["moves"], {},
+                             "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
     trajectory = plan(
         toolpath,
         printer,
@@ -108,18 +160,46 @@ def compile_part(
         progress=stderr_progress(progress, "planning runs"),
     )
     t_plan = time.perf_counter() - t0 - t_slice
-    monitor = LimitMonitor(printer, printer.planning.output_rate)
-    size = write_trajectory(trajectory, printer, output, fmt=fmt, watch=monitor.watch)
-    t_all = time.perf_counter() - t0
-    return trajectory.summary_text(
-        toolpath,
-        printer,
-        monitor,
-        extra={
-            "output": f"{output} ({fmt}, {size / 1024:.1f} KiB)",
-            "wall time": f"slice {t_slice:.2f} s, plan {t_plan:.2f} s, total {t_all:.2f} s",
-        },
+    monitor = LimitMonitor(printer.limits, printer.tool, printer.planning.output_rate)
+    size = write_output(trajectory, output, fmt=fmt, watch=monitor.watch)
+    return CompileResult(
+        printer=printer.name, output=str(output), fmt=fmt, size_bytes=size, layers=s["layers"], moves=s["moves"],
+        pieces=piece_counts(trajectory.pieces), planner=trajectory.planner, speed_limit=speed_limit,
+        duration_s=trajectory.duration, peak_percent=monitor.peak_percent(), active_fraction=trajectory.active_fraction,
+        times={"slice": t_slice, "plan": t_plan, "total": time.perf_counter() - t0},
     )
+
+
+def verify_output(output, printer, toolpath=None, **mesh_options):
+    """Read a setpoints CSV or binary stream and check it against the printer (path or Printer).
+
+    toolpath: the part (mesh) or G-code that was compiled, to check path deviation.
+    Returns a :class:`~deltaslice.verify.VerifyReport`."""
+    from .verify import verify_samples
+
+    printer = _printer(printer)
+    meta, samples = read_output(output)
+    fmt = meta.get("format", "csv")
+    try:
+        rate = float(meta.get("rate_hz", printer.planning.output_rate))
+    except ValueError:
+        raise StreamError(f"{output}: rate_hz {meta.get('rate_hz')!r} is not a number") from None
+    tp = None if toolpath is None else load_toolpath(toolpath, printer, **mesh_options)
+    return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output))
+
+
+def decode_stream(path, out, *, units=False, printer=None) -> int:
+    """Print a stream file's samples to the text file ``out`` (see ``emit.stream.decode_to_text``);
+    printer: a path or Printer the stream must match, or None."""
+    from .emit.stream import decode_to_text
+
+    loaded = None if printer is None else _printer(printer)
+    try:
+        f = open(path, "rb")
+    except OSError as exc:
+        raise StreamError(f"{path}: cannot open stream: {exc}") from None
+    with f:
+        return decode_to_text(f, out, units=units, printer=loaded, name=str(path))
 
 
 def workspace_report(printer, plot_path=None) -> str:
@@ -130,7 +210,7 @@ def workspace_report(printer, plot_path=None) -> str:
 
     printer = _printer(printer)
     kin = printer.kinematics()
-    cpu = printer.joint_array("counts_per_unit")
+    cpu = np.abs(printer.limits.counts_per_unit[: printer.n_joints])
     z_range = (-0.25 * printer.bed.max_height - 10.0, 2.0 * printer.bed.max_height + 20.0)
     radius_max = max(1.6 * printer.bed.radius, 50.0)
     rep = analyse(kin, cpu, z_range, radius_max)

@@ -56,32 +56,15 @@ class Samples:
 
 
 def to_counts(printer, samples: Samples) -> np.ndarray:
-    """Integer actuator counts, (n, J + 1) int64: one column per joint
-    (``zero_count + counts_per_unit * q``) and one tool column (extruder microsteps
-    from the filament position, or laser PWM counts from the power fraction)."""
-    cpu = printer.joint_array("counts_per_unit")
-    zero = printer.joint_array("zero_count")
-    out = np.empty((len(samples), printer.n_joints + 1), dtype=np.int64)
-    out[:, :-1] = np.rint(zero[None] + cpu[None] * samples.q)
-    if printer.is_laser:
-        out[:, -1] = np.rint(samples.tool * printer.tool.power_counts)
-    else:
-        out[:, -1] = np.rint(samples.e * printer.tool.counts_per_mm)
-    return out
+    """Integer actuator counts, (n, J + 1) int64: one column per joint and one for the tool
+    channel (extruder microsteps from the filament position, or laser PWM counts from the
+    power fraction), ``count = zero_count + counts_per_unit * value`` (see ``printer.limits``)."""
+    values = np.column_stack([samples.q, printer.tool.channel_values(samples.e, samples.tool)])
+    return printer.limits.to_counts(values)
 
 
 def from_counts(printer, counts: np.ndarray, rate: float, t0: float = 0.0) -> Samples:
     """Inverse of :func:`to_counts` (within quantisation). counts: (n, J + 1) int."""
-    counts = np.asarray(counts, dtype=float)
-    cpu = printer.joint_array("counts_per_unit")
-    zero = printer.joint_array("zero_count")
-    q = (counts[:, :-1] - zero[None]) / cpu[None]
-    n = len(counts)
-    t = t0 + np.arange(n) / rate
-    if printer.is_laser:
-        tool = counts[:, -1] / printer.tool.power_counts
-        e = np.zeros(n)
-    else:
-        e = counts[:, -1] / printer.tool.counts_per_mm
-        tool = np.concatenate([[0.0], (np.diff(e) > 0).astype(float)])
-    return Samples(t, q, e, tool)
+    values = printer.limits.from_counts(counts)
+    e, tool = printer.tool.from_channel(values[:, -1])
+    return Samples(t0 + np.arange(len(values)) / rate, values[:, :-1], e, tool)

@@ -21,8 +21,11 @@ consecutive such velocities. Quantisation (half a count, ``d/2``) adds at most
 ``h = w / rate`` seconds; each channel's window is the shortest that keeps that
 bound below ``NOISE_FRACTION`` (5 %) of its limit, and the bound is added to the
 threshold. CSV files (10 decimals) get ``w = 1``. Limits are allowed
-``MARGIN`` (2 %) above their value, since the planner keeps a 1 % margin and
-enforces limits at its grid points only.
+``MARGIN`` (2 %) above their value. The limits and the difference arithmetic are
+:mod:`deltaslice.machine.limits`', shared with the planner and the compile's monitor.
+
+Verify takes samples and a loaded printer (its limits and kinematics) and an optional
+toolpath; ``pipeline.verify_output`` reads the files.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import StreamError
+from .machine.limits import acceleration_window, velocity_window, windowed_differences
 
 MARGIN = 0.02
 NOISE_FRACTION = 0.05
@@ -90,6 +94,7 @@ class VerifyReport:
     deviation_tolerance: float | None = None
     deviation_samples: int = 0
     notes: tuple[str, ...] = field(default_factory=tuple)
+    planner_margin: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -99,7 +104,8 @@ class VerifyReport:
         lines = [
             f"verify {self.output}: {self.format}, printer {self.printer}, {self.n_samples} samples, "
             f"{self.duration:.3f} s at {self.rate:g} Hz",
-            f"limits allowed {100 * MARGIN:g} % above their value (the planner keeps 1 %); differences over windows "
+            f"limits allowed {100 * MARGIN:g} % above their value (the planner keeps {100 * self.planner_margin:g} %); "
+            "differences over windows "
             f"that keep quantisation noise under {100 * NOISE_FRACTION:g} % of each limit (bound added to the threshold)",
             f"{'channel':<10} {'unit':<5} {'range':>23}  {'peak vel':>10} {'% lim':>7} {'window':>7}  "
             f"{'peak acc':>10} {'% lim':>7} {'window':>7}",
@@ -164,32 +170,6 @@ class _Collector:
         self.items.append(v)
 
 
-def _window_velocity(limit, resolution, rate):
-    """Samples per window so that resolution / h <= NOISE_FRACTION * limit; noise bound."""
-    w = max(1, math.ceil(rate * resolution / (NOISE_FRACTION * limit)))
-    return w, resolution / (w / rate)
-
-
-def _window_acceleration(limit, resolution, rate):
-    w = max(1, math.ceil(rate * math.sqrt(2 * resolution / (NOISE_FRACTION * limit))))
-    return w, 2 * resolution / (w / rate) ** 2
-
-
-def _differences(x, t, wv, wa):
-    """Velocity over wv samples (at i + wv/2) and acceleration over 2 wa samples (centred at i + wa)."""
-    n = len(x)
-    if n > wv:
-        v = (x[wv:] - x[:-wv]) / (t[wv:] - t[:-wv])
-    else:
-        v = np.zeros(0)
-    if n > 2 * wa:
-        va = (x[wa:] - x[:-wa]) / (t[wa:] - t[:-wa])  # velocity at the middle of [i, i + wa]
-        a = (va[wa:] - va[:-wa]) / (0.5 * (t[2 * wa :] - t[: -2 * wa]))
-    else:
-        a = np.zeros(0)
-    return v, a
-
-
 # --------------------------------------------------------------------------- main entry
 
 
@@ -224,19 +204,18 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         tol = max(1e-3 * period, 2e-9)
         col.add_mask("time_step", "t", np.abs(dt - period) > tol, dt, period, "s", index_offset=1)
 
-    cpu = printer.joint_array("counts_per_unit")
+    lim = printer.limits
     quantised = fmt == "stream"
     stats = []
 
-    def channel(name, unit, x, lo, hi, vmax, amax, resolution, vkind="velocity", akind="acceleration", vmask=None,
-                vlimit_arr=None):
-        wv, nv = _window_velocity(vmax, resolution, rate)
-        wa, na = _window_acceleration(amax, resolution, rate)
+    def channel(name, unit, x, lo, hi, vmax, amax, resolution, vkind="velocity", akind="acceleration", vlimit_arr=None):
+        wv, nv = velocity_window(vmax, resolution, rate, NOISE_FRACTION)
+        wa, na = acceleration_window(amax, resolution, rate, NOISE_FRACTION)
         half = 0.5 * resolution if quantised else CSV_RESOLUTION
         if lo is not None:
             col.add_mask("position", name, x < lo - half, x, lo, unit)
             col.add_mask("position", name, x > hi + half, x, hi, unit)
-        v, a = _differences(x, t, wv, wa)
+        v, a = windowed_differences(x, t, wv, wa)
         vlim = (vmax if vlimit_arr is None else vlimit_arr[: len(v)]) * (1 + MARGIN) + nv
         if len(v):
             col.add_mask(vkind, name, np.abs(v) > vlim, v, vlim, f"{unit}/s", index_offset=wv // 2)
@@ -249,38 +228,40 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
             float(np.abs(a).max()) if len(a) else 0.0, float(amax), wa,
         ))
 
-    for j, joint in enumerate(printer.joints):
-        res = 1.0 / cpu[j] if quantised else CSV_RESOLUTION
+    for j, joint in enumerate(lim.joints):
+        res = 1.0 / abs(joint.counts_per_unit) if quantised else CSV_RESOLUTION
         channel(f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}", joint.unit, samples.q[:, j],
                 joint.position_min, joint.position_max, joint.velocity_max, joint.acceleration_max, res)
 
-    tool = printer.tool
-    if printer.is_laser:
-        res = 1.0 / tool.power_counts if quantised else CSV_RESOLUTION
-        p = samples.tool
+    # The tool channel, from its limits: a laser has a power range (0..1) and no rate limit; an
+    # extruder has no range, a melt-flow speed limit while extruding and its retract speed when idle.
+    T = lim.n_joints
+    ch = lim.channel(T)
+    x = printer.tool.channel_values(samples.e, samples.tool)
+    res = 1.0 / abs(ch.counts_per_unit) if quantised else CSV_RESOLUTION
+    if math.isfinite(ch.position_min) or math.isfinite(ch.position_max):
         half = 0.5 * res if quantised else CSV_RESOLUTION
-        col.add_mask("laser_power", "tool", (p < -half) | (p > 1 + half), p, np.where(p < 0, 0.0, 1.0), "")
-    else:
-        res = 1.0 / tool.counts_per_mm if quantised else CSV_RESOLUTION
-        fast = max(tool.max_filament_speed, tool.retract_speed)
+        bad = (x < ch.position_min - half) | (x > ch.position_max + half)
+        col.add_mask(f"{ch.name}_power", "tool", bad, x, np.where(x < ch.position_min, ch.position_min, ch.position_max), "")
+    if math.isfinite(ch.velocity_max):
+        working, idle = ch.velocity_max, float(lim.idle_velocity[T])
         vlimit_arr = None
         if quantised:
-            vmax = fast
+            vmax = max(working, idle)
             notes.append(
-                f"the stream carries no extruder on/off state: filament speed checked against "
-                f"max(max_filament_speed, retract_speed) = {fast:g} mm/s"
+                f"the stream carries no tool on/off state: {ch.name} speed checked against the larger of its "
+                f"working and idle limits, {vmax:g} {ch.unit}/s"
             )
         else:
-            # while extruding the melt rate bounds the feed; retracts (tool off) may reach the retract speed:
-            # a difference window is held to max_filament_speed when the tool is on throughout it
-            vmax = tool.max_filament_speed
-            wv, _ = _window_velocity(vmax, res, rate)
+            # A difference window is held to the working limit when the tool is on throughout it.
+            vmax = working
+            wv, _ = velocity_window(vmax, res, rate, NOISE_FRACTION)
             if n > wv:
                 c = np.concatenate([[0], np.cumsum(samples.tool > 0)])
                 on_throughout = (c[wv + 1 :] - c[: -wv - 1]) == wv + 1
-                vlimit_arr = np.where(on_throughout, tool.max_filament_speed, fast)
-        channel("e", "mm", samples.e, None, None, vmax, tool.max_filament_acceleration, res,
-                "filament_speed", "filament_acceleration", vlimit_arr=vlimit_arr)
+                vlimit_arr = np.where(on_throughout, working, max(working, idle))
+        channel("e", ch.unit, x, None, None, vmax, ch.acceleration_max, res,
+                f"{ch.name}_speed", f"{ch.name}_acceleration", vlimit_arr=vlimit_arr)
         tl = samples.tool
         col.add_mask("tool", "tool", (tl < 0) | (tl > 1), tl, np.where(tl < 0, 0.0, 1.0), "")
 
@@ -293,7 +274,7 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         output=str(output), printer=printer.name, format=fmt, n_samples=n, rate=rate,
         duration=float(t[-1] - t[0]) if n > 1 else 0.0, channels=tuple(stats), violations=tuple(col.items),
         violation_count=col.count, max_deviation=max_dev, deviation_tolerance=tol_max, deviation_samples=n_dev,
-        notes=tuple(notes),
+        notes=tuple(notes), planner_margin=printer.planning.limit_margin,
     )
 
 
@@ -302,7 +283,7 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
     from scipy.spatial import cKDTree
 
     work = samples.tool > 0
-    if quantised and not printer.is_laser:
+    if quantised and printer.tool.channel_kind == "extruder":  # a stream's extruder state is derived from rising counts
         work = _close_gaps(work, max(1, int(round(GAP_FILL * len(samples) / max(samples.t[-1] - samples.t[0], 1e-9)))))
     idx = np.flatnonzero(work)
     starts, ends = toolpath.starts, toolpath.xyz
@@ -333,7 +314,7 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
     dist = np.where(np.isfinite(p).all(axis=1), dist, np.inf)
     # quantisation: half a count on each joint, through the Jacobian
     if quantised:
-        cpu = printer.joint_array("counts_per_unit")
+        cpu = np.abs(printer.limits.counts_per_unit[: printer.n_joints])
         jac = kin.jacobian(q)  # (N, 3, J)
         qres = np.linalg.norm(0.5 * np.abs(jac) / cpu[None, None, :], axis=1).sum(axis=1)
         qres = np.nan_to_num(qres, nan=0.0)
@@ -366,25 +347,3 @@ def _fracs(k):
     starts = np.concatenate([[0], np.cumsum(k + 1)[:-1]])
     pos = np.arange(total) - np.repeat(starts, k + 1)
     return pos / np.repeat(k, k + 1)
-
-
-def verify_file(output, printer_path, toolpath_path=None) -> VerifyReport:
-    """Read a setpoints CSV or binary stream and check it against the printer file.
-
-    toolpath_path: the part (mesh) or G-code that was compiled, to check path deviation."""
-    from .emit import read_output
-    from .printer import Printer, load_printer
-
-    printer = printer_path if isinstance(printer_path, Printer) else load_printer(printer_path)
-    meta, samples = read_output(output)
-    fmt = meta.get("format", "csv")
-    try:
-        rate = float(meta.get("rate_hz", printer.planning.output_rate))
-    except ValueError:
-        raise StreamError(f"{output}: rate_hz {meta.get('rate_hz')!r} is not a number") from None
-    toolpath = None
-    if toolpath_path is not None:
-        from .pipeline import load_toolpath
-
-        toolpath = load_toolpath(toolpath_path, printer)
-    return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=toolpath, output=str(output))

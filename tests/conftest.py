@@ -10,7 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from deltaslice.printer import load_printer  # noqa: E402
+from deltaslice.machine import load_printer  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PRINTER_DIR = ROOT / "printers"

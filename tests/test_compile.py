@@ -9,8 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from deltaslice.cli import main
-from deltaslice.emit import read_output
-from deltaslice.verify import verify_file
+from deltaslice.pipeline import read_output, verify_output
 
 ROOT = Path(__file__).resolve().parents[1]
 CUBE = ROOT / "examples" / "parts" / "calibration_cube.stl"
@@ -32,7 +31,7 @@ def test_compile_mesh_then_verify_csv_and_stream(name, tmp_path):
         assert "print time" in r.output and "peak use of limits" in r.output
         # The path-deviation check needs the tool state, which only the CSV carries exactly
         # (a stream's is rebuilt from rising filament counts): streams are checked for limits.
-        report = verify_file(str(out), printer, toolpath_path=str(gcode) if ext == "csv" else None)
+        report = verify_output(str(out), printer, toolpath=str(gcode) if ext == "csv" else None)
         assert report.ok, report.text()
         outputs[ext] = read_output(str(out))[1]
     csv, stream = outputs["csv"], outputs["dsl"]
@@ -49,7 +48,7 @@ def test_compile_gcode_for_the_laser(tmp_path):
     printer = str(ROOT / "printers" / "delta_espe_laser.toml")
     r = CliRunner().invoke(main, [str(gcode), "--printer", printer, "-o", str(out), "--quiet", "--workers", "1"])
     assert r.exit_code == 0, r.output
-    report = verify_file(str(out), printer)
+    report = verify_output(str(out), printer)
     assert report.ok, report.text()
 
 

@@ -11,9 +11,9 @@ import pytest
 from streamtools import record_offsets
 from trajectories import ROOT, blocks, printer, realistic
 
-from deltaslice.emit import write_samples
+from deltaslice.pipeline import write_samples
 from deltaslice.emit import stream
-from deltaslice.emit.stream import decode_to_text
+from deltaslice.pipeline import decode_stream
 from deltaslice.errors import StreamError
 
 FIRMWARE = ROOT / "examples" / "firmware"
@@ -53,7 +53,7 @@ def streams(tmp_path_factory):
 def python_decode(path):
     buf = io.StringIO()
     try:
-        decode_to_text(path, buf)
+        decode_stream(path, buf)
         return buf.getvalue(), None
     except StreamError as exc:
         return buf.getvalue(), str(exc)

@@ -5,7 +5,7 @@ import pytest
 
 from deltaslice.errors import GcodeError
 from deltaslice.gcode import ARC_TOLERANCE, read_gcode, write_gcode
-from deltaslice.printer import load_printer
+from deltaslice.machine import load_printer
 from deltaslice.slicing import slice_mesh
 from deltaslice.toolpath import Role, Toolpath, ToolpathBuilder
 
@@ -24,7 +24,7 @@ def write(tmp_path, text, name="t.gcode"):
 
 
 def test_sliced_part_round_trips(tmp_path, etitc):
-    tp = slice_mesh(meshes.cube_with_hole(16, 3), etitc)
+    tp = slice_mesh(meshes.cube_with_hole(16, 3), etitc.slicing, etitc.tool)
     out = tmp_path / "part.gcode"
     write_gcode(tp, out, etitc)
     text = out.read_text()

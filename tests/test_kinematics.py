@@ -18,11 +18,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
-from deltaslice.kinematics import Cartesian, make_kinematics
+from deltaslice.kinematics import make_kinematics
+from deltaslice.kinematics.cartesian import Cartesian, CartesianGeometry
 from deltaslice.kinematics.five_bar import FiveBar
 from deltaslice.kinematics.linear_delta import LinearDelta
 from deltaslice.kinematics.rotary_delta import RotaryDelta
-from deltaslice.printer import CartesianGeometry, RotaryDeltaGeometry
+from deltaslice.kinematics.rotary_delta import RotaryDeltaGeometry
 
 from conftest import PRINTER_NAMES, printer
 

@@ -4,7 +4,7 @@ import trimesh
 
 from deltaslice.errors import DeltasliceError, MeshError, UnreachableError
 from deltaslice.mesh import check_fits, load_mesh
-from deltaslice.printer import load_printer
+from deltaslice.machine import load_printer
 
 from . import meshes
 

@@ -11,11 +11,21 @@ from hypothesis import strategies as st
 from deltaslice import UnreachableError, load_printer
 from deltaslice.planning import plan, topp
 from deltaslice.planning.blend import blend_polyline
-from deltaslice.planning.trajectory import finite_differences
 from deltaslice.planning.trapezoid import corner_violations, plan_firmware, plan_safe
 from deltaslice.toolpath import Role, ToolpathBuilder
 
 MARGIN = 1.02  # toppra enforces limits at grid points; samples may exceed by discretisation only
+
+
+def finite_differences(samples, rate):
+    """Brute force, independent of the package: joint velocity (np.gradient) and acceleration
+    (second differences, zero at both ends) at the output rate, (n, J) each."""
+    q = samples.q
+    v = np.gradient(q, 1.0 / rate, axis=0)
+    a = np.zeros_like(q)
+    if len(q) > 2:
+        a[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate * rate
+    return v, a
 
 
 def layered_part(z0, dz, n_layers, size, filament_per_mm=0.02, center=(0.0, 0.0), retract=1.0):
@@ -92,8 +102,8 @@ def test_joint_limits_never_exceeded(planned):
     rate = printer.planning.output_rate
     for mode, (traj, s) in out.items():
         v, a = finite_differences(s, rate)
-        rv = np.abs(v).max(axis=0) / printer.joint_array("velocity_max")
-        ra = np.abs(a).max(axis=0) / printer.joint_array("acceleration_max")
+        rv = np.abs(v).max(axis=0) / printer.limits.velocity[:printer.n_joints]
+        ra = np.abs(a).max(axis=0) / printer.limits.acceleration[:printer.n_joints]
         assert rv.max() <= MARGIN, f"{printer.name} {mode}: joint velocity at {100 * rv.max():.1f} % of its limit"
         assert ra.max() <= MARGIN, f"{printer.name} {mode}: joint acceleration at {100 * ra.max():.1f} % of its limit"
         kin = printer.kinematics()
@@ -244,7 +254,7 @@ def test_exact_reversal_stops_at_the_cusp_within_limits():
     traj = plan(b.build(), printer, speed_limit="machine", workers=1)
     s = traj.samples()
     v, a = finite_differences(s, printer.planning.output_rate)
-    assert (np.abs(a).max(axis=0) / printer.joint_array("acceleration_max")).max() <= MARGIN
+    assert (np.abs(a).max(axis=0) / printer.limits.acceleration[:printer.n_joints]).max() <= MARGIN
     p = printer.kinematics().forward(s.q)
     cusp = np.argmin(np.linalg.norm(p[:, :2] - [10, 0], axis=1))
     assert np.linalg.norm(p[cusp, :2] - [10, 0]) < 5e-3  # it really goes to the reversal point
@@ -260,26 +270,26 @@ def test_toppra_degenerate_stage_falls_back_to_a_safe_profile():
     traj = plan(b.build(), printer, speed_limit="machine", workers=1)
     s = traj.samples()
     v, a = finite_differences(s, printer.planning.output_rate)
-    assert (np.abs(a).max(axis=0) / printer.joint_array("acceleration_max")).max() <= MARGIN
-    assert (np.abs(v).max(axis=0) / printer.joint_array("velocity_max")).max() <= MARGIN
+    assert (np.abs(a).max(axis=0) / printer.limits.acceleration[:printer.n_joints]).max() <= MARGIN
+    assert (np.abs(v).max(axis=0) / printer.limits.velocity[:printer.n_joints]).max() <= MARGIN
     assert np.allclose(printer.kinematics().forward(s.q[-1:])[0], [12.16288082, -20.18612611, 1.3], atol=1e-6)
 
 
 def test_limit_monitor_over_blocks_equals_whole_array_differences():
-    from deltaslice.planning.trajectory import LimitMonitor
+    from deltaslice.machine import LimitMonitor
 
     printer = load_printer("printers/delta_etitc.toml")
     traj = plan(layered_part(0.5, 0.4, 1, 40), printer, speed_limit="machine", workers=1)
     rate = printer.planning.output_rate
     s = traj.samples()
     v, a = finite_differences(s, rate)
-    m = LimitMonitor(printer, rate).consume(traj.iter_samples(rate, block=97))
-    assert np.allclose(m.peak_v, (np.abs(v[1:-1]) / printer.joint_array("velocity_max")).max(axis=0), rtol=1e-12)
-    assert np.allclose(m.peak_a, (np.abs(a[1:-1]) / printer.joint_array("acceleration_max")).max(axis=0), rtol=1e-12)
+    m = LimitMonitor(printer.limits, printer.tool, rate).consume(traj.iter_samples(rate, block=97))
+    assert np.allclose(m.peak_v, (np.abs(v[1:-1]) / printer.limits.velocity[:printer.n_joints]).max(axis=0), rtol=1e-12)
+    assert np.allclose(m.peak_a, (np.abs(a[1:-1]) / printer.limits.acceleration[:printer.n_joints]).max(axis=0), rtol=1e-12)
     fw = plan_firmware(layered_part(0.25, 0.2, 1, 40), load_printer("printers/delta_uady.toml"))
     whole = corner_violations(fw)
     fv, fa = finite_differences(fw.samples(), fw.printer.planning.output_rate)
-    bad = ((np.abs(fv) / fw.printer.joint_array("velocity_max")).max(axis=1) > 1) | (
-        (np.abs(fa) / fw.printer.joint_array("acceleration_max")).max(axis=1) > 1
+    bad = ((np.abs(fv) / fw.printer.limits.velocity[:fw.printer.n_joints]).max(axis=1) > 1) | (
+        (np.abs(fa) / fw.printer.limits.acceleration[:fw.printer.n_joints]).max(axis=1) > 1
     )
     assert whole["violating_samples"] == int(bad[1:-1].sum()) > 0

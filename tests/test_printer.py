@@ -13,14 +13,10 @@ from click.testing import CliRunner
 
 from deltaslice.cli import main
 from deltaslice.errors import PrinterFileError
-from deltaslice.printer import (
-    Extruder,
-    Laser,
-    LinearDeltaGeometry,
-    FiveBarGeometry,
-    RotaryDeltaGeometry,
-    load_printer,
-)
+from deltaslice.kinematics.five_bar import FiveBarGeometry
+from deltaslice.kinematics.linear_delta import LinearDeltaGeometry
+from deltaslice.kinematics.rotary_delta import RotaryDeltaGeometry
+from deltaslice.machine import Extruder, Laser, load_printer
 
 from conftest import PRINTER_DIR, PRINTER_NAMES, printer
 
@@ -127,7 +123,7 @@ BAD = {
         "[kinematics] unknown key 'shoulder_hieght'",
         "expected one of",
     ),
-    "unknown family": (_sub('family = "rotary_delta"', 'family = "scara"'), "[kinematics] family", "one of rotary_delta"),
+    "unknown family": (_sub('family = "rotary_delta"', 'family = "scara"'), "[kinematics] family", "one of cartesian, five_bar, linear_delta, rotary_delta"),
     "bad TOML syntax": (_sub("upper_arm = 176.0", "upper_arm = 176.0.0"), "not valid TOML", "line"),
     "wrong list length": (
         _sub("velocity_max = 300.0", "velocity_max = [300.0, 300.0]"),

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 from matplotlib.path import Path as MplPath
 
-from deltaslice.printer import load_printer
+from deltaslice.machine import load_printer
 from deltaslice.slicing import slice_mesh
 from deltaslice.slicing.layers import layer_heights
 from deltaslice.toolpath import Role
@@ -22,7 +22,7 @@ def etitc():
 
 @pytest.fixture(scope="module")
 def cube_tp(etitc):
-    return slice_mesh(meshes.box(20, 20, 20), etitc)
+    return slice_mesh(meshes.box(20, 20, 20), etitc.slicing, etitc.tool)
 
 
 def run_roles(tp, layer):
@@ -107,7 +107,7 @@ def test_infill_angle_alternates(cube_tp):
 
 
 def test_hole_gets_its_own_perimeters(etitc):
-    tp = slice_mesh(meshes.cube_with_hole(20, 4), etitc)
+    tp = slice_mesh(meshes.cube_with_hole(20, 4), etitc.slicing, etitc.tool)
     rr = run_roles(tp, 20)
     assert rr.count(Role.EXTERNAL_PERIMETER) == 2
     assert rr.count(Role.PERIMETER) == 4
@@ -129,7 +129,7 @@ def _inside_outline(points, section, tol):
 @pytest.mark.parametrize("maker", [lambda: meshes.cube_with_hole(20, 4), lambda: meshes.step(), lambda: meshes.cylinder(8, 6)])
 def test_every_extrusion_inside_the_layer_outline(etitc, maker):
     mesh = maker()
-    tp = slice_mesh(mesh, etitc)
+    tp = slice_mesh(mesh, etitc.slicing, etitc.tool)
     man = mesh.to_manifold()
     for layer in range(0, tp.n_layers, 3):
         sl = tp.layer_slices()[layer]
@@ -142,7 +142,7 @@ def test_every_extrusion_inside_the_layer_outline(etitc, maker):
 
 
 def test_mid_height_top_surface_is_solid(etitc):
-    tp = slice_mesh(meshes.step(20, 8, 16), etitc)
+    tp = slice_mesh(meshes.step(20, 8, 16), etitc.slicing, etitc.tool)
     # the step's top at z = 8 covers x in (0, 10); the tall half is x in (-10, 0)
     mids = tp.layer_z - 0.2  # layer mid-heights (the first layer is far below)
     layers_below = [l for l in range(tp.n_layers) if 8 - 3 * 0.4 < mids[l] < 8]
@@ -164,7 +164,7 @@ def test_mid_height_top_surface_is_solid(etitc):
 
 
 def test_thin_wall_keeps_outer_loop_only(etitc):
-    tp = slice_mesh(meshes.thin_wall(1.2, 20, 6), etitc)
+    tp = slice_mesh(meshes.thin_wall(1.2, 20, 6), etitc.slicing, etitc.tool)
     rr = run_roles(tp, 5)
     assert rr.count(Role.EXTERNAL_PERIMETER) == 1
     assert Role.PERIMETER not in rr and Role.INFILL not in rr
@@ -204,10 +204,10 @@ def test_cube_volume_from_areas(cube_tp, etitc):
 
 def test_extrusion_multiplier_and_settings_override(etitc):
     mesh = meshes.box(10, 10, 4)
-    base = slice_mesh(mesh, etitc)
-    more = slice_mesh(mesh, etitc, settings=dataclasses.replace(etitc.slicing, extrusion_multiplier=1.1))
+    base = slice_mesh(mesh, etitc.slicing, etitc.tool)
+    more = slice_mesh(mesh, dataclasses.replace(etitc.slicing, extrusion_multiplier=1.1), etitc.tool)
     assert more.e[more.working].sum() == pytest.approx(1.1 * base.e[base.working].sum())
-    one = slice_mesh(mesh, etitc, settings=dataclasses.replace(etitc.slicing, perimeters=1, skirt_loops=0))
+    one = slice_mesh(mesh, dataclasses.replace(etitc.slicing, perimeters=1, skirt_loops=0), etitc.tool)
     rr = run_roles(one, 4)
     assert rr.count(Role.EXTERNAL_PERIMETER) == 1 and Role.PERIMETER not in rr
     assert not np.any(one.role == Role.SKIRT)
@@ -216,7 +216,7 @@ def test_extrusion_multiplier_and_settings_override(etitc):
 def test_z_hop_on_long_travels(etitc):
     tool = dataclasses.replace(etitc.tool, z_hop=0.6)
     printer = dataclasses.replace(etitc, tool=tool)
-    tp = slice_mesh(meshes.box(10, 10, 3), printer)
+    tp = slice_mesh(meshes.box(10, 10, 3), printer.slicing, printer.tool)
     trav = (tp.role == Role.TRAVEL) & (tp.layer > 0)
     lifted = tp.xyz[trav, 2] > tp.layer_z[tp.layer[trav]] + 0.5
     assert lifted.any()
@@ -224,7 +224,7 @@ def test_z_hop_on_long_travels(etitc):
 
 def test_progress_called_per_layer(etitc):
     calls = []
-    tp = slice_mesh(meshes.box(10, 10, 4), etitc, progress=lambda d, t: calls.append((d, t)))
+    tp = slice_mesh(meshes.box(10, 10, 4), etitc.slicing, etitc.tool, progress=lambda d, t: calls.append((d, t)))
     assert calls == [(i + 1, tp.n_layers) for i in range(tp.n_layers)]
 
 
@@ -235,7 +235,7 @@ def test_progress_called_per_layer(etitc):
 def test_solid_box_volume_conserved(etitc, x, y, z):
     """At 100 % fill every layer is solid: the plastic equals the sliced volume."""
     s = dataclasses.replace(etitc.slicing, fill_density=1.0, skirt_loops=0, first_layer_width=etitc.slicing.perimeter_width)
-    tp = slice_mesh(meshes.box(x, y, z), etitc, settings=s)
+    tp = slice_mesh(meshes.box(x, y, z), s, etitc.tool)
     sliced_height = tp.layer_z[-1]
     got = tp.extruded_volume(etitc.tool.filament_diameter)
     assert got == pytest.approx(x * y * sliced_height, rel=0.06)

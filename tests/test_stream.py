@@ -14,9 +14,10 @@ from hypothesis import strategies as st
 from streamtools import block_sample_counts, record_offsets
 from trajectories import ROOT, blocks, printer, realistic
 
-from deltaslice.emit import format_for, read_output, write_samples
+from deltaslice.formats import format_for
+from deltaslice.pipeline import read_output, write_samples
 from deltaslice.emit import stream
-from deltaslice.emit.stream import decode_to_text, read_counts
+from deltaslice.pipeline import decode_stream, read_counts
 from deltaslice.errors import DeltasliceError, StreamError
 from deltaslice.samples import Samples, to_counts
 
@@ -40,7 +41,8 @@ def etitc_files(etitc, tmp_path_factory):
 
 
 def _decoded_prefix(path) -> tuple[np.ndarray, Exception | None]:
-    reader, f = stream.open_stream(path)
+    f = open(path, "rb")
+    reader = stream.StreamReader(f, str(path))
     got, err = [], None
     with f:
         try:
@@ -85,7 +87,7 @@ def test_read_output_stream_in_units(etitc, etitc_files):
     p, s = etitc
     meta, back = read_output(etitc_files[0])
     assert meta["format"] == "stream" and meta["planner"] == "synthetic"
-    step = 1.0 / p.joint_array("counts_per_unit")
+    step = 1.0 / p.limits.counts_per_unit[:p.n_joints]
     assert np.all(np.abs(back.q - s.q) <= 0.5 * step + 1e-12)
     assert np.abs(back.e - s.e).max() <= 0.5 / p.tool.counts_per_mm + 1e-12
 
@@ -93,7 +95,7 @@ def test_read_output_stream_in_units(etitc, etitc_files):
 def test_decode_counts_text(etitc, etitc_files):
     p, s = etitc
     buf = io.StringIO()
-    n = decode_to_text(etitc_files[0], buf)
+    n = decode_stream(etitc_files[0], buf)
     assert n == len(s)
     lines = buf.getvalue().splitlines()
     counts = to_counts(p, s)
@@ -115,7 +117,7 @@ def test_decode_units_equals_csv_within_quantisation(etitc, etitc_files):
     a = np.array([[float(v) for v in line.split(",")] for line in out[n_head + 1 :]])
     b = np.array([[float(v) for v in line.split(",")] for line in ref[n_head + 1 :]])
     assert np.abs(a[:, 0] - b[:, 0]).max() < 1e-9
-    q_tol = 0.5 / p.joint_array("counts_per_unit") + 1e-9
+    q_tol = 0.5 / p.limits.counts_per_unit[:p.n_joints] + 1e-9
     assert np.all(np.abs(a[:, 1:4] - b[:, 1:4]) <= q_tol)
     assert np.abs(a[:, 4] - b[:, 4]).max() <= 0.5 / p.tool.counts_per_mm + 1e-9
     # the extruder's on/off column is derived from the filament counts (see the spec)
@@ -124,7 +126,7 @@ def test_decode_units_equals_csv_within_quantisation(etitc, etitc_files):
 
 def test_decode_refuses_other_printer(etitc_files):
     with pytest.raises(StreamError, match="compiled for printer 'delta_etitc'"):
-        decode_to_text(etitc_files[0], io.StringIO(), units=True, printer_path=ROOT / "printers/linear_kossel.toml")
+        decode_stream(etitc_files[0], io.StringIO(), units=True, printer=ROOT / "printers/linear_kossel.toml")
 
 
 # --------------------------------------------------------------------------- damage
@@ -145,7 +147,7 @@ def test_corrupt_block_is_named_and_none_of_its_samples_escape(etitc, etitc_file
     assert np.array_equal(got, to_counts(p, s)[: sum(per_block[:k])])
     buf = io.StringIO()
     with pytest.raises(StreamError, match=f"block {k} "):
-        decode_to_text(bad, buf)
+        decode_stream(bad, buf)
     assert len(buf.getvalue().splitlines()) == sum(per_block[:k])
 
 
@@ -165,7 +167,8 @@ def test_truncated_stream(etitc, etitc_files, tmp_path, where):
     bad.write_bytes(data[:cut])
     if where == "header":
         with pytest.raises(StreamError, match="truncated"):
-            stream.open_stream(bad)
+            with open(bad, "rb") as f:
+                stream.StreamReader(f, str(bad))
         return
     got, err = _decoded_prefix(bad)
     assert err is not None and "truncated" in str(err)
@@ -298,11 +301,12 @@ def test_zigzag_round_trip(values):
 
 
 def test_write_trajectory_uses_the_planner_interface(etitc, tmp_path):
-    from deltaslice.emit import write_trajectory
+    from deltaslice.pipeline import write_output
 
     p, s = etitc
 
     class FakeTrajectory:
+        printer = p
         duration = float(s.t[-1])
 
         def iter_samples(self, rate):
@@ -313,9 +317,9 @@ def test_write_trajectory_uses_the_planner_interface(etitc, tmp_path):
             return {"planner": "toppra", "speed_limit": "feed"}
 
     for name in ("part.dsl", "part.csv"):
-        size = write_trajectory(FakeTrajectory(), p, tmp_path / name)
+        size = write_output(FakeTrajectory(), tmp_path / name)
         assert size == (tmp_path / name).stat().st_size
         meta, back = read_output(tmp_path / name)
         assert meta["planner"] == "toppra" and meta["duration_s"] == f"{s.t[-1]:.6f}" and len(back) == len(s)
-    size = write_trajectory(FakeTrajectory(), p, tmp_path / "forced.out", fmt="csv")
+    size = write_output(FakeTrajectory(), tmp_path / "forced.out", fmt="csv")
     assert (tmp_path / "forced.out").read_text().startswith("# deltaslice setpoints v1")

@@ -9,9 +9,10 @@ from click.testing import CliRunner
 from trajectories import ROOT, blocks, printer, realistic
 
 from deltaslice.cli import main
-from deltaslice.emit import read_output, write_samples
+from deltaslice.pipeline import read_output, write_samples
 from deltaslice.samples import Samples
-from deltaslice.verify import MARGIN, verify_file, verify_samples
+from deltaslice.pipeline import verify_output
+from deltaslice.verify import MARGIN, verify_samples
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def kinds(report):
 def test_valid_trajectory_passes(good, tmp_path, fmt):
     p, s, tp = good
     path = _write(tmp_path, p, s, fmt)
-    rep = verify_file(path, p)
+    rep = verify_output(path, p)
     assert rep.ok, rep.text()
     assert rep.n_samples == len(s) and rep.format == fmt
     meta, back = read_output(path)
@@ -68,7 +69,7 @@ def test_one_sample_moved(good, tmp_path):
     q = s.q.copy()
     q[i, 0] += 0.03  # 1.7 deg, 19 servo counts: a glitch of ~2 mm at the tool
     bad = Samples(s.t, q, s.e, s.tool)
-    rep = verify_file(_write(tmp_path, p, bad, "csv"), p)
+    rep = verify_output(_write(tmp_path, p, bad, "csv"), p)
     assert not rep.ok and "acceleration" in kinds(rep)
     acc = [v for v in rep.violations if v.kind == "acceleration"]
     assert all(v.channel.startswith("q1") and abs(v.index - i) <= 1 for v in acc)
@@ -86,7 +87,7 @@ def test_squeezed_time_step(good, tmp_path):
     i = 5000
     t = s.t.copy()
     t[i:] -= 0.0004  # one step of 0.6 ms instead of 1 ms
-    rep = verify_file(_write(tmp_path, p, Samples(t, s.q, s.e, s.tool), "csv"), p)
+    rep = verify_output(_write(tmp_path, p, Samples(t, s.q, s.e, s.tool), "csv"), p)
     steps = [v for v in rep.violations if v.kind == "time_step"]
     assert len(steps) == 1 and steps[0].index == i and abs(steps[0].value - 0.0006) < 1e-8, rep.text()
 
@@ -98,7 +99,7 @@ def test_time_compression_exceeds_velocity(good, tmp_path, fmt):
     q = s.q[::k]
     n = len(q)
     fast = Samples(np.arange(n) / 1000.0, q, s.e[::k], s.tool[::k])
-    rep = verify_file(_write(tmp_path, p, fast, fmt), p)
+    rep = verify_output(_write(tmp_path, p, fast, fmt), p)
     assert "velocity" in kinds(rep), rep.text()
     if fmt == "csv":
         assert "acceleration" in kinds(rep), rep.text()
@@ -112,7 +113,7 @@ def test_uniformly_faster_but_within_limits_passes(good, tmp_path):
     p, s, _ = good
     q = s.q[::2]  # twice as fast: 12 % of the velocity limit, ~80 % of the acceleration limit
     n = len(q)
-    rep = verify_file(_write(tmp_path, p, Samples(np.arange(n) / 1000.0, q, s.e[::2] * 0.5, s.tool[::2]), "csv"), p)
+    rep = verify_output(_write(tmp_path, p, Samples(np.arange(n) / 1000.0, q, s.e[::2] * 0.5, s.tool[::2]), "csv"), p)
     assert rep.ok, rep.text()
 
 
@@ -124,7 +125,7 @@ def test_position_beyond_joint_limit(good, tmp_path, fmt):
     i0, i1 = 8000, 10000  # a smooth 2 s excursion 0.03 rad past the limit
     bump = np.sin(np.linspace(0, np.pi, i1 - i0)) ** 2
     q[i0:i1, j] += bump * (hi + 0.03 - q[i0:i1, j].max())
-    rep = verify_file(_write(tmp_path, p, Samples(s.t, q, s.e, s.tool), fmt), p)
+    rep = verify_output(_write(tmp_path, p, Samples(s.t, q, s.e, s.tool), fmt), p)
     assert kinds(rep) == {"position"}, rep.text()
     v = rep.violations[0]
     assert v.channel.startswith("q2") and i0 < v.index < i1 and v.value > hi and v.limit == hi
@@ -134,7 +135,7 @@ def test_filament_too_fast_and_laser_power(good, tmp_path):
     p, s, _ = good
     e = s.e.copy()
     e[15000:] += np.clip(np.arange(len(e) - 15000) / 1000.0, 0, 1) * 2.0  # +2 mm/s for a second while extruding
-    rep = verify_file(_write(tmp_path, p, Samples(s.t, s.q, e, s.tool), "csv"), p)
+    rep = verify_output(_write(tmp_path, p, Samples(s.t, s.q, e, s.tool), "csv"), p)
     assert "filament_speed" in kinds(rep), rep.text()
 
     pl = printer("delta_espe_laser")
@@ -142,14 +143,14 @@ def test_filament_too_fast_and_laser_power(good, tmp_path):
     tool = sl.tool.copy()
     tool[3000:3100] = 1.3
     for fmt in ("csv", "stream"):
-        rep = verify_file(_write(tmp_path, pl, Samples(sl.t, sl.q, sl.e, tool), fmt, "laser"), pl)
+        rep = verify_output(_write(tmp_path, pl, Samples(sl.t, sl.q, sl.e, tool), fmt, "laser"), pl)
         assert kinds(rep) == {"laser_power"}, rep.text()
 
 
 def test_other_printer_is_a_violation(good, tmp_path):
     p, s, _ = good
     path = _write(tmp_path, p, s, "csv")
-    rep = verify_file(path, ROOT / "printers" / "delta_uady.toml")
+    rep = verify_output(path, ROOT / "printers" / "delta_uady.toml")
     assert "fingerprint" in kinds(rep)
 
 
@@ -179,5 +180,5 @@ def test_verify_against_gcode(good, tmp_path):
         lines.append(f"{word} X{xyz[0]:.4f} Y{xyz[1]:.4f} Z{xyz[2]:.4f}" + (f" E{e:.5f}" if tool > 0 else "") + f" F{feed * 60:.0f}")
     gcode = tmp_path / "part.gcode"
     gcode.write_text("\n".join(lines) + "\n")
-    rep = verify_file(_write(tmp_path, p, s, "stream"), p, toolpath_path=gcode)
+    rep = verify_output(_write(tmp_path, p, s, "stream"), p, toolpath=gcode)
     assert rep.max_deviation is not None and rep.ok, rep.text()

@@ -165,7 +165,7 @@ ETITC_CUBE = 2 * ETITC_TILT_HEX / (math.cos(math.radians(30.0)) + 0.5)  # square
 def etitc_kinematics(tilt=True):
     p = printer("delta_etitc")
     g = p.geometry if tilt else dataclasses.replace(p.geometry, ball_joint_tilt_max=None)
-    return make_kinematics(g, p.joint_array("position_min"), p.joint_array("position_max"), p.planning.singularity_limit)
+    return make_kinematics(g, p.limits.position_min[:p.n_joints], p.limits.position_max[:p.n_joints], p.planning.singularity_limit)
 
 
 def test_etitc_tilt_bounds_a_hexagon():
@@ -187,7 +187,7 @@ def test_etitc_tilt_bounds_a_hexagon():
 
 
 def test_etitc_build_volume_with_and_without_tilt_limit():
-    cpu = printer("delta_etitc").joint_array("counts_per_unit")
+    cpu = printer("delta_etitc").limits.counts_per_unit[:printer("delta_etitc").n_joints]
     # Coarse grids (z step 5 mm, radius step 2 / 5 mm) to stay fast; docs/printers.md has the fine figures.
     rep = analyse(etitc_kinematics(), cpu, (-40.0, 300.0), 100.0, nz=69, nr=51)
     dr = 2.0

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deltaslice.printer import load_printer
+from deltaslice.machine import load_printer
 from deltaslice.samples import Samples
 from deltaslice.toolpath import Role, ToolpathBuilder
 

@@ -1,85 +1,55 @@
-"""Emit: write a planned trajectory as setpoints CSV or a binary stream, and read either back.
+"""Emit: turn planned samples into bytes (setpoints CSV or the binary stream) and back.
 
-* :func:`format_for` picks the format from the output file's extension,
-* :func:`write_trajectory` takes the planner's ``Trajectory`` (``iter_samples(rate)``,
-  ``metadata()``) and calls :func:`write_samples`,
+Everything here reads and writes open binary file objects; ``pipeline`` opens the paths.
+
 * :func:`write_samples` writes any iterable of :class:`~deltaslice.samples.Samples`
-  blocks (consecutive, uniform at ``rate`` from t = 0), block by block, atomically,
+  blocks (consecutive, uniform at ``rate`` from t = 0), block by block,
+* :func:`write_trajectory` samples a planned ``Trajectory`` at its printer's output rate,
 * :func:`read_output` reads a CSV or stream back as ``(metadata, Samples)``.
+
+Output formats by file extension are in :mod:`deltaslice.formats`.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+from ..errors import DeltasliceError
+from . import csv as csvfmt
+from . import stream
 
-from ..errors import DeltasliceError, StreamError
-
-FORMATS = ("csv", "stream", "gcode")
-SUFFIXES = {
-    ".csv": "csv",
-    ".dsl": "stream",
-    ".stream": "stream",
-    ".gcode": "gcode",
-    ".gco": "gcode",
-    ".g": "gcode",
-    ".nc": "gcode",
-}
-STREAM_MAGIC = b"\x89DSL\r\n\x1a\n"
+STREAM_MAGIC = stream.MAGIC
 
 
-def format_for(path) -> str:
-    """"csv" | "stream" | "gcode" from the output file's extension."""
-    suffix = Path(str(path)).suffix.lower()
+_WRITERS = {"csv": csvfmt.write_csv, "stream": stream.write_stream}
+
+
+def write_samples(blocks, printer, f, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
+    """Write consecutive Samples blocks for ``printer`` to the binary file ``f`` as ``fmt``
+    ("csv" or "stream"). Returns bytes written."""
     try:
-        return SUFFIXES[suffix]
+        writer = _WRITERS[fmt]
     except KeyError:
-        raise DeltasliceError(
-            f"{path}: cannot tell the output format from {suffix or '(no extension)'!r}: use .csv (setpoints), "
-            ".dsl or .stream (binary stream), .gcode, or --format csv|stream|gcode"
-        ) from None
+        raise DeltasliceError(f"cannot write samples as {fmt!r}: expected 'csv' or 'stream'") from None
+    return writer(blocks, printer, f, rate=rate, metadata=metadata)
 
 
-def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
-    """Write consecutive Samples blocks to ``output`` as ``fmt`` ("csv" or "stream").
-
-    The file appears only when complete (temp file + rename). Returns bytes written."""
-    if fmt == "csv":
-        from .csv import write_csv
-
-        return write_csv(blocks, printer, output, rate=rate, metadata=metadata)
-    if fmt == "stream":
-        from .stream import write_stream
-
-        return write_stream(blocks, printer, output, rate=rate, metadata=metadata)
-    raise DeltasliceError(f"cannot write samples as {fmt!r}: expected 'csv' or 'stream'")
-
-
-def write_trajectory(trajectory, printer, output, fmt: str | None = None, watch=None) -> int:
-    """Sample a planned trajectory at the printer's output rate and write it.
+def write_trajectory(trajectory, f, fmt: str, watch=None) -> int:
+    """Sample a planned trajectory at its printer's output rate and write it to ``f``.
 
     watch: optional callable wrapping the block iterator (e.g. ``LimitMonitor.watch``), so
     the samples are examined as they are written instead of being computed twice."""
-    fmt = fmt or format_for(output)
+    printer = trajectory.printer
     rate = printer.planning.output_rate
-    metadata = dict(trajectory.metadata()) if hasattr(trajectory, "metadata") else {}
+    metadata = dict(trajectory.metadata())
     metadata.setdefault("duration_s", f"{trajectory.duration:.6f}")
     blocks = trajectory.iter_samples(rate)
     if watch is not None:
         blocks = watch(blocks)
-    return write_samples(blocks, printer, output, fmt=fmt, rate=rate, metadata=metadata)
+    return write_samples(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata)
 
 
-def read_output(path):
-    """(metadata dict, Samples) of a setpoints CSV or a binary stream (sniffed by content)."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(len(STREAM_MAGIC))
-    except OSError as exc:
-        raise StreamError(f"{path}: cannot read: {exc}") from None
-    if head == STREAM_MAGIC:
-        from .stream import read_stream
+def read_output(data: bytes, name: str = "<output>"):
+    """(metadata dict, Samples) of a setpoints CSV or a binary stream (told apart by content)."""
+    import io
 
-        return read_stream(path)
-    from .csv import read_csv
-
-    return read_csv(path)
+    reader = stream.read_stream if data[: len(STREAM_MAGIC)] == STREAM_MAGIC else csvfmt.read_csv
+    return reader(io.BytesIO(data), name)

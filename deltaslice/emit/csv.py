@@ -24,7 +24,6 @@ import numpy as np
 
 from ..errors import StreamError
 from ..samples import Samples
-from ._atomic import atomic_output
 
 TITLE = "deltaslice setpoints v1"
 RESERVED = ("printer", "fingerprint", "rate_hz", "columns")
@@ -84,24 +83,23 @@ def check_finite(samples: Samples, first_index: int) -> None:
             raise StreamError(f"sample {first_index + i}: non-finite {name} value: the trajectory cannot be written")
 
 
-def write_csv(blocks, printer, output, *, rate: float, metadata: dict | None = None) -> int:
-    """Write Samples blocks as setpoints CSV, atomically. Returns bytes written."""
-    units = [j.unit for j in printer.joints]
+def write_csv(blocks, printer, f, *, rate: float, metadata: dict | None = None) -> int:
+    """Write Samples blocks as setpoints CSV to the binary file ``f``. Returns bytes written."""
+    units = list(printer.limits.units[:-1])
     header = comment_lines(printer.name, printer.fingerprint(), rate, units, metadata or {})
     size = 0
     index = 0
-    with atomic_output(output, "wb") as f:
-        data = header.encode()
+    data = header.encode()
+    f.write(data)
+    size += len(data)
+    for samples in blocks:
+        if samples.n_joints != printer.n_joints:
+            raise StreamError(f"samples have {samples.n_joints} joints, printer {printer.name} has {printer.n_joints}")
+        check_finite(samples, index)
+        data = format_rows(samples.t, samples.q, samples.e, samples.tool).encode()
         f.write(data)
         size += len(data)
-        for samples in blocks:
-            if samples.n_joints != printer.n_joints:
-                raise StreamError(f"samples have {samples.n_joints} joints, printer {printer.name} has {printer.n_joints}")
-            check_finite(samples, index)
-            data = format_rows(samples.t, samples.q, samples.e, samples.tool).encode()
-            f.write(data)
-            size += len(data)
-            index += len(samples)
+        index += len(samples)
     return size
 
 
@@ -115,10 +113,11 @@ def parse_comments(lines: list[str]) -> dict[str, str]:
     return meta
 
 
-def read_csv(path) -> tuple[dict[str, str], Samples]:
-    """(metadata, Samples) of a setpoints CSV. Raises StreamError on a malformed file."""
+def read_csv(f, path: str = "<csv>") -> tuple[dict[str, str], Samples]:
+    """(metadata, Samples) of a setpoints CSV read from the binary file ``f`` (named ``path``
+    in messages). Raises StreamError on a malformed file."""
     try:
-        text = open(path, encoding="utf-8").read()
+        text = f.read().decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise StreamError(f"{path}: cannot read setpoints CSV: {exc}") from None
     comments, pos = [], 0

@@ -23,7 +23,6 @@ import numpy as np
 from ..errors import StreamError
 from ..samples import Samples, to_counts
 from . import csv as csvfmt
-from ._atomic import atomic_output
 
 MAGIC = b"\x89DSL\r\n\x1a\n"
 VERSION = 1
@@ -38,6 +37,7 @@ END_LEN = 15
 
 KIND_REVOLUTE, KIND_PRISMATIC, KIND_EXTRUDER, KIND_LASER = 1, 2, 3, 4
 KIND_NAMES = {KIND_REVOLUTE: "revolute", KIND_PRISMATIC: "prismatic", KIND_EXTRUDER: "extruder", KIND_LASER: "laser"}
+KIND_CODES = {name: code for code, name in KIND_NAMES.items()}
 KIND_UNITS = {KIND_REVOLUTE: "rad", KIND_PRISMATIC: "mm", KIND_EXTRUDER: "mm", KIND_LASER: "0..1"}
 
 _FIXED = struct.Struct("<8sHHIIBBH")  # magic, version, header_len, fingerprint, rate_mhz, channels, flags, max_record
@@ -105,14 +105,11 @@ class StreamHeader:
         rate_mhz = int(round(rate * 1000.0))
         if not 1 <= rate_mhz <= 0xFFFFFFFF:
             raise StreamError(f"sample rate {rate:g} Hz cannot be stored (0.001 Hz .. 4.29 MHz)")
+        lim = printer.limits
         chans = [
-            Channel(KIND_REVOLUTE if j.kind == "revolute" else KIND_PRISMATIC, float(j.counts_per_unit), float(j.zero_count))
-            for j in printer.joints
+            Channel(KIND_CODES[kind], float(cpu), float(zero))
+            for kind, cpu, zero in zip(lim.kinds, lim.counts_per_unit, lim.zero_count)
         ]
-        if printer.is_laser:
-            chans.append(Channel(KIND_LASER, float(printer.tool.power_counts), 0.0))
-        else:
-            chans.append(Channel(KIND_EXTRUDER, float(printer.tool.counts_per_mm), 0.0))
         if len(chans) > MAX_CHANNELS:
             raise StreamError(f"{len(chans)} channels: the stream holds at most {MAX_CHANNELS}")
         return cls(printer.fingerprint(), rate_mhz, tuple(chans), printer.name, dict(metadata or {}))
@@ -410,14 +407,13 @@ class StreamWriter:
         return self.size
 
 
-def write_stream(blocks, printer, output, *, rate: float, metadata: dict | None = None,
+def write_stream(blocks, printer, f, *, rate: float, metadata: dict | None = None,
                  block_samples: int = BLOCK_SAMPLES) -> int:
-    """Write Samples blocks as a binary stream, atomically. Returns bytes written."""
-    with atomic_output(output, "wb") as f:
-        w = StreamWriter(f, printer, rate, metadata, block_samples)
-        for samples in blocks:
-            w.write(samples)
-        return w.close()
+    """Write Samples blocks as a binary stream to the binary file ``f``. Returns bytes written."""
+    w = StreamWriter(f, printer, rate, metadata, block_samples)
+    for samples in blocks:
+        w.write(samples)
+    return w.close()
 
 
 # --------------------------------------------------------------------------- reader
@@ -496,23 +492,10 @@ class StreamReader:
             sample += len(counts)
 
 
-def open_stream(path) -> tuple[StreamReader, object]:
-    try:
-        f = open(path, "rb")
-    except OSError as exc:
-        raise StreamError(f"{path}: cannot open stream: {exc}") from None
-    try:
-        return StreamReader(f, str(path)), f
-    except BaseException:
-        f.close()
-        raise
-
-
-def read_counts(path) -> tuple[StreamHeader, np.ndarray]:
-    """Header and all counts (n, C) int64 of a stream file."""
-    reader, f = open_stream(path)
-    with f:
-        parts = [c for _i, _s, c in reader.blocks()]
+def read_counts(f, name: str = "stream") -> tuple[StreamHeader, np.ndarray]:
+    """Header and all counts (n, C) int64 of a stream read from the binary file ``f``."""
+    reader = StreamReader(f, name)
+    parts = [c for _i, _s, c in reader.blocks()]
     counts = np.concatenate(parts) if parts else np.zeros((0, reader.header.n_channels), dtype=np.int64)
     return reader.header, counts
 
@@ -546,9 +529,9 @@ class UnitConverter:
         return Samples(t, q, e, tool)
 
 
-def read_stream(path) -> tuple[dict[str, str], Samples]:
-    """(metadata, Samples in joint units) of a stream file."""
-    header, counts = read_counts(path)
+def read_stream(f, name: str = "stream") -> tuple[dict[str, str], Samples]:
+    """(metadata, Samples in joint units) of a stream read from the binary file ``f``."""
+    header, counts = read_counts(f, name)
     conv = UnitConverter(header)
     meta = stream_metadata(header)
     return meta, conv(counts, 0)
@@ -577,36 +560,33 @@ def format_count_lines(first: int, counts: np.ndarray) -> str:
     return (("%d " * nch + "%d\n") * n) % tuple(table.ravel().tolist())
 
 
-def decode_to_text(stream_path, out, units: bool = False, printer_path=None) -> int:
-    """Print a stream's samples to the text file ``out``; returns the sample count.
+def decode_to_text(f, out, units: bool = False, printer=None, name: str = "stream") -> int:
+    """Print the samples of the stream read from binary file ``f`` to the text file ``out``;
+    returns the sample count.
 
     Without ``units``: one line per sample, ``index c1 ... cC`` (integer counts).
     With ``units``: exactly the setpoints CSV format (see :mod:`deltaslice.emit.csv`).
+    printer: a loaded Printer the stream must have been compiled for (fingerprint), or None.
     Samples of blocks before a bad one are printed before the StreamError is raised.
     """
-    reader, f = open_stream(stream_path)
-    with f:
-        h = reader.header
-        if printer_path is not None:
-            from ..printer import load_printer
-
-            printer = load_printer(printer_path)
-            if printer.fingerprint() != h.fingerprint:
-                raise StreamError(
-                    f"{stream_path}: stream compiled for printer {h.printer_name!r} (fingerprint 0x{h.fingerprint:08x}), "
-                    f"not {printer.name!r} (0x{printer.fingerprint():08x})"
-                )
-        conv = UnitConverter(h)
+    reader = StreamReader(f, name)
+    h = reader.header
+    if printer is not None and printer.fingerprint() != h.fingerprint:
+        raise StreamError(
+            f"{name}: stream compiled for printer {h.printer_name!r} (fingerprint 0x{h.fingerprint:08x}), "
+            f"not {printer.name!r} (0x{printer.fingerprint():08x})"
+        )
+    conv = UnitConverter(h)
+    if units:
+        joint_units = [KIND_UNITS[c.kind] for c in h.channels[:-1]]
+        out.write(csvfmt.comment_lines(h.printer_name, h.fingerprint, h.rate, joint_units, h.metadata))
+    total = 0
+    for _i, first, counts in reader.blocks():
         if units:
-            joint_units = [KIND_UNITS[c.kind] for c in h.channels[:-1]]
-            out.write(csvfmt.comment_lines(h.printer_name, h.fingerprint, h.rate, joint_units, h.metadata))
-        total = 0
-        for _i, first, counts in reader.blocks():
-            if units:
-                s = conv(counts, first)
-                out.write(csvfmt.format_rows(s.t, s.q, s.e, s.tool))
-            else:
-                out.write(format_count_lines(first, counts))
-            total += len(counts)
-        out.flush()
-        return total
+            s = conv(counts, first)
+            out.write(csvfmt.format_rows(s.t, s.q, s.e, s.tool))
+        else:
+            out.write(format_count_lines(first, counts))
+        total += len(counts)
+    out.flush()
+    return total

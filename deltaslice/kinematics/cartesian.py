@@ -2,12 +2,37 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..config import Section
 from .base import Kinematics
 
 
+FAMILY = "cartesian"
+
+
+@dataclass(frozen=True)
+class CartesianGeometry:
+    """Three orthogonal axes; the joint value is the bed-frame coordinate plus ``offset``. mm."""
+
+    offset_x: float = 0.0
+    offset_y: float = 0.0
+    offset_z: float = 0.0
+
+
+def read_geometry(sec: Section) -> CartesianGeometry:
+    """The ``[kinematics]`` keys of a Cartesian machine, mm."""
+    return CartesianGeometry(
+        offset_x=sec.getfloat("offset_x", 0.0),
+        offset_y=sec.getfloat("offset_y", 0.0),
+        offset_z=sec.getfloat("offset_z", 0.0),
+    )
+
+
 class Cartesian(Kinematics):
+    geometry_class = CartesianGeometry
     n_joints = 3
     joint_kinds = ("prismatic", "prismatic", "prismatic")
 
@@ -32,3 +57,6 @@ class Cartesian(Kinematics):
 
     def inverse_jacobian(self, q):
         return self.jacobian(q)
+
+
+KINEMATICS = Cartesian

@@ -17,8 +17,11 @@ motors). Joint 3 is the tool height above the bed, mm.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..config import Section
 from .base import Kinematics, solve_rows
 
 
@@ -27,7 +30,48 @@ def _wrap(a, centre=0.0):
     return centre - ((centre - a + np.pi) % (2 * np.pi) - np.pi)
 
 
+FAMILY = "five_bar"
+
+
+@dataclass(frozen=True)
+class FiveBarGeometry:
+    """Planar 5R linkage for x-y plus a lead-screw z. mm.
+
+    Motor A at ``(origin_x, origin_y)`` on the bed, motor C at ``base_length``
+    further along +x; links A-B (``proximal_a``), B-P (``distal_a``), C-D
+    (``proximal_c``), D-P (``distal_c``). ``codo1`` and ``codo2`` (+1 or -1) pick
+    the working mode as in the Atlas paper: the sign of the elbow angle added to
+    the direction from each motor to P.
+    """
+
+    base_length: float
+    proximal_a: float
+    distal_a: float
+    proximal_c: float
+    distal_c: float
+    origin_x: float
+    origin_y: float
+    codo1: int = 1
+    codo2: int = -1
+
+
+def read_geometry(sec: Section) -> FiveBarGeometry:
+    """The ``[kinematics]`` keys of a five-bar, mm; ``codo1``/``codo2`` are +1 or -1."""
+    return FiveBarGeometry(
+        base_length=sec.getfloat("base_length", minval=0),
+        proximal_a=sec.getfloat("proximal_a", above=0),
+        distal_a=sec.getfloat("distal_a", above=0),
+        proximal_c=sec.getfloat("proximal_c", above=0),
+        distal_c=sec.getfloat("distal_c", above=0),
+        origin_x=sec.getfloat("origin_x", required=True),
+        origin_y=sec.getfloat("origin_y", required=True),
+        codo1=sec.getint("codo1", choices=(1, -1)),
+        codo2=sec.getint("codo2", choices=(1, -1)),
+    )
+
+
 class FiveBar(Kinematics):
+    geometry_class = FiveBarGeometry
     n_joints = 3
     joint_kinds = ("revolute", "revolute", "prismatic")
 
@@ -142,3 +186,6 @@ class FiveBar(Kinematics):
         if good.any():
             out[good] = self._condition_of(self.jacobian(q[good])[:, :2, :2])
         return out
+
+
+KINEMATICS = FiveBar

@@ -8,15 +8,50 @@ the bed; each diagonal rod of length L closes
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..config import Section
 from .base import Kinematics, lower_sphere_intersection, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
 
 
+FAMILY = "linear_delta"
+
+
+@dataclass(frozen=True)
+class LinearDeltaGeometry:
+    """Rostock/Kossel delta: carriages on three vertical towers. mm.
+
+    ``delta_radius`` is the horizontal distance from a carriage's rod joint to
+    the effector's rod joint when the effector is centred (tower radius minus
+    effector and carriage offsets). Tower i stands at ``i * 120 deg``
+    counter-clockwise from +x. A joint value is the height of the carriage's rod
+    joint above the bed; ``tool_offset`` is the tool tip below the effector joints.
+    """
+
+    delta_radius: float
+    diagonal_rod: float
+    tool_offset: float = 0.0
+
+
+def read_geometry(sec: Section) -> LinearDeltaGeometry:
+    """The ``[kinematics]`` keys of a linear delta, mm."""
+    g = LinearDeltaGeometry(
+        delta_radius=sec.getfloat("delta_radius", above=0),
+        diagonal_rod=sec.getfloat("diagonal_rod", above=0),
+        tool_offset=sec.getfloat("tool_offset", 0.0, minval=0),
+    )
+    if g.diagonal_rod <= g.delta_radius:
+        sec.fail("diagonal_rod", g.diagonal_rod, f"a rod longer than delta_radius ({g.delta_radius:g} mm)")
+    return g
+
+
 class LinearDelta(Kinematics):
+    geometry_class = LinearDeltaGeometry
     n_joints = 3
     joint_kinds = ("prismatic", "prismatic", "prismatic")
 
@@ -63,3 +98,6 @@ class LinearDelta(Kinematics):
         """q: (N,3) -> (N,3,3) d(point)/d(q), dimensionless."""
         inv = self.inverse_jacobian(q)
         return solve_rows(inv, np.broadcast_to(np.eye(3), inv.shape))
+
+
+KINEMATICS = LinearDelta

@@ -17,8 +17,12 @@ the lower root. Jacobian: from differentiating the closure equations,
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 
+from ..config import Section
 from .base import Kinematics, lower_sphere_intersection, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
@@ -27,7 +31,48 @@ V = np.stack([-np.sin(_ANGLES), np.cos(_ANGLES), np.zeros(3)], axis=1)  # tangen
 Z = np.array([0.0, 0.0, 1.0])
 
 
+FAMILY = "rotary_delta"
+
+
+@dataclass(frozen=True)
+class RotaryDeltaGeometry:
+    """Clavel (3-RSS) delta. Lengths in mm, angles in rad.
+
+    Motor i's shoulder axis sits at ``base_radius`` from the base centre at
+    ``i * 120 deg`` counter-clockwise from +x, ``shoulder_height`` above the bed.
+    ``tool_offset`` is the distance from the platform's ball-joint plane down to
+    the tool tip; ``ball_joint_tilt_max`` limits the forearms' sideways tilt
+    (None: no limit).
+    """
+
+    base_radius: float
+    platform_radius: float
+    upper_arm: float
+    forearm: float
+    shoulder_height: float
+    tool_offset: float = 0.0
+    ball_joint_tilt_max: float | None = None
+
+
+def read_geometry(sec: Section) -> RotaryDeltaGeometry:
+    """The ``[kinematics]`` keys of a rotary delta (lengths mm, tilt degrees in the file)."""
+    tilt = sec.getfloat("ball_joint_tilt_max", required=False, above=0, maxval=90)
+    g = RotaryDeltaGeometry(
+        base_radius=sec.getfloat("base_radius", minval=0),
+        platform_radius=sec.getfloat("platform_radius", minval=0),
+        upper_arm=sec.getfloat("upper_arm", above=0),
+        forearm=sec.getfloat("forearm", above=0),
+        shoulder_height=sec.getfloat("shoulder_height", above=0),
+        tool_offset=sec.getfloat("tool_offset", 0.0, minval=0),
+        ball_joint_tilt_max=None if tilt is None else math.radians(tilt),
+    )
+    if g.forearm <= g.upper_arm * 0.5:
+        sec.fail("forearm", g.forearm, f"a forearm longer than half the upper arm ({g.upper_arm / 2:g} mm)")
+    return g
+
+
 class RotaryDelta(Kinematics):
+    geometry_class = RotaryDeltaGeometry
     n_joints = 3
     joint_kinds = ("revolute", "revolute", "revolute")
 
@@ -108,3 +153,6 @@ class RotaryDelta(Kinematics):
         if tilt_max is None:
             return np.ones(len(points), dtype=bool)
         return np.all(np.abs(self.ball_joint_tilt(points, q)) <= tilt_max + 1e-12, axis=1)
+
+
+KINEMATICS = RotaryDelta

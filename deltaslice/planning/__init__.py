@@ -17,11 +17,12 @@ import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import Toolpath
+from .pieces import Piece
 from .topp import RunSpec, plan_run
 from .trajectory import Trajectory
 from .travel import plan_travel
 
-__all__ = ["plan", "Trajectory", "split_runs", "check_reachable"]
+__all__ = ["plan", "Piece", "Trajectory", "split_runs", "check_reachable"]
 
 _WORKER = {}
 
@@ -78,10 +79,7 @@ def _plan_chunk(args):
     specs, speed_limit = args
     printer, kin = _WORKER["printer"], _WORKER["kin"]
     out = []
-    for s in specs:
-        res = plan_run(kin, printer, s, speed_limit)
-        out.append(res if isinstance(res, list) else [res])
-    return out
+    return [plan_run(kin, printer, s, speed_limit) for s in specs]
 
 
 def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None) -> Trajectory:

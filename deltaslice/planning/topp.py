@@ -32,6 +32,7 @@ from toppra.interpolator import AbstractGeometricPath
 
 from ..errors import PlanningError, UnreachableError
 from .blend import BlendedPath, blend_polyline, dedupe
+from .pieces import FilamentPiece, RunPiece
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
@@ -53,56 +54,6 @@ class RunSpec:
     e: np.ndarray
     tool: float
     layer: int
-
-
-@dataclass(frozen=True)
-class RunPiece:
-    """A planned run: toppra's solution on its grid.
-
-    x: (n+1,) grid in path units; xd: (n+1,) path speed; xdd: (n,) constant path
-    acceleration per stage; t: (n+1,) time at grid points, s; S: run length mm.
-    e_start: filament position at the start; cum_e: (k+1,) filament pushed at each piece start.
-    """
-
-    path: BlendedPath
-    S: float
-    x: np.ndarray
-    xd: np.ndarray
-    xdd: np.ndarray
-    t: np.ndarray
-    cum_e: np.ndarray
-    e_ratio: np.ndarray
-    tool: float
-    layer: int
-    active_time: float = 0.0
-    kind: str = "run"
-
-    @property
-    def duration(self) -> float:
-        return float(self.t[-1])
-
-    def arc_length_at(self, tau: np.ndarray) -> np.ndarray:
-        """Arc length s (mm) at times tau (s, relative to the run start). (n,)"""
-        tau = np.clip(tau, 0.0, self.duration)
-        i = np.clip(np.searchsorted(self.t, tau, side="right") - 1, 0, len(self.xdd) - 1)
-        dt = tau - self.t[i]
-        x = self.x[i] + self.xd[i] * dt + 0.5 * self.xdd[i] * dt * dt
-        return np.clip(x, 0.0, 1.0) * self.S
-
-    def filament_at(self, s: np.ndarray, piece: np.ndarray) -> np.ndarray:
-        """Filament pushed since the run start at arc lengths s, mm."""
-        return self.cum_e[piece] + (s - self.path.piece_start[piece]) * self.e_ratio[piece]
-
-    def sample(self, kin, tau: np.ndarray):
-        """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))"""
-        s = self.arc_length_at(tau)
-        k = self.path.locate(s)
-        q = kin.inverse(self.path.evaluate(s, 0, k))
-        return q, self.filament_at(s, k), np.full(len(s), self.tool)
-
-    @property
-    def filament_total(self) -> float:
-        return float(self.cum_e[-1])
 
 
 class RunPath(AbstractGeometricPath):
@@ -239,24 +190,22 @@ def _conservative_profile(rp, x, vmax, amax, xd_cap):
     return np.minimum(v, np.sqrt(2 * a * np.minimum(x, 1.0 - x).clip(0)))
 
 
-def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece | list:
-    """Plan one run from rest to rest. kin: kinematics; printer: Printer;
-    tolerance: blend tolerance, mm (default: the printer's).
+def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None, kind: str = "run") -> list:
+    """Plan one run from rest to rest: a list of pieces (usually one RunPiece).
 
-    Returns a RunPiece, or, in the rare case toppra's numerics fail on the whole run, the
-    list of RunPieces of its two halves (split at a vertex, each from rest to rest)."""
+    kin: the printer's kinematics; tolerance: blend tolerance, mm (default: the printer's);
+    kind: the pieces' kind ("run", or "travel" for a straight travel). A run shorter than a
+    micron is its filament pushed at rest (or nothing); in the rare case toppra's numerics
+    fail on a whole run, the pieces of its two halves (split at a vertex, each from rest to rest)."""
     if len(dedupe(spec.points, spec.feed, spec.e)[0]) < 2:
-        # Shorter than a micron: the filament (if any) is pushed at rest.
-        from .travel import FilamentPiece
-
-        q = kin.inverse(spec.points[-1:])[0]
-        ex = printer.tool if not printer.is_laser else None
         amount = float(spec.e.sum())
-        if ex is None or amount == 0:
+        if amount == 0:
             return []
-        return [FilamentPiece(q, amount, ex.max_filament_speed, ex.max_filament_acceleration, spec.layer, kind="run")]
+        limits = printer.limits
+        q = kin.inverse(spec.points[-1:])[0]
+        return [FilamentPiece(q, amount, float(limits.velocity[-1]), float(limits.acceleration[-1]), spec.layer, kind=kind)]
     try:
-        return _plan_run(kin, printer, spec, speed_limit, tolerance)
+        return [_plan_run(kin, printer, spec, speed_limit, tolerance, kind)]
     except PlanningError:
         m = len(spec.points) - 1
         if m < 2:
@@ -264,18 +213,13 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         h = m // 2
         first = RunSpec(spec.points[: h + 1], spec.feed[:h], spec.e[:h], spec.tool, spec.layer)
         second = RunSpec(spec.points[h:], spec.feed[h:], spec.e[h:], spec.tool, spec.layer)
-        out = []
-        for part in (first, second):
-            res = plan_run(kin, printer, part, speed_limit, tolerance)
-            out.extend(res if isinstance(res, list) else [res])
-        return out
+        return [p for part in (first, second) for p in plan_run(kin, printer, part, speed_limit, tolerance, kind)]
 
 
-def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece:
+def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str) -> RunPiece:
     pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
     path = blend_polyline(pts, printer.planning.blend_tolerance if tolerance is None else tolerance)
     S = path.length
-    margin = 1.0 - printer.planning.limit_margin
 
     # Filament per mm of each piece: the polyline segment's own ratio (equal widths stay equal),
     # scaled once for the run so the blended (slightly shorter) path pushes exactly the
@@ -287,13 +231,12 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
         e_ratio = e_ratio * (float(e.sum()) / pushed)
     cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
 
-    # The filament coordinate only where filament moves: all-zero rows make toppra's LP degenerate.
-    extruder = not printer.is_laser and bool(np.any(e != 0))
-    vmax = printer.joint_array("velocity_max") * margin
-    amax = printer.joint_array("acceleration_max") * margin
-    if extruder:
-        vmax = np.append(vmax, printer.tool.max_filament_speed * margin)
-        amax = np.append(amax, printer.tool.max_filament_acceleration * margin)
+    # The tool channel only where filament moves (a laser's e is zero): all-zero rows make
+    # toppra's LP degenerate.
+    extruder = bool(np.any(e != 0))
+    limits = printer.planned_limits()
+    channels = limits.n_channels if extruder else limits.n_joints
+    vmax, amax = limits.velocity[:channels], limits.acceleration[:channels]
 
     s_grid = grid(path)
     piece = path.locate(s_grid)
@@ -347,4 +290,6 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     dq, ddq = rp(x_grid[:-1], 1), rp(x_grid[:-1], 2)
     acc = np.abs(dq * xdd[:, None] + ddq * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
-    return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()))
+    q_ends = rp(np.array([0.0, 1.0]))[:, : kin.n_joints]
+    return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()), kind,
+                    q_ends[0], q_ends[1])

@@ -20,6 +20,8 @@ BLOCK = 8192  # samples per block handed to emitters
 
 @dataclass
 class Trajectory:
+    """Pieces end to end (see :mod:`.pieces`), for one printer; ``info``: planner details."""
+
     printer: object
     pieces: list
     planner: str = "toppra"
@@ -75,99 +77,3 @@ class Trajectory:
         solution (toppra stages at a velocity or acceleration bound; ruckig and retract
         profiles are bang-bang and always at a bound)."""
         return float(sum(p.active_time for p in self.pieces) / self.duration) if self.duration > 0 else 0.0
-
-    def summary_text(self, toolpath, printer, monitor: "LimitMonitor", extra=None) -> str:
-        """End-of-run summary; ``monitor`` has watched the samples as they were written."""
-        kinds = {}
-        for p in self.pieces:
-            kinds[p.kind] = kinds.get(p.kind, 0) + 1
-        lines = [
-            f"printer: {printer.name}",
-            f"layers: {toolpath.n_layers}, moves: {len(toolpath)}, pieces: "
-            + ", ".join(f"{v} {k}" for k, v in sorted(kinds.items())),
-            f"planner: {self.planner}, speed limit: {self.speed_limit}",
-            f"print time: {self.duration:.2f} s ({self.duration / 60:.1f} min)",
-            "peak use of limits: " + ", ".join(f"{k} {v:.0f} %" for k, v in monitor.peak_percent().items()),
-            f"time with a limit active (joint, filament or feed cap): {100 * self.active_fraction:.1f} %",
-        ]
-        for k, v in (extra or {}).items():
-            lines.append(f"{k}: {v}")
-        return "\n".join(lines)
-
-
-def finite_differences(samples: Samples, rate: float):
-    """Joint velocity and acceleration by central differences at the output rate: (n,J) each."""
-    q = samples.q
-    v = np.gradient(q, 1.0 / rate, axis=0)
-    a = np.zeros_like(q)
-    if len(q) > 2:
-        a[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate * rate
-    return v, a
-
-
-class LimitMonitor:
-    """Watches Samples blocks as they stream past (to an emitter, or nowhere) and keeps, per
-    joint, the peak ratio of velocity and acceleration to its limit (central differences at
-    the output rate, across block edges too), the peak filament speed while extruding, and
-    the samples beyond a joint limit. Memory: two samples, whatever the print's length."""
-
-    def __init__(self, printer, rate: float):
-        self.printer, self.rate = printer, float(rate)
-        self.vmax = printer.joint_array("velocity_max")
-        self.amax = printer.joint_array("acceleration_max")
-        self.peak_v = np.zeros(printer.n_joints)
-        self.peak_a = np.zeros(printer.n_joints)
-        self.peak_filament = 0.0
-        self.violating_samples = 0
-        self.events = 0
-        self._tail = None  # last two samples of the previous block: (q, e, tool)
-        self._bad_before = False
-
-    def watch(self, blocks):
-        """Yield the blocks unchanged, observing each."""
-        for block in blocks:
-            self.observe(block)
-            yield block
-
-    def consume(self, blocks) -> "LimitMonitor":
-        for block in blocks:
-            self.observe(block)
-        return self
-
-    def observe(self, block: Samples) -> None:
-        q, e, tool = block.q, block.e, block.tool
-        if self._tail is not None:
-            q = np.concatenate([self._tail[0], q])
-            e = np.concatenate([self._tail[1], e])
-            tool = np.concatenate([self._tail[2], tool])
-        self._tail = (q[-2:], e[-2:], tool[-2:])
-        if len(q) < 3:
-            return
-        # Interior samples only: each is judged once, with both neighbours known.
-        rv = np.abs(q[2:] - q[:-2]) * (0.5 * self.rate) / self.vmax
-        ra = np.abs(q[2:] - 2 * q[1:-1] + q[:-2]) * self.rate**2 / self.amax
-        self.peak_v = np.maximum(self.peak_v, rv.max(axis=0))
-        self.peak_a = np.maximum(self.peak_a, ra.max(axis=0))
-        if not self.printer.is_laser:
-            # The melt-flow limit applies while extruding; retracts move cold filament.
-            ev = np.abs(e[2:] - e[:-2]) * (0.5 * self.rate) * (tool[1:-1] > 0)
-            self.peak_filament = max(self.peak_filament, float(ev.max()) / self.printer.tool.max_filament_speed)
-        bad = (rv.max(axis=1) > 1.0) | (ra.max(axis=1) > 1.0)
-        self.violating_samples += int(bad.sum())
-        starts = np.diff(np.concatenate([[self._bad_before], bad]).astype(np.int8)) == 1
-        self.events += int(starts.sum())
-        self._bad_before = bool(bad[-1])
-
-    @property
-    def worst(self) -> float:
-        """Largest joint velocity or acceleration ratio seen."""
-        return float(max(self.peak_v.max(initial=0), self.peak_a.max(initial=0)))
-
-    def peak_percent(self) -> dict:
-        peak = {}
-        for j, joint in enumerate(self.printer.joints):
-            peak[f"{joint.name} vel"] = 100 * float(self.peak_v[j])
-            peak[f"{joint.name} acc"] = 100 * float(self.peak_a[j])
-        if not self.printer.is_laser:
-            peak["filament vel"] = 100 * self.peak_filament
-        return peak

@@ -20,76 +20,16 @@ Two settings:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from .trajectory import LimitMonitor, Trajectory
+from ..machine.limits import LimitMonitor
+from .pieces import TrapezoidPiece
+from .trajectory import Trajectory
 
 FIRMWARE_ACCEL = 3000.0  # mm/s^2, Marlin's delta default
 FIRMWARE_SCV = 5.0  # mm/s, Klipper's default square corner velocity
 FIRMWARE_VMAX = 300.0  # mm/s
 SAFE_TOLERANCE = 1.0  # samples may reach 100 % of a limit, no more
-
-
-@dataclass(frozen=True)
-class TrapezoidPiece:
-    """All moves of a toolpath as one piece. Arrays per move (n,)."""
-
-    p0: np.ndarray  # (n,3) start points
-    d: np.ndarray  # (n,3) unit directions (zero for filament-only moves)
-    length: np.ndarray  # path length of the move, mm (|e| for filament-only moves)
-    v_in: np.ndarray
-    v_top: np.ndarray
-    v_out: np.ndarray
-    accel: np.ndarray
-    t0: np.ndarray  # (n+1,) start times
-    e0: np.ndarray  # (n,) filament at the move start, relative to the piece start
-    e: np.ndarray  # filament of each move
-    tool: np.ndarray
-    filament_only: np.ndarray
-    layer: int = 0
-    kind: str = "trapezoid"
-
-    @property
-    def duration(self) -> float:
-        return float(self.t0[-1])
-
-    @property
-    def filament_total(self) -> float:
-        return float(self.e.sum())
-
-    @property
-    def active_time(self) -> float:
-        return 0.0  # not a certificate this planner provides
-
-    def sample(self, kin, tau):
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
-        k = np.clip(np.searchsorted(self.t0, tau, side="right") - 1, 0, len(self.length) - 1)
-        dt = tau - self.t0[k]
-        vi, vt, vo, a, L = self.v_in[k], self.v_top[k], self.v_out[k], self.accel[k], self.length[k]
-        ta = (vt - vi) / a
-        td = (vt - vo) / a
-        la = (vt**2 - vi**2) / (2 * a)
-        ld = (vt**2 - vo**2) / (2 * a)
-        tc = np.maximum(L - la - ld, 0) / np.maximum(vt, 1e-12)
-        s = np.where(
-            dt < ta,
-            vi * dt + 0.5 * a * dt * dt,
-            np.where(
-                dt < ta + tc,
-                la + vt * (dt - ta),
-                la + vt * tc + vt * (dt - ta - tc) - 0.5 * a * (dt - ta - tc) ** 2,
-            ),
-        )
-        s = np.clip(s, 0, L)
-        del td
-        frac = np.where(L > 0, s / np.where(L > 0, L, 1), 1.0)
-        moving = ~self.filament_only[k]
-        pts = self.p0[k] + (s * moving)[:, None] * self.d[k]
-        q = kin.inverse(pts)
-        e = self.e0[k] + frac * self.e[k]
-        return q, e, self.tool[k]
 
 
 def _moves(toolpath, printer):
@@ -109,17 +49,17 @@ def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> Trapezoi
     tool = toolpath.tool[keep]
     n = len(length)
     d = np.where(length[:, None] > 0, delta / np.where(length > 0, length, 1)[:, None], 0.0)
-    extr = not printer.is_laser
     top = np.minimum(feed, vmax) if speed_limit == "feed" else np.full(n, vmax)
     a = np.full(n, float(accel))
-    if extr:
-        # Firmware caps every move so the extruder stays within its max feed rate (Marlin's
-        # max_feedrate E); here that is the hot end's volumetric limit.
-        with np.errstate(divide="ignore"):
-            ratio = np.where(length > 0, np.abs(e) / np.where(length > 0, length, 1), 0.0)
-            top = np.minimum(top, np.where(ratio > 0, printer.tool.max_filament_speed / ratio, np.inf))
+    # Firmware caps every move so the extruder stays within its max feed rate (Marlin's
+    # max_feedrate E); here that is the hot end's volumetric limit (a laser's e is zero).
+    tool_v, tool_a = printer.limits.velocity[-1], printer.limits.acceleration[-1]
+    with np.errstate(divide="ignore"):
+        ratio = np.where(length > 0, np.abs(e) / np.where(length > 0, length, 1), 0.0)
+        top = np.minimum(top, np.where(ratio > 0, tool_v / ratio, np.inf))
+    if fil.any():  # retracts at rest: only extruders have them
         top = np.where(fil, printer.tool.retract_speed, top)
-        a = np.where(fil, printer.tool.max_filament_acceleration, a)
+        a = np.where(fil, tool_a, a)
     L = np.where(fil, np.abs(e), length)
 
     # Junction speed limits at the start of each move (squared).
@@ -149,7 +89,8 @@ def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> Trapezoi
     t = (v_top - v_in) / a + (v_top - v_out) / a + tc
     t0 = np.concatenate([[0.0], np.cumsum(t)])
     e0 = np.concatenate([[0.0], np.cumsum(e)])[:-1]
-    return TrapezoidPiece(p0, d, L, v_in, v_top, v_out, a, t0, e0, e, tool, fil)
+    q_ends = printer.kinematics().inverse(np.array([p0[0], p0[-1] + d[-1] * length[-1]]))
+    return TrapezoidPiece(p0, d, L, v_in, v_top, v_out, a, t0, e0, e, tool, fil, q_ends[0], q_ends[1])
 
 
 def plan_firmware(toolpath, printer, *, speed_limit="feed", accel=FIRMWARE_ACCEL, scv=FIRMWARE_SCV, vmax=FIRMWARE_VMAX):
@@ -161,9 +102,14 @@ def plan_firmware(toolpath, printer, *, speed_limit="feed", accel=FIRMWARE_ACCEL
     return Trajectory(printer, [piece], planner="trapezoid-firmware", speed_limit=speed_limit, info=info)
 
 
+def _monitor(traj: Trajectory, rate: float) -> LimitMonitor:
+    p = traj.printer
+    return LimitMonitor(p.limits, p.tool, rate).consume(traj.iter_samples(rate))
+
+
 def peak_ratio(traj: Trajectory, rate: float) -> float:
     """Largest sampled |joint velocity| / limit or |joint acceleration| / limit."""
-    return LimitMonitor(traj.printer, rate).consume(traj.iter_samples(rate)).worst
+    return _monitor(traj, rate).worst
 
 
 def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iterations=14):
@@ -202,7 +148,7 @@ def corner_violations(traj: Trajectory, rate: float | None = None) -> dict:
     samples and distinct events (consecutive violating samples count once) exceed a
     velocity or acceleration limit, and the worst ratios."""
     rate = rate or traj.printer.planning.output_rate
-    m = LimitMonitor(traj.printer, rate).consume(traj.iter_samples(rate))
+    m = _monitor(traj, rate)
     return {
         "violating_samples": m.violating_samples,
         "events": m.events,

@@ -11,95 +11,14 @@ two is used.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import ruckig
 
 from ..errors import PlanningError
-from .topp import RunPiece, RunSpec, plan_run
+from .pieces import FilamentPiece, JointMovePiece
+from .topp import RunSpec, plan_run
 
 CHECK_SAMPLES = 48
-
-
-@dataclass
-class JointMovePiece:
-    """A ruckig joint-space move from rest to rest (kept in the main process)."""
-
-    traj: object
-    q0: np.ndarray
-    q1: np.ndarray
-    layer: int
-    kind: str = "travel"
-    tool: float = 0.0
-
-    @property
-    def duration(self) -> float:
-        return float(self.traj.duration)
-
-    @property
-    def active_time(self) -> float:
-        # A time-optimal jerk-limited profile has the jerk, acceleration or velocity of its
-        # limiting joint at a bound at every instant.
-        return self.duration
-
-    def sample(self, kin, tau):
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
-        q = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
-        return q, np.zeros(len(tau)), np.zeros(len(tau))
-
-    @property
-    def filament_total(self) -> float:
-        return 0.0
-
-
-@dataclass(frozen=True)
-class FilamentPiece:
-    """Retract or unretract at rest: a trapezoidal filament move of ``amount`` mm."""
-
-    q: np.ndarray
-    amount: float
-    v: float
-    a: float
-    layer: int
-    kind: str = "retract"
-    tool: float = 0.0
-
-    @property
-    def active_time(self) -> float:
-        return self.duration  # trapezoid: always at the acceleration or speed bound
-
-    @property
-    def _profile(self):
-        d = abs(self.amount)
-        t_acc = self.v / self.a
-        if self.a * t_acc**2 >= d:  # triangular
-            t_acc = np.sqrt(d / self.a)
-            return t_acc, 0.0, self.a * t_acc
-        return t_acc, (d - self.a * t_acc**2) / self.v, self.v
-
-    @property
-    def duration(self) -> float:
-        if self.amount == 0:
-            return 0.0
-        ta, tc, _ = self._profile
-        return 2 * ta + tc
-
-    def sample(self, kin, tau):
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
-        ta, tc, vp = self._profile
-        a = vp / ta if ta > 0 else 0.0
-        d1 = 0.5 * a * ta * ta
-        pos = np.where(
-            tau < ta,
-            0.5 * a * tau**2,
-            np.where(tau < ta + tc, d1 + vp * (tau - ta), 2 * d1 + vp * tc - 0.5 * a * (2 * ta + tc - tau) ** 2),
-        )
-        return np.broadcast_to(self.q, (len(tau), len(self.q))).copy(), np.sign(self.amount) * pos, np.zeros(len(tau))
-
-    @property
-    def filament_total(self) -> float:
-        return float(self.amount)
 
 
 def _ruckig_move(printer, q0, q1, layer):
@@ -107,15 +26,18 @@ def _ruckig_move(printer, q0, q1, layer):
     otg = ruckig.Ruckig(n)
     inp = ruckig.InputParameter(n)
     margin = 1.0 - printer.planning.limit_margin
-    acc = printer.joint_array("acceleration_max") * margin
-    jerk = np.array([j.jerk_max if j.jerk_max else 50.0 * j.acceleration_max for j in printer.joints]) * margin
+    lim = printer.limits
+    acc = lim.acceleration[:n] * margin
+    # Joints without a jerk limit in the printer file get a stiff default (50 x their acceleration per s).
+    given = np.isfinite(lim.jerk[:n]) & (np.nan_to_num(lim.jerk[:n]) > 0)
+    jerk = np.where(given, lim.jerk[:n], 50.0 * lim.acceleration[:n]) * margin
     inp.current_position = list(map(float, q0))
     inp.target_position = list(map(float, q1))
     inp.current_velocity = [0.0] * n
     inp.current_acceleration = [0.0] * n
     inp.target_velocity = [0.0] * n
     inp.target_acceleration = [0.0] * n
-    inp.max_velocity = list(map(float, printer.joint_array("velocity_max") * margin))
+    inp.max_velocity = list(map(float, lim.velocity[:n] * margin))
     inp.max_acceleration = list(map(float, acc))
     inp.max_jerk = list(map(float, jerk))
     traj = ruckig.Trajectory(n)
@@ -145,13 +67,13 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     pieces = []
     q_a = kin.inverse(a[None])[0]
     q_b = kin.inverse(b[None])[0]
-    extruder = not printer.is_laser
-    if extruder and retract < 0:
-        pieces.append(FilamentPiece(q_a, retract, printer.tool.retract_speed, printer.tool.max_filament_acceleration, layer))
+    tool = printer.tool
+    if retract < 0:
+        pieces.append(FilamentPiece(q_a, retract, tool.retract_speed, tool.max_filament_acceleration, layer))
     dist = float(np.linalg.norm(b - a))
     if dist > 1e-9:
-        lift = printer.planning.travel_lift if extruder else printer.tool.travel_height
-        short = extruder and dist < printer.tool.retract_min_travel and retract == 0
+        lift = tool.travel_lift(printer.planning)
+        short = dist < tool.retract_min_travel and retract == 0
         top = max(a[2], b[2], printed_top)
         z_travel = top + (0.0 if short else lift)
         a_up = np.array([a[0], a[1], max(a[2], z_travel)])
@@ -175,8 +97,8 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
                     if sum(p.duration for p in cand) < sum(p.duration for p in cartesian):
                         best = cand
         pieces.extend(best)
-    if extruder and unretract > 0:
-        pieces.append(FilamentPiece(q_b, unretract, printer.tool.retract_speed, printer.tool.max_filament_acceleration, layer))
+    if unretract > 0:
+        pieces.append(FilamentPiece(q_b, unretract, tool.retract_speed, tool.max_filament_acceleration, layer))
     return pieces
 
 
@@ -187,6 +109,4 @@ def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None)
     m = len(pts) - 1
     feed = np.full(m, feed or printer.slicing.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
-    res = plan_run(kin, printer, spec, speed_limit, tolerance)
-    parts = res if isinstance(res, list) else [res]
-    return [RunPiece(**{**p.__dict__, "kind": "travel"}) for p in parts]
+    return plan_run(kin, printer, spec, speed_limit, tolerance, kind="travel")

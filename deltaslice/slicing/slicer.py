@@ -17,22 +17,19 @@ from .perimeters import infill_boundary, perimeter_loops
 from .skirt import skirt_loops
 
 
-def slice_mesh(mesh, printer, *, settings=None, progress=None) -> Toolpath:
-    """Slice ``mesh`` (a placed :class:`~deltaslice.mesh.Mesh`) for ``printer``.
-
-    settings: a :class:`~deltaslice.printer.SlicingSettings` overriding
-    ``printer.slicing``; progress: ``callable(done, total)`` called once per layer.
+def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer") -> Toolpath:
+    """Slice ``mesh`` (a placed :class:`~deltaslice.mesh.Mesh`) with ``settings``
+    (:class:`~deltaslice.machine.SlicingSettings`) for ``tool`` (an
+    :class:`~deltaslice.machine.Extruder`); name: the printer's, for messages;
+    progress: ``callable(done, total)`` called once per layer.
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
     the skirt (first layer), then island by island perimeters (innermost first,
     external last) and infill (top solid, internal solid, sparse).
     """
-    from ..printer import Extruder
-
-    s = settings or printer.slicing
-    tool = printer.tool
-    if not isinstance(tool, Extruder):
+    s = settings
+    if tool.channel_kind != "extruder":
         raise DeltasliceError(
-            f"{printer.name}: slicing a mesh needs an extruder, this printer has a laser: "
+            f"{name}: slicing a mesh needs an extruder, this printer has a {tool.channel_kind}: "
             "give it an image or G-code instead"
         )
     manifold = mesh.to_manifold()

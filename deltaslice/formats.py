@@ -1,0 +1,43 @@
+"""File kinds by extension, in one table: what a part file is and what an output file gets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .errors import DeltasliceError
+
+MESH_SUFFIXES = (".stl", ".obj", ".3mf", ".ply", ".off")
+GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
+
+OUTPUT_FORMATS = ("csv", "stream", "gcode")
+OUTPUT_SUFFIXES = {
+    ".csv": "csv",
+    ".dsl": "stream",
+    ".stream": "stream",
+    **{suffix: "gcode" for suffix in GCODE_SUFFIXES},
+}
+
+
+def part_kind(path) -> str:
+    """"mesh" or "gcode" from a part file's extension; DeltasliceError otherwise."""
+    suffix = Path(str(path)).suffix.lower()
+    if suffix in MESH_SUFFIXES:
+        return "mesh"
+    if suffix in GCODE_SUFFIXES:
+        return "gcode"
+    raise DeltasliceError(
+        f"{path}: unknown part type {suffix or '(no extension)'!r}: expected a mesh "
+        f"({', '.join(MESH_SUFFIXES)}) or G-code ({', '.join(GCODE_SUFFIXES)})"
+    )
+
+
+def format_for(path) -> str:
+    """"csv" | "stream" | "gcode" from the output file's extension; DeltasliceError otherwise."""
+    suffix = Path(str(path)).suffix.lower()
+    try:
+        return OUTPUT_SUFFIXES[suffix]
+    except KeyError:
+        raise DeltasliceError(
+            f"{path}: cannot tell the output format from {suffix or '(no extension)'!r}: use .csv (setpoints), "
+            ".dsl or .stream (binary stream), .gcode, or --format csv|stream|gcode"
+        ) from None

@@ -1,0 +1,22 @@
+"""The machine: the one contract of a printer or engraver.
+
+``load_printer(path)`` (alias ``load_machine``) reads and validates a printer file into a
+frozen :class:`Printer` holding the kinematics (built once), the :class:`Limits` of every
+channel, the tool, the bed and the default settings. Stages take what they need of it.
+"""
+
+from __future__ import annotations
+
+from .limits import ChannelLimits, LimitMonitor, Limits
+from .printer import Printer
+from .reader import ACTUATOR_KINDS, load_printer, printer_from_dict
+from .settings import Bed, PlanningSettings, SlicingSettings
+from .tool import Extruder, Laser, Tool
+
+load_machine = load_printer
+Machine = Printer
+
+__all__ = [
+    "ACTUATOR_KINDS", "Bed", "ChannelLimits", "Extruder", "Laser", "LimitMonitor", "Limits", "Machine", "PlanningSettings",
+    "Printer", "SlicingSettings", "Tool", "load_machine", "load_printer", "printer_from_dict",
+]

@@ -1,0 +1,252 @@
+"""Limits: the one owner of every channel's position, velocity, acceleration and jerk
+limits and of its actuator counts, and the one place they are checked.
+
+Channels are the machine's joints in order, then its tool channel (filament position
+for an extruder, power fraction for a laser). Units are joint units (rad for revolute
+joints, mm for prismatic ones, mm of filament, power fraction) per s, s^2, s^3.
+
+The planner's constraints (``limits.scaled(1 - margin)``), the compile's
+:class:`LimitMonitor` and ``verify`` all read these arrays and use the difference
+functions below, so a limit means the same thing everywhere.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+KINDS = ("revolute", "prismatic", "extruder", "laser")
+UNITS = {"revolute": "rad", "prismatic": "mm", "extruder": "mm", "laser": "0..1"}
+
+
+@dataclass(frozen=True)
+class ChannelLimits:
+    """One channel's limits (a view of :class:`Limits`; joint units)."""
+
+    name: str
+    kind: str
+    position_min: float
+    position_max: float
+    velocity_max: float
+    acceleration_max: float
+    jerk_max: float | None
+    counts_per_unit: float
+    zero_count: float
+
+    @property
+    def unit(self) -> str:
+        return UNITS[self.kind]
+
+
+@dataclass(frozen=True, eq=False)
+class Limits:
+    """Per-channel limits, (C,) float arrays, C = joints + 1 (the tool channel last).
+
+    ``velocity`` is the limit while working (an extruder's melt-flow limit);
+    ``idle_velocity`` applies while the tool is off (an extruder's retract speed).
+    ``jerk`` is NaN where the file gives none. Counts: ``count = zero_count + counts_per_unit * value``."""
+
+    names: tuple[str, ...]
+    kinds: tuple[str, ...]
+    position_min: np.ndarray
+    position_max: np.ndarray
+    velocity: np.ndarray
+    idle_velocity: np.ndarray
+    acceleration: np.ndarray
+    jerk: np.ndarray
+    counts_per_unit: np.ndarray
+    zero_count: np.ndarray
+
+    def __post_init__(self):
+        n = len(self.names)
+        for f in fields(self):
+            if f.name in ("names", "kinds"):
+                continue
+            arr = np.array(getattr(self, f.name), dtype=float).reshape(-1)
+            if len(arr) != n:
+                raise ValueError(f"Limits.{f.name}: expected {n} values, got {len(arr)}")
+            arr.setflags(write=False)
+            object.__setattr__(self, f.name, arr)
+
+    def __eq__(self, other):
+        return isinstance(other, Limits) and self.names == other.names and self.kinds == other.kinds and all(
+            np.array_equal(getattr(self, f.name), getattr(other, f.name), equal_nan=True)
+            for f in fields(self) if f.name not in ("names", "kinds"))
+
+    __hash__ = None
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.names)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names) - 1
+
+    @property
+    def tool_kind(self) -> str:
+        return self.kinds[-1]
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return tuple(UNITS[k] for k in self.kinds)
+
+    def scaled(self, factor: float) -> "Limits":
+        """The same limits with every rate limit (velocity, acceleration, jerk) times ``factor``:
+        ``limits.scaled(1 - margin)`` is what the planner plans to."""
+        return replace(
+            self,
+            velocity=self.velocity * factor,
+            idle_velocity=self.idle_velocity * factor,
+            acceleration=self.acceleration * factor,
+            jerk=self.jerk * factor,
+        )
+
+    def channel(self, i: int) -> ChannelLimits:
+        jerk = float(self.jerk[i])
+        return ChannelLimits(
+            self.names[i], self.kinds[i], float(self.position_min[i]), float(self.position_max[i]),
+            float(self.velocity[i]), float(self.acceleration[i]), None if math.isnan(jerk) else jerk,
+            float(self.counts_per_unit[i]), float(self.zero_count[i]),
+        )
+
+    @property
+    def joints(self) -> tuple[ChannelLimits, ...]:
+        return tuple(self.channel(i) for i in range(self.n_joints))
+
+    def to_counts(self, values: np.ndarray) -> np.ndarray:
+        """values: (n, C) float, channel units -> (n, C) int64 actuator counts (rounded)."""
+        return np.rint(self.zero_count[None] + self.counts_per_unit[None] * values).astype(np.int64)
+
+    def from_counts(self, counts: np.ndarray) -> np.ndarray:
+        """counts: (n, C) -> (n, C) float, channel units."""
+        return (np.asarray(counts, dtype=float) - self.zero_count[None]) / self.counts_per_unit[None]
+
+    def ratios(self, v: np.ndarray, a: np.ndarray, working: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity and acceleration as fractions of their limits.
+
+        v, a: (n, k) float for the first k channels; working: (n,) bool, the tool on (the
+        working velocity limit applies) — default: working everywhere. Returns (n, k) each."""
+        k = v.shape[1]
+        vlim = np.broadcast_to(self.velocity[:k], v.shape)
+        if working is not None:
+            vlim = np.where(np.asarray(working, bool)[:, None], vlim, self.idle_velocity[None, :k])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.abs(v) / vlim, np.abs(a) / self.acceleration[None, :k]
+
+
+# --------------------------------------------------------------------------- differences
+
+
+def central_differences(x: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity and acceleration of the interior samples by central differences.
+
+    x: (n, k) float sampled at ``rate`` Hz -> (v, a), each (n - 2, k), at samples 1..n-2."""
+    v = (x[2:] - x[:-2]) * (0.5 * rate)
+    a = (x[2:] - 2 * x[1:-1] + x[:-2]) * (rate * rate)
+    return v, a
+
+
+def velocity_window(limit: float, resolution: float, rate: float, noise_fraction: float) -> tuple[int, float]:
+    """Samples per velocity window so that quantisation (``resolution / h``, h the window in s)
+    stays below ``noise_fraction`` of ``limit``; returns (window, noise bound)."""
+    if not math.isfinite(limit):
+        return 1, 0.0
+    w = max(1, math.ceil(rate * resolution / (noise_fraction * limit)))
+    return w, resolution / (w / rate)
+
+
+def acceleration_window(limit: float, resolution: float, rate: float, noise_fraction: float) -> tuple[int, float]:
+    """As :func:`velocity_window` for accelerations (noise ``2 resolution / h^2``)."""
+    if not math.isfinite(limit):
+        return 1, 0.0
+    w = max(1, math.ceil(rate * math.sqrt(2 * resolution / (noise_fraction * limit))))
+    return w, 2 * resolution / (w / rate) ** 2
+
+
+def windowed_differences(x: np.ndarray, t: np.ndarray, wv: int, wa: int) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity over ``wv`` samples (at i + wv/2) and acceleration over 2 ``wa`` samples (at i + wa).
+
+    x, t: (n,) float -> (v (n - wv,), a (n - 2 wa,))."""
+    n = len(x)
+    v = (x[wv:] - x[:-wv]) / (t[wv:] - t[:-wv]) if n > wv else np.zeros(0)
+    if n > 2 * wa:
+        va = (x[wa:] - x[:-wa]) / (t[wa:] - t[:-wa])  # velocity at the middle of [i, i + wa]
+        a = (va[wa:] - va[:-wa]) / (0.5 * (t[2 * wa:] - t[: -2 * wa]))
+    else:
+        a = np.zeros(0)
+    return v, a
+
+
+# --------------------------------------------------------------------------- the monitor
+
+
+class LimitMonitor:
+    """Watches Samples blocks as they stream past (to an emitter, or nowhere) and keeps, per
+    channel, the peak ratio of velocity and acceleration to its limit (central differences
+    at the output rate, across block edges too) and the samples beyond a joint limit. The
+    tool channel's velocity counts only while the tool works (an extruder's melt-flow limit;
+    retracts move cold filament). Memory: two samples, whatever the print's length."""
+
+    def __init__(self, limits: Limits, tool, rate: float):
+        self.limits, self.tool, self.rate = limits, tool, float(rate)
+        J = limits.n_joints
+        self.peak_v = np.zeros(J)
+        self.peak_a = np.zeros(J)
+        self.peak_tool_v = 0.0
+        self.violating_samples = 0
+        self.events = 0
+        self._tail = None  # last two samples of the previous block: (q, channel, tool)
+        self._bad_before = False
+
+    def watch(self, blocks):
+        """Yield the blocks unchanged, observing each."""
+        for block in blocks:
+            self.observe(block)
+            yield block
+
+    def consume(self, blocks) -> "LimitMonitor":
+        for block in blocks:
+            self.observe(block)
+        return self
+
+    def observe(self, block) -> None:
+        q, c, tool = block.q, self.tool.channel_values(block.e, block.tool), block.tool
+        if self._tail is not None:
+            q = np.concatenate([self._tail[0], q])
+            c = np.concatenate([self._tail[1], c])
+            tool = np.concatenate([self._tail[2], tool])
+        self._tail = (q[-2:], c[-2:], tool[-2:])
+        if len(q) < 3:
+            return
+        # Interior samples only: each is judged once, with both neighbours known.
+        v, a = central_differences(q, self.rate)
+        rv, ra = self.limits.ratios(v, a)
+        self.peak_v = np.maximum(self.peak_v, rv.max(axis=0))
+        self.peak_a = np.maximum(self.peak_a, ra.max(axis=0))
+        tv = np.abs(c[2:] - c[:-2]) * (0.5 * self.rate) * (tool[1:-1] > 0)
+        with np.errstate(invalid="ignore"):
+            self.peak_tool_v = max(self.peak_tool_v, float(np.nan_to_num(tv.max() / self.limits.velocity[-1])))
+        bad = (rv.max(axis=1) > 1.0) | (ra.max(axis=1) > 1.0)
+        self.violating_samples += int(bad.sum())
+        starts = np.diff(np.concatenate([[self._bad_before], bad]).astype(np.int8)) == 1
+        self.events += int(starts.sum())
+        self._bad_before = bool(bad[-1])
+
+    @property
+    def worst(self) -> float:
+        """Largest joint velocity or acceleration ratio seen."""
+        return float(max(self.peak_v.max(initial=0), self.peak_a.max(initial=0)))
+
+    def peak_percent(self) -> dict:
+        """{"<channel> vel": %, "<channel> acc": %} for every joint, and the tool channel's
+        velocity where it has a limit."""
+        peak = {}
+        for j in range(self.limits.n_joints):
+            peak[f"{self.limits.names[j]} vel"] = 100 * float(self.peak_v[j])
+            peak[f"{self.limits.names[j]} acc"] = 100 * float(self.peak_a[j])
+        if math.isfinite(self.limits.velocity[-1]):
+            peak[f"{self.limits.names[-1]} vel"] = 100 * self.peak_tool_v
+        return peak

@@ -1,0 +1,62 @@
+"""The Printer: one frozen, validated description of a machine, built once at load."""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+
+from ..kinematics import Kinematics
+from .limits import ChannelLimits, Limits
+from .settings import Bed, PlanningSettings, SlicingSettings
+from .tool import Tool
+
+
+@dataclass(frozen=True)
+class Printer:
+    """A validated printer file. Frozen: share it freely between stages and processes.
+
+    ``kinematics`` is built once from the geometry, the joint position limits and the
+    singularity limit; ``limits`` holds every channel's limits and counts (joints, then
+    the tool channel)."""
+
+    name: str
+    path: str
+    description: str
+    family: str
+    geometry: object
+    limits: Limits
+    actuator: str
+    tool: Tool
+    bed: Bed
+    slicing: SlicingSettings
+    planning: PlanningSettings
+    kinematics_: Kinematics = field(repr=False, compare=False)
+    sources: dict = field(default_factory=dict, compare=False, hash=False)
+
+    @property
+    def n_joints(self) -> int:
+        return self.limits.n_joints
+
+    @property
+    def joints(self) -> tuple[ChannelLimits, ...]:
+        """Each joint's limits and counts (views of :attr:`limits`)."""
+        return self.limits.joints
+
+    @property
+    def is_laser(self) -> bool:
+        return self.tool.channel_kind == "laser"
+
+    def kinematics(self) -> Kinematics:
+        """The kinematics object of this printer's family (built once, at load)."""
+        return self.kinematics_
+
+    def planned_limits(self) -> Limits:
+        """The limits the planner plans to: every rate limit times ``1 - limit_margin``."""
+        return self.limits.scaled(1.0 - self.planning.limit_margin)
+
+    def fingerprint(self) -> int:
+        """A 32-bit CRC of the geometry and joint counts: a stream compiled for one
+        printer is refused by another."""
+        J = self.n_joints
+        counts = [(float(c), float(z)) for c, z in zip(self.limits.counts_per_unit[:J], self.limits.zero_count[:J])]
+        return zlib.crc32(repr((self.family, self.geometry, counts)).encode())

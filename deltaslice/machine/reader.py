@@ -1,0 +1,253 @@
+"""Read a printer file (``printers/*.toml``) into a frozen, validated :class:`Printer`.
+
+A printer file describes one machine: kinematic geometry (read by its family's module in
+:mod:`deltaslice.kinematics`), joint limits and actuator counts, the tool (extruder or
+laser), the bed, default slicing and planning settings, and the source of every number.
+Lengths are mm, times s; angles are degrees in the file and radians in the returned
+object (joint units: rad for revolute joints, mm for prismatic ones). Every problem is
+reported at load as a :class:`~deltaslice.errors.PrinterFileError` naming the file, the
+key, the value and the bound it broke.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from ..config import Section
+from ..errors import PrinterFileError
+from ..kinematics import FAMILIES, family, make_kinematics
+from .limits import Limits
+from .printer import Printer
+from .settings import Bed, PlanningSettings, SlicingSettings
+from .tool import Extruder, Laser, Tool
+
+ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
+
+
+def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
+    """Joint channels of the ``[joints]`` table as per-channel lists (radians inside)."""
+    n = len(kinds)
+    names = sec.get("names", [f"q{i + 1}" for i in range(n)])
+    if not isinstance(names, list) or len(names) != n or not all(isinstance(s, str) for s in names):
+        sec.fail("names", names, f"a list of {n} strings")
+    lo = sec.getfloats("position_min", n)
+    hi = sec.getfloats("position_max", n)
+    vel = sec.getfloats("velocity_max", n, above=0)
+    acc = sec.getfloats("acceleration_max", n, above=0)
+    jerk = sec.getfloats("jerk_max", n, default=[0.0] * n, minval=0) if "jerk_max" in sec.data else (None,) * n
+    cpu = sec.getfloats("counts_per_unit", n, above=0)
+    zero = sec.getfloats("zero_count", n, default=[0.0] * n)
+    for i in range(n):
+        if not lo[i] < hi[i]:
+            sec.fail(
+                "position_min", list(lo), f"position_min < position_max for every joint (joint {i + 1}: {lo[i]:g} >= {hi[i]:g})"
+            )
+    out = {key: [] for key in ("names", "kinds", "position_min", "position_max", "velocity", "acceleration", "jerk",
+                                "counts_per_unit", "zero_count")}
+    for i, kind in enumerate(kinds):
+        # Revolute joints are in degrees in the file and radians inside.
+        k = math.radians(1.0) if kind == "revolute" else 1.0
+        for key, value in (("names", names[i]), ("kinds", kind), ("position_min", lo[i] * k), ("position_max", hi[i] * k),
+                           ("velocity", vel[i] * k), ("acceleration", acc[i] * k),
+                           ("jerk", math.nan if jerk[i] is None else jerk[i] * k),
+                           ("counts_per_unit", cpu[i] / k), ("zero_count", zero[i])):
+            out[key].append(value)
+    return out
+
+
+def _limits(joints: dict, tool) -> Limits:
+    """Joint channels, then the tool channel, in one :class:`Limits`."""
+    ch = tool.channel_limits()
+    return Limits(
+        names=tuple(joints["names"]) + (tool.channel_name,),
+        kinds=tuple(joints["kinds"]) + (tool.channel_kind,),
+        position_min=joints["position_min"] + [ch["position_min"]],
+        position_max=joints["position_max"] + [ch["position_max"]],
+        velocity=joints["velocity"] + [ch["velocity"]],
+        idle_velocity=joints["velocity"] + [ch["idle_velocity"]],
+        acceleration=joints["acceleration"] + [ch["acceleration"]],
+        jerk=joints["jerk"] + [ch["jerk"]],
+        counts_per_unit=joints["counts_per_unit"] + [tool.counts_per_unit],
+        zero_count=joints["zero_count"] + [0.0],
+    )
+
+
+def _read_tool(sec: Section) -> Tool:
+    kind = sec.getstr("kind", choices=("extruder", "laser"))
+    if kind == "laser":
+        return Laser(
+            max_power=sec.getfloat("max_power", above=0),
+            power_counts=sec.getfloat("power_counts", above=0),
+            travel_height=sec.getfloat("travel_height", 0.0, minval=0),
+        )
+    nozzle = sec.getfloat("nozzle_diameter", above=0, maxval=5)
+    return Extruder(
+        nozzle_diameter=nozzle,
+        filament_diameter=sec.getfloat("filament_diameter", above=0, maxval=5),
+        max_volumetric_flow=sec.getfloat("max_volumetric_flow", above=0),
+        max_filament_acceleration=sec.getfloat("max_filament_acceleration", above=0),
+        retract_length=sec.getfloat("retract_length", 0.0, minval=0),
+        retract_speed=sec.getfloat("retract_speed", 30.0, above=0),
+        z_hop=sec.getfloat("z_hop", 0.0, minval=0),
+        retract_min_travel=sec.getfloat("retract_min_travel", 2.0, minval=0),
+        counts_per_mm=sec.getfloat("counts_per_mm", above=0),
+    )
+
+
+def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
+    nozzle = tool.nozzle_diameter if isinstance(tool, Extruder) else 0.2
+    layer = sec.getfloat("layer_height", above=0, maxval=10)
+    s = SlicingSettings(
+        layer_height=layer,
+        first_layer_height=sec.getfloat("first_layer_height", layer, above=0, maxval=10),
+        perimeters=sec.getint("perimeters", 2, minval=0, maxval=50),
+        top_solid_layers=sec.getint("top_solid_layers", 3, minval=0, maxval=100),
+        bottom_solid_layers=sec.getint("bottom_solid_layers", 3, minval=0, maxval=100),
+        fill_density=sec.getfloat("fill_density", 0.2, minval=0, maxval=1),
+        fill_angle=math.radians(sec.getfloat("fill_angle", 45.0)),
+        infill_overlap=sec.getfloat("infill_overlap", 0.25, minval=0, maxval=1),
+        perimeter_speed=sec.getfloat("perimeter_speed", above=0),
+        external_perimeter_speed=sec.getfloat("external_perimeter_speed", sec.data.get("perimeter_speed", 30.0), above=0),
+        infill_speed=sec.getfloat("infill_speed", above=0),
+        solid_infill_speed=sec.getfloat("solid_infill_speed", sec.data.get("infill_speed", 30.0), above=0),
+        first_layer_speed=sec.getfloat("first_layer_speed", 20.0, above=0),
+        travel_speed=sec.getfloat("travel_speed", above=0),
+        perimeter_width=sec.getfloat("perimeter_width", nozzle * 1.125, above=0),
+        infill_width=sec.getfloat("infill_width", nozzle * 1.125, above=0),
+        first_layer_width=sec.getfloat("first_layer_width", nozzle * 1.2, above=0),
+        extrusion_multiplier=sec.getfloat("extrusion_multiplier", 1.0, above=0, maxval=3),
+        skirt_loops=sec.getint("skirt_loops", 1, minval=0, maxval=20),
+        skirt_distance=sec.getfloat("skirt_distance", 3.0, minval=0),
+        seam=sec.getstr("seam", "aligned", choices=("aligned", "nearest"), required=False),
+    )
+    if s.first_layer_height > 0 and isinstance(tool, Extruder) and s.layer_height > tool.nozzle_diameter * 1.5:
+        sec.fail("layer_height", layer, f"a layer height <= 1.5 x nozzle diameter ({1.5 * tool.nozzle_diameter:g} mm)")
+    return s
+
+
+def _read_planning(sec: Section) -> PlanningSettings:
+    return PlanningSettings(
+        output_rate=sec.getfloat("output_rate", 1000.0, above=0, maxval=100000),
+        blend_tolerance=sec.getfloat("blend_tolerance", 0.02, above=0, maxval=5),
+        limit_margin=sec.getfloat("limit_margin", 0.01, minval=0, maxval=0.5),
+        travel_lift=sec.getfloat("travel_lift", 1.0, minval=0),
+        singularity_limit=sec.getfloat("singularity_limit", 50.0, above=1),
+    )
+
+
+def _read_bed(sec: Section) -> Bed:
+    shape = sec.getstr("shape", choices=("circle", "rectangle"))
+    radius = sec.getfloat("radius", above=0) if shape == "circle" else 0.0
+    size_x = sec.getfloat("size_x", above=0) if shape == "rectangle" else 2 * radius
+    size_y = sec.getfloat("size_y", above=0) if shape == "rectangle" else 2 * radius
+    return Bed(
+        shape=shape,
+        radius=radius if shape == "circle" else math.hypot(size_x, size_y) / 2,
+        size_x=size_x,
+        size_y=size_y,
+        max_height=sec.getfloat("max_height", above=0),
+    )
+
+
+SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "sources")
+
+
+def load_printer(path: str | Path) -> Printer:
+    """Read and validate a printer file.
+
+    path: a ``.toml`` printer file. Returns a frozen :class:`Printer`.
+    Raises :class:`PrinterFileError` naming the file, key, value and bound on any problem.
+    """
+    path = Path(path)
+    shown = str(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise PrinterFileError(f"{shown}: no such printer file (the ones shipped are in printers/)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise PrinterFileError(f"{shown}: cannot read printer file: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise PrinterFileError(f"{shown}: not valid TOML: {exc}") from None
+    return printer_from_dict(data, shown)
+
+
+def printer_from_dict(data: dict, path: str = "<printer>") -> Printer:
+    """Validate an already-parsed printer description (same rules as :func:`load_printer`)."""
+    top = Section(path, "top level", data)
+    name = top.getstr("name")
+    description = top.getstr("description", "", required=False) or ""
+    for key in SECTIONS:
+        top.used.add(key)
+        if key not in data and key not in ("planning", "sources"):
+            raise PrinterFileError(f"{path}: [{key}] missing: expected a table (required section)")
+    top.check_unknown()
+
+    ksec = Section(path, "kinematics", data["kinematics"])
+    family_name = ksec.getstr("family", choices=FAMILIES)
+    module = family(family_name)
+    geometry = module.read_geometry(ksec)
+    ksec.check_unknown()
+
+    jsec = Section(path, "joints", data["joints"])
+    actuator = jsec.getstr("actuator", choices=ACTUATOR_KINDS)
+    joints = _read_joints(jsec, module.KINEMATICS.joint_kinds)
+    jsec.check_unknown()
+
+    tsec = Section(path, "tool", data["tool"])
+    tool = _read_tool(tsec)
+    tsec.check_unknown()
+
+    bsec = Section(path, "bed", data["bed"])
+    bed = _read_bed(bsec)
+    bsec.check_unknown()
+
+    ssec = Section(path, "slicing", data["slicing"])
+    slicing = _read_slicing(ssec, tool)
+    ssec.check_unknown()
+
+    psec = Section(path, "planning", data.get("planning", {}))
+    planning = _read_planning(psec)
+    psec.check_unknown()
+
+    sources = data.get("sources", {})
+    if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
+        raise PrinterFileError(f"{path}: [sources] expected a table of key = \"where the number comes from\"")
+
+    limits = _limits(joints, tool)
+    J = limits.n_joints
+    printer = Printer(
+        name=name,
+        path=path,
+        description=description,
+        family=family_name,
+        geometry=geometry,
+        limits=limits,
+        actuator=actuator,
+        tool=tool,
+        bed=bed,
+        slicing=slicing,
+        planning=planning,
+        kinematics_=make_kinematics(geometry, limits.position_min[:J], limits.position_max[:J], planning.singularity_limit),
+        sources=dict(sources),
+    )
+    _check_reaches_something(printer)
+    return printer
+
+
+def _check_reaches_something(printer: Printer) -> None:
+    """A geometry whose workspace misses the bed entirely is a typo, not a machine."""
+    kin = printer.kinematics()
+    z = np.linspace(0.0, printer.bed.max_height, 41)
+    pts = np.zeros((z.size, 3))
+    pts[:, 2] = z
+    if not kin.reachable(pts).any():
+        raise PrinterFileError(
+            f"{printer.path}: [kinematics] geometry reaches no point above the bed centre between z = 0 and "
+            f"[bed] max_height = {printer.bed.max_height:g} mm: expected a geometry and joint range that reach the bed"
+        )

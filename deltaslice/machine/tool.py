@@ -1,0 +1,107 @@
+"""The tool channel: an extruder or a laser, and everything that differs between them.
+
+The last channel of every machine is its tool. What a stage needs of it (the
+channel's counts, its limits, how high travels lift, how samples map to counts)
+is asked of the tool object, so no stage branches on the tool's type.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Extruder:
+    """Filament extruder. mm, mm/s, mm^3/s; the channel's value is the filament position (mm)."""
+
+    nozzle_diameter: float
+    filament_diameter: float
+    max_volumetric_flow: float
+    max_filament_acceleration: float
+    retract_length: float
+    retract_speed: float
+    z_hop: float
+    retract_min_travel: float
+    counts_per_mm: float
+
+    channel_kind = "extruder"
+    channel_name = "filament"
+    channel_unit = "mm"
+
+    @property
+    def filament_area(self) -> float:
+        return math.pi * self.filament_diameter**2 / 4.0
+
+    @property
+    def max_filament_speed(self) -> float:
+        """Filament feed speed at the maximum volumetric flow, mm/s."""
+        return self.max_volumetric_flow / self.filament_area
+
+    @property
+    def counts_per_unit(self) -> float:
+        return self.counts_per_mm
+
+    def channel_limits(self) -> dict:
+        """Position, velocity (working and idle) and acceleration limits of the channel.
+
+        The melt-flow limit applies while extruding; a retract (tool off) moves cold
+        filament and may reach the retract speed."""
+        return dict(
+            position_min=-math.inf,
+            position_max=math.inf,
+            velocity=self.max_filament_speed,
+            idle_velocity=max(self.max_filament_speed, self.retract_speed),
+            acceleration=self.max_filament_acceleration,
+            jerk=math.nan,
+        )
+
+    def travel_lift(self, planning) -> float:
+        """How far a travel lifts above the printed part, mm."""
+        return planning.travel_lift
+
+    def channel_values(self, e: np.ndarray, tool: np.ndarray) -> np.ndarray:
+        """The channel's value per sample, (n,) float: the filament position, mm."""
+        return e
+
+    def from_channel(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(e, tool) per sample from the channel's values: extruding where the filament advances."""
+        return values, np.concatenate([[0.0], (np.diff(values) > 0).astype(float)])[: len(values)]
+
+
+@dataclass(frozen=True)
+class Laser:
+    """Laser module switched or PWM-dimmed by the controller; the channel's value is the
+    power fraction 0..1."""
+
+    max_power: float
+    power_counts: float
+    travel_height: float
+
+    channel_kind = "laser"
+    channel_name = "laser"
+    channel_unit = "0..1"
+    retract_min_travel = 0.0  # a laser never retracts: every travel lifts
+
+    @property
+    def counts_per_unit(self) -> float:
+        return self.power_counts
+
+    def channel_limits(self) -> dict:
+        """Power is a fraction of full power and may step (no rate limit)."""
+        return dict(position_min=0.0, position_max=1.0, velocity=math.inf, idle_velocity=math.inf,
+                    acceleration=math.inf, jerk=math.nan)
+
+    def travel_lift(self, planning) -> float:
+        return self.travel_height
+
+    def channel_values(self, e: np.ndarray, tool: np.ndarray) -> np.ndarray:
+        return tool
+
+    def from_channel(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros(len(values)), values
+
+
+Tool = Extruder | Laser

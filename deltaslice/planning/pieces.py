@@ -1,0 +1,254 @@
+"""Pieces: what every planner returns, a list of them, end to end, each from rest to rest.
+
+The :class:`Piece` protocol is all the Trajectory, the emitters and the reports know of a
+planned motion: its kind ("run", "travel", "retract", "trapezoid"), layer, duration, the
+joint positions at both ends, the filament it pushes, the time it spends with a limit
+active, and ``sample(kin, tau)``: joint positions (n, J), filament pushed since the piece
+start (n,) mm and tool state (n,) at times tau (n,) s from the piece start.
+
+* :class:`RunPiece`: a toppra solution along a blended path (runs and straight travels),
+* :class:`JointMovePiece`: a ruckig jerk-limited joint-space move (travels),
+* :class:`FilamentPiece`: a retract or unretract at rest,
+* :class:`TrapezoidPiece`: the conventional planner's whole toolpath.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .blend import BlendedPath
+
+
+@runtime_checkable
+class Piece(Protocol):
+    kind: str
+    layer: int
+
+    @property
+    def duration(self) -> float: ...
+
+    @property
+    def filament_total(self) -> float: ...
+
+    @property
+    def active_time(self) -> float: ...
+
+    @property
+    def q_start(self) -> np.ndarray: ...
+
+    @property
+    def q_end(self) -> np.ndarray: ...
+
+    def sample(self, kin, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+@dataclass(frozen=True)
+class RunPiece:
+    """A planned run: toppra's solution on its grid.
+
+    x: (n+1,) grid in path units; xd: (n+1,) path speed; xdd: (n,) constant path
+    acceleration per stage; t: (n+1,) time at grid points, s; S: run length mm.
+    cum_e: (k+1,) filament pushed at each path piece start, relative to the run start; e_ratio: (k,)
+    filament per mm of each path piece; q_start, q_end: (J,) joint positions at both ends.
+    """
+
+    path: BlendedPath
+    S: float
+    x: np.ndarray
+    xd: np.ndarray
+    xdd: np.ndarray
+    t: np.ndarray
+    cum_e: np.ndarray
+    e_ratio: np.ndarray
+    tool: float
+    layer: int
+    active_time: float = 0.0
+    kind: str = "run"
+    q_start: np.ndarray | None = None
+    q_end: np.ndarray | None = None
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+    def arc_length_at(self, tau: np.ndarray) -> np.ndarray:
+        """Arc length s (mm) at times tau (s, relative to the run start). (n,)"""
+        tau = np.clip(tau, 0.0, self.duration)
+        i = np.clip(np.searchsorted(self.t, tau, side="right") - 1, 0, len(self.xdd) - 1)
+        dt = tau - self.t[i]
+        x = self.x[i] + self.xd[i] * dt + 0.5 * self.xdd[i] * dt * dt
+        return np.clip(x, 0.0, 1.0) * self.S
+
+    def filament_at(self, s: np.ndarray, piece: np.ndarray) -> np.ndarray:
+        """Filament pushed since the run start at arc lengths s, mm."""
+        return self.cum_e[piece] + (s - self.path.piece_start[piece]) * self.e_ratio[piece]
+
+    def sample(self, kin, tau: np.ndarray):
+        """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))"""
+        s = self.arc_length_at(tau)
+        k = self.path.locate(s)
+        q = kin.inverse(self.path.evaluate(s, 0, k))
+        return q, self.filament_at(s, k), np.full(len(s), self.tool)
+
+    @property
+    def filament_total(self) -> float:
+        return float(self.cum_e[-1])
+
+
+@dataclass(frozen=True)
+class JointMovePiece:
+    """A ruckig joint-space move from rest to rest (kept in the main process)."""
+
+    traj: object
+    q0: np.ndarray
+    q1: np.ndarray
+    layer: int
+    kind: str = "travel"
+    tool: float = 0.0
+
+    @property
+    def duration(self) -> float:
+        return float(self.traj.duration)
+
+    @property
+    def q_start(self) -> np.ndarray:
+        return self.q0
+
+    @property
+    def q_end(self) -> np.ndarray:
+        return self.q1
+
+    @property
+    def active_time(self) -> float:
+        # A time-optimal jerk-limited profile has the jerk, acceleration or velocity of its
+        # limiting joint at a bound at every instant.
+        return self.duration
+
+    def sample(self, kin, tau):
+        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+        q = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
+        return q, np.zeros(len(tau)), np.zeros(len(tau))
+
+    @property
+    def filament_total(self) -> float:
+        return 0.0
+
+
+@dataclass(frozen=True)
+class FilamentPiece:
+    """Retract or unretract at rest: a trapezoidal filament move of ``amount`` mm."""
+
+    q: np.ndarray
+    amount: float
+    v: float
+    a: float
+    layer: int
+    kind: str = "retract"
+    tool: float = 0.0
+
+    @property
+    def active_time(self) -> float:
+        return self.duration  # trapezoid: always at the acceleration or speed bound
+
+    @property
+    def q_start(self) -> np.ndarray:
+        return self.q
+
+    @property
+    def q_end(self) -> np.ndarray:
+        return self.q
+
+    @property
+    def _profile(self):
+        d = abs(self.amount)
+        t_acc = self.v / self.a
+        if self.a * t_acc**2 >= d:  # triangular
+            t_acc = np.sqrt(d / self.a)
+            return t_acc, 0.0, self.a * t_acc
+        return t_acc, (d - self.a * t_acc**2) / self.v, self.v
+
+    @property
+    def duration(self) -> float:
+        if self.amount == 0:
+            return 0.0
+        ta, tc, _ = self._profile
+        return 2 * ta + tc
+
+    def sample(self, kin, tau):
+        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+        ta, tc, vp = self._profile
+        a = vp / ta if ta > 0 else 0.0
+        d1 = 0.5 * a * ta * ta
+        pos = np.where(
+            tau < ta,
+            0.5 * a * tau**2,
+            np.where(tau < ta + tc, d1 + vp * (tau - ta), 2 * d1 + vp * tc - 0.5 * a * (2 * ta + tc - tau) ** 2),
+        )
+        return np.broadcast_to(self.q, (len(tau), len(self.q))).copy(), np.sign(self.amount) * pos, np.zeros(len(tau))
+
+    @property
+    def filament_total(self) -> float:
+        return float(self.amount)
+
+
+@dataclass(frozen=True)
+class TrapezoidPiece:
+    """All moves of a toolpath as one piece. Arrays per move (n,)."""
+
+    p0: np.ndarray  # (n,3) start points
+    d: np.ndarray  # (n,3) unit directions (zero for filament-only moves)
+    length: np.ndarray  # path length of the move, mm (|e| for filament-only moves)
+    v_in: np.ndarray
+    v_top: np.ndarray
+    v_out: np.ndarray
+    accel: np.ndarray
+    t0: np.ndarray  # (n+1,) start times
+    e0: np.ndarray  # (n,) filament at the move start, relative to the piece start
+    e: np.ndarray  # filament of each move
+    tool: np.ndarray
+    filament_only: np.ndarray
+    q_start: np.ndarray
+    q_end: np.ndarray
+    layer: int = 0
+    kind: str = "trapezoid"
+
+    @property
+    def duration(self) -> float:
+        return float(self.t0[-1])
+
+    @property
+    def filament_total(self) -> float:
+        return float(self.e.sum())
+
+    @property
+    def active_time(self) -> float:
+        return 0.0  # not a certificate this planner provides
+
+    def sample(self, kin, tau):
+        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+        k = np.clip(np.searchsorted(self.t0, tau, side="right") - 1, 0, len(self.length) - 1)
+        dt = tau - self.t0[k]
+        vi, vt, vo, a, L = self.v_in[k], self.v_top[k], self.v_out[k], self.accel[k], self.length[k]
+        ta = (vt - vi) / a
+        la = (vt**2 - vi**2) / (2 * a)
+        ld = (vt**2 - vo**2) / (2 * a)
+        tc = np.maximum(L - la - ld, 0) / np.maximum(vt, 1e-12)
+        s = np.where(
+            dt < ta,
+            vi * dt + 0.5 * a * dt * dt,
+            np.where(
+                dt < ta + tc,
+                la + vt * (dt - ta),
+                la + vt * tc + vt * (dt - ta - tc) - 0.5 * a * (dt - ta - tc) ** 2,
+            ),
+        )
+        s = np.clip(s, 0, L)
+        frac = np.where(L > 0, s / np.where(L > 0, L, 1), 1.0)
+        moving = ~self.filament_only[k]
+        pts = self.p0[k] + (s * moving)[:, None] * self.d[k]
+        q = kin.inverse(pts)
+        e = self.e0[k] + frac * self.e[k]
+        return q, e, self.tool[k]
