@@ -1,9 +1,9 @@
 """G-code in and out.
 
-``write_gcode`` writes a :class:`~deltaslice.toolpath.Toolpath` as RepRap G-code
+``gcode_text`` writes a :class:`~deltaslice.toolpath.Toolpath` as RepRap G-code
 (absolute E with M82, ``G92 E0`` at the start, ``;LAYER:n`` / ``;Z:`` comments,
-PrusaSlicer-style ``;TYPE:`` comments, feeds in mm/min, G0 travels, G1 work),
-atomically. ``read_gcode`` reads what PrusaSlicer, Slic3r, Cura and deltaslice
+PrusaSlicer-style ``;TYPE:`` comments, feeds in mm/min, G0 travels, G1 work)
+as text. ``read_gcode`` reads what PrusaSlicer, Slic3r, Cura and deltaslice
 write back into a Toolpath: G0/G1, G2/G3 arcs (linearised within
 :data:`ARC_TOLERANCE`), G90/G91, M82/M83, G92, G20/G21, modal feed, layer and
 role comments. Writing then reading gives back the same Toolpath.
@@ -12,7 +12,6 @@ role comments. Writing then reading gives back the same Toolpath.
 from __future__ import annotations
 
 import math
-import os
 import re
 from collections import Counter
 from pathlib import Path
@@ -65,13 +64,12 @@ _START_TAG = ";DELTASLICE_START:"
 # --------------------------------------------------------------------------- writing
 
 
-def write_gcode(toolpath: Toolpath, path, printer=None) -> None:
-    """Write ``toolpath`` as G-code to ``path`` (temp file, then rename).
+def gcode_text(toolpath: Toolpath, printer=None) -> str:
+    """``toolpath`` as G-code text (``pipeline.write_gcode`` writes it to a file).
 
     Extrusion is absolute (M82) from ``G92 E0``; feeds are mm/min; every layer
     (empty ones too) gets ``;LAYER:n`` and ``;Z:z`` before its first move.
     """
-    path = Path(path)
     name = getattr(printer, "name", "unknown printer")
     tp = toolpath
     n = len(tp)
@@ -135,18 +133,7 @@ def write_gcode(toolpath: Toolpath, path, printer=None) -> None:
         for li in range(tp.n_layers):
             out += [f";LAYER:{li}", f";Z:{tp.layer_z[li]:.6f}"]
     out.append("; end")
-    text = "\n".join(out) + "\n"
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="ascii", newline="\n") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except OSError as exc:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        raise GcodeError(f"{path}: cannot write G-code: {exc}") from None
+    return "\n".join(out) + "\n"
 
 
 # --------------------------------------------------------------------------- reading

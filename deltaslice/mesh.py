@@ -11,7 +11,6 @@ what is wrong and where.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -365,13 +364,3 @@ def _hull_xy(xy: np.ndarray) -> np.ndarray:
     t = np.concatenate([np.arange(n) / n for n in k])
     i = np.repeat(np.arange(len(hull)), k)
     return hull[i] + (nxt[i] - hull[i]) * t[:, None]
-
-
-def write_stl(path, vertices, faces) -> None:
-    """Write a binary STL atomically (used by examples and benchmarks)."""
-    import trimesh
-
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(str(tmp), file_type="stl")
-    os.replace(tmp, path)

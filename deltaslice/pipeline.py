@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .errors import StreamError
+from .errors import GcodeError, StreamError
 from .formats import format_for, part_kind
 from .machine import LimitMonitor, Printer, load_printer
 from .progress import stderr_progress
@@ -67,10 +67,16 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     return slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
 
 
-def _write_gcode(toolpath, output, printer) -> None:
-    from .gcode import write_gcode
+def write_gcode(toolpath, output, printer=None) -> None:
+    """Write a Toolpath as G-code to ``output``, atomically."""
+    from .gcode import gcode_text
 
-    write_gcode(toolpath, output, printer)
+    text = gcode_text(toolpath, printer)
+    try:
+        with atomic_output(output, "w", encoding="ascii", newline="\n") as f:
+            f.write(text)
+    except OSError as exc:
+        raise GcodeError(f"{output}: cannot write G-code: {exc}") from None
 
 
 def slice_to_gcode(part, printer, output, *, progress=False, echo=None, **mesh_options) -> str:
@@ -78,7 +84,7 @@ def slice_to_gcode(part, printer, output, *, progress=False, echo=None, **mesh_o
     printer = _printer(printer)
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
-    _write_gcode(toolpath, output, printer)
+    write_gcode(toolpath, output, printer)
     return slice_summary(str(output), toolpath.summary(), time.perf_counter() - t0)
 
 
@@ -148,7 +154,7 @@ def compile_part(
     t_slice = time.perf_counter() - t0
     s = toolpath.summary()
     if fmt == "gcode":  # G-code is a toolpath output: nothing to plan
-        _write_gcode(toolpath, output, printer)
+        write_gcode(toolpath, output, printer)
         return CompileResult(printer.name, str(output), fmt, Path(output).stat().st_size, s["layers"], s["moves"], {},
                              "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
     trajectory = plan(

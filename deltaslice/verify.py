@@ -5,9 +5,9 @@ Checks, over every sample:
 * the file was compiled for this printer (fingerprint),
 * uniform time steps at the file's rate (a squeezed or stretched step is a violation),
 * every joint's position limits (plus half a count of quantisation for streams),
-* every joint's velocity and acceleration limits, and the tool's: extruder filament
-  speed (``max_filament_speed`` while extruding; retracts may reach the retract
-  speed) and acceleration, laser power within 0..1,
+* every joint's velocity and acceleration limits, and the tool channel's: an extruder's
+  filament speed (its melt-flow limit while extruding; retracts may reach the retract
+  speed) and acceleration, a laser's power within 0..1,
 * given the part or G-code that was compiled, the Cartesian deviation of the
   replayed path (forward kinematics of the samples) from the toolpath polyline,
   for the working samples (tool on), against blend tolerance + quantisation. A

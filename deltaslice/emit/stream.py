@@ -82,8 +82,9 @@ class StreamHeader:
         return len(self.channels) - 1
 
     @property
-    def is_laser(self) -> bool:
-        return self.channels[-1].kind == KIND_LASER
+    def tool_kind(self) -> str:
+        """The tool channel's kind name: "extruder" or "laser"."""
+        return self.channels[-1].kind_name
 
     def encode(self) -> bytes:
         name = self.printer_name.encode("utf-8")[:255]
@@ -517,7 +518,7 @@ class UnitConverter:
         t = (first + np.arange(n)) * 1000.0 / h.rate_mhz
         q = (counts[:, :-1] - self.zero) / self.cpu
         tool_ch = h.channels[-1]
-        if h.is_laser:
+        if h.tool_kind == "laser":  # the power fraction; an extruder's state is its rising count
             tool = counts[:, -1] / tool_ch.counts_per_unit
             e = np.zeros(n)
         else:

@@ -25,19 +25,18 @@ def _ruckig_move(printer, q0, q1, layer):
     n = len(q0)
     otg = ruckig.Ruckig(n)
     inp = ruckig.InputParameter(n)
-    margin = 1.0 - printer.planning.limit_margin
-    lim = printer.limits
-    acc = lim.acceleration[:n] * margin
+    lim = printer.planned_limits()
+    acc = lim.acceleration[:n]
     # Joints without a jerk limit in the printer file get a stiff default (50 x their acceleration per s).
     given = np.isfinite(lim.jerk[:n]) & (np.nan_to_num(lim.jerk[:n]) > 0)
-    jerk = np.where(given, lim.jerk[:n], 50.0 * lim.acceleration[:n]) * margin
+    jerk = np.where(given, lim.jerk[:n], 50.0 * acc)
     inp.current_position = list(map(float, q0))
     inp.target_position = list(map(float, q1))
     inp.current_velocity = [0.0] * n
     inp.current_acceleration = [0.0] * n
     inp.target_velocity = [0.0] * n
     inp.target_acceleration = [0.0] * n
-    inp.max_velocity = list(map(float, lim.velocity[:n] * margin))
+    inp.max_velocity = list(map(float, lim.velocity[:n]))
     inp.max_acceleration = list(map(float, acc))
     inp.max_jerk = list(map(float, jerk))
     traj = ruckig.Trajectory(n)
@@ -69,7 +68,7 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     q_b = kin.inverse(b[None])[0]
     tool = printer.tool
     if retract < 0:
-        pieces.append(FilamentPiece(q_a, retract, tool.retract_speed, tool.max_filament_acceleration, layer))
+        pieces.append(FilamentPiece(q_a, retract, tool.retract_speed, float(printer.limits.acceleration[-1]), layer))
     dist = float(np.linalg.norm(b - a))
     if dist > 1e-9:
         lift = tool.travel_lift(printer.planning)
@@ -98,7 +97,7 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
                         best = cand
         pieces.extend(best)
     if unretract > 0:
-        pieces.append(FilamentPiece(q_b, unretract, tool.retract_speed, tool.max_filament_acceleration, layer))
+        pieces.append(FilamentPiece(q_b, unretract, tool.retract_speed, float(printer.limits.acceleration[-1]), layer))
     return pieces
 
 

@@ -1,0 +1,146 @@
+"""The layout's contract (docs/architecture.md), checked on the source itself: no import cycle
+inside the package (imports inside functions count), stages never reach back up to the
+pipeline or the CLI, one owner of the limits, one file per kinematics family."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "deltaslice"
+STAGES = ("emit", "verify", "planning", "slicing", "kinematics", "mesh", "gcode", "samples", "toolpath", "machine")
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in PKG.rglob("*.py"):
+        rel = path.relative_to(PKG.parent).with_suffix("")
+        parts = list(rel.parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _is_package(name: str) -> bool:
+    return MODULES[name].name == "__init__.py"
+
+
+def _imports(name: str) -> set[str]:
+    """Every deltaslice module ``name`` imports, anywhere in the file (functions included)."""
+    tree = ast.parse(MODULES[name].read_text())
+    package = name if _is_package(name) else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                found.add(sub if sub in MODULES else target)
+    return {m for m in found if m in MODULES and m != name}
+
+
+GRAPH = {name: _imports(name) for name in MODULES}
+
+
+def test_the_graph_is_read():
+    assert "deltaslice.machine.limits" in GRAPH["deltaslice.planning.topp"] or "deltaslice.planning.pieces" in GRAPH[
+        "deltaslice.planning.topp"]
+    assert "deltaslice.pipeline" in GRAPH["deltaslice.cli"]  # imported inside functions
+
+
+def test_no_import_cycle():
+    state, stack, cycles = {}, [], []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for n in sorted(GRAPH[m]):
+            if state.get(n) == 1:
+                cycles.append(stack[stack.index(n):] + [n])
+            elif n not in state:
+                visit(n)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(GRAPH):
+        if m not in state:
+            visit(m)
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_stages_never_reach_back_up(stage):
+    mods = [m for m in GRAPH if m == f"deltaslice.{stage}" or m.startswith(f"deltaslice.{stage}.")]
+    assert mods
+    for m in mods:
+        bad = GRAPH[m] & {"deltaslice.pipeline", "deltaslice.cli", "deltaslice.report"}
+        assert not bad, f"{m} imports {bad}"
+
+
+def test_only_the_pipeline_opens_outputs():
+    """Stages write and read file objects; only pipeline.py creates output files."""
+    for m, path in MODULES.items():
+        if m in ("deltaslice.pipeline",) or m.startswith("deltaslice.kinematics.workspace"):
+            continue
+        text = path.read_text()
+        assert "mkstemp" not in text and "os.replace" not in text, m
+        assert not re.search(r"open\([^)]*['\"][wa]b?['\"]", text), f"{m} opens a file for writing"
+
+
+def test_one_owner_of_the_limits():
+    """Outside the machine package nobody assembles limits: no joint_array, no margin arithmetic,
+    no tool rate limits read from the tool's own fields."""
+    for m, path in MODULES.items():
+        if m.startswith("deltaslice.machine"):
+            continue
+        text = path.read_text()
+        for pattern in (r"joint_array", r"limit_margin\s*[)*]", r"1(\.0)?\s*-\s*[\w.]*limit_margin", r"max_filament_speed",
+                        r"max_filament_acceleration", r"\.is_laser"):
+            assert not re.search(pattern, text), f"{m}: {pattern}"
+
+
+def test_a_family_is_one_file():
+    from deltaslice import kinematics
+
+    files = {p.stem for p in (PKG / "kinematics").glob("*.py")} - {"__init__", "base", "workspace"}
+    assert set(kinematics.FAMILIES) == files
+    for name in kinematics.FAMILIES:
+        module = kinematics.family(name)
+        assert module.FAMILY == name
+        assert callable(module.read_geometry) and issubclass(module.KINEMATICS, kinematics.Kinematics)
+        assert module.KINEMATICS.geometry_class.__module__ == module.__name__
+        assert len(module.KINEMATICS.joint_kinds) == module.KINEMATICS.n_joints
+
+
+def test_every_planner_returns_pieces(any_printer):
+    from deltaslice.planning import Piece, plan
+    from deltaslice.toolpath import Role, ToolpathBuilder
+
+    p = any_printer
+    z = p.slicing.first_layer_height
+    b = ToolpathBuilder(start=(0.0, 0.0, z))
+    tool = 0.5 if p.is_laser else 1.0
+    for x, y in ((5, 0), (5, 5), (0, 5)):
+        b.add((x, y, z), 20.0, 0.0 if p.is_laser else 0.2, tool, Role.PERIMETER if not p.is_laser else Role.LASER)
+    b.add((0, 0, z), 50.0, 0.0, 0.0, Role.TRAVEL)
+    tp = b.build()
+    for planner in ("toppra", "trapezoid"):
+        traj = plan(tp, p, planner=planner, workers=1)
+        assert traj.pieces and all(isinstance(piece, Piece) for piece in traj.pieces)
+        for a, c in zip(traj.pieces[:-1], traj.pieces[1:]):
+            assert a.q_end is not None and c.q_start is not None
+            assert abs(a.q_end - c.q_start).max() < 1e-6, (planner, a.kind, c.kind)
