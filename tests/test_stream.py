@@ -120,8 +120,11 @@ def test_decode_units_equals_csv_within_quantisation(etitc, etitc_files):
     q_tol = 0.5 / p.limits.counts_per_unit[:p.n_joints] + 1e-9
     assert np.all(np.abs(a[:, 1:4] - b[:, 1:4]) <= q_tol)
     assert np.abs(a[:, 4] - b[:, 4]).max() <= 0.5 / p.tool.counts_per_mm + 1e-9
-    # the extruder's on/off column is derived from the filament counts (see the spec)
-    assert set(np.unique(a[:, 5])) <= {0.0, 1.0}
+    # the extruder's on/off column is derived from the filament counts (see the spec): on exactly
+    # where the filament count rose since the previous sample
+    rose = np.concatenate([[False], np.diff(np.rint(a[:, 4] * p.tool.counts_per_mm)) > 0])
+    assert set(np.unique(a[:, 5])) == {0.0, 1.0}
+    assert np.array_equal(a[:, 5] == 1.0, rose)
 
 
 def test_decode_refuses_other_printer(etitc_files):

@@ -146,7 +146,8 @@ class PathVelocityConstraint(LinearConstraint):
 def grid(path: BlendedPath) -> np.ndarray:
     """Grid in arc length (mm): from every join, steps growing geometrically from
     MIN_STEP to MAX_STEP on both sides, so every join has close neighbours on
-    both sides and long lines get few stages. (n,) sorted, includes 0 and S."""
+    both sides and long lines get few stages (the gap where the two sequences of a
+    piece meet is at most 2 MAX_STEP). (n,) sorted, includes 0 and S."""
     joins = np.concatenate([[0.0], path.joins(), [path.length]])
     half = np.diff(joins) / 2  # each interval is refined from both its ends toward its middle
     steps = [MIN_STEP]
