@@ -178,9 +178,21 @@ def test_machine_limit_is_faster_and_feed_never_slower_than_baseline(planned):
     feed_traj, _ = out["feed"]
     machine_traj, _ = out["machine"]
     assert machine_traj.duration <= feed_traj.duration * 1.0001
-    safe = plan_safe(toolpath, printer, speed_limit="feed")
+    safe = plan(toolpath, printer, planner="trapezoid", speed_limit="feed", workers=1)  # also from and to rest
     assert corner_violations(safe)["violating_samples"] == 0
     assert feed_traj.duration <= safe.duration * 1.001, (feed_traj.duration, safe.duration)
+
+
+def test_every_trajectory_starts_and_parks_at_rest(planned):
+    printer, toolpath, out = planned
+    trajs = [traj for traj, _ in out.values()] + [plan(toolpath, printer, planner="trapezoid", workers=1)]
+    for traj in trajs:
+        s = traj.samples()
+        assert np.array_equal(s.q[0], printer.rest_pose) and np.allclose(s.q[-1], printer.rest_pose, atol=1e-12)
+        assert traj.pieces[0].kind == "travel" and traj.pieces[-1].kind == "travel"
+        # the first working sample comes after the tool has reached the toolpath's start
+        p = printer.kinematics().forward(traj.pieces[0].q_end[None])[0]
+        assert p[2] >= toolpath.start[2] - 1e-9
 
 
 def test_grid_refinement_changes_duration_under_one_percent(monkeypatch):
@@ -224,7 +236,7 @@ def test_firmware_baseline_violates_where_corners_are_sharp():
     toolpath = layered_part(0.25, 0.2, 1, 40)
     fw = plan_firmware(toolpath, printer, speed_limit="feed")
     assert corner_violations(fw)["events"] > 0
-    safe = plan_safe(toolpath, printer, speed_limit="feed")
+    safe = plan(toolpath, printer, planner="trapezoid", speed_limit="feed", workers=1)
     assert corner_violations(safe)["violating_samples"] == 0
     ours = plan(toolpath, printer, speed_limit="feed", workers=1)
     assert ours.duration < safe.duration
@@ -284,7 +296,11 @@ def test_toppra_degenerate_stage_falls_back_to_a_safe_profile():
     v, a = finite_differences(s, printer.planning.output_rate)
     assert (np.abs(a).max(axis=0) / printer.limits.acceleration[:printer.n_joints]).max() <= MARGIN
     assert (np.abs(v).max(axis=0) / printer.limits.velocity[:printer.n_joints]).max() <= MARGIN
-    assert np.allclose(printer.kinematics().forward(s.q[-1:])[0], [12.16288082, -20.18612611, 1.3], atol=1e-6)
+    travel = [piece for piece in traj.pieces if piece.kind == "travel"]
+    kin = printer.kinematics()
+    target = [12.16288082, -20.18612611, 1.3]
+    assert any(np.allclose(kin.forward(piece.q_end[None])[0], target, atol=1e-6) for piece in travel)
+    assert np.allclose(s.q[-1], printer.rest_pose)  # then parks
 
 
 def test_limit_monitor_over_blocks_equals_whole_array_differences():

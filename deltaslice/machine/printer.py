@@ -5,6 +5,8 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..kinematics import Kinematics
 from .limits import ChannelLimits, Limits
 from .settings import Bed, PlanningSettings, SlicingSettings
@@ -17,7 +19,7 @@ class Printer:
 
     ``kinematics`` is built once from the geometry, the joint position limits and the
     singularity limit; ``limits`` holds every channel's limits and counts (joints, then
-    the tool channel)."""
+    the tool channel); ``rest_pose`` (J,) joint units: where every trajectory starts and ends."""
 
     name: str
     path: str
@@ -31,6 +33,7 @@ class Printer:
     slicing: SlicingSettings
     planning: PlanningSettings
     kinematics_: Kinematics = field(repr=False, compare=False)
+    rest_pose: np.ndarray = field(repr=False, compare=False, default=None)
     sources: dict = field(default_factory=dict, compare=False, hash=False)
 
     @property

@@ -41,20 +41,21 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     jerk = sec.getfloats("jerk_max", n, default=[0.0] * n, minval=0) if "jerk_max" in sec.data else (None,) * n
     cpu = sec.getfloats("counts_per_unit", n, above=0)
     zero = sec.getfloats("zero_count", n, default=[0.0] * n)
+    rest = sec.getfloats("rest", n, default=[math.nan] * n) if "rest" in sec.data else (math.nan,) * n
     for i in range(n):
         if not lo[i] < hi[i]:
             sec.fail(
                 "position_min", list(lo), f"position_min < position_max for every joint (joint {i + 1}: {lo[i]:g} >= {hi[i]:g})"
             )
     out = {key: [] for key in ("names", "kinds", "position_min", "position_max", "velocity", "acceleration", "jerk",
-                                "counts_per_unit", "zero_count")}
+                                "counts_per_unit", "zero_count", "rest")}
     for i, kind in enumerate(kinds):
         # Revolute joints are in degrees in the file and radians inside.
         k = math.radians(1.0) if kind == "revolute" else 1.0
         for key, value in (("names", names[i]), ("kinds", kind), ("position_min", lo[i] * k), ("position_max", hi[i] * k),
                            ("velocity", vel[i] * k), ("acceleration", acc[i] * k),
                            ("jerk", math.nan if jerk[i] is None else jerk[i] * k),
-                           ("counts_per_unit", cpu[i] / k), ("zero_count", zero[i])):
+                           ("counts_per_unit", cpu[i] / k), ("zero_count", zero[i]), ("rest", rest[i] * k)):
             out[key].append(value)
     return out
 
@@ -221,6 +222,8 @@ def printer_from_dict(data: dict, path: str = "<printer>") -> Printer:
 
     limits = _limits(joints, tool)
     J = limits.n_joints
+    kinematics = make_kinematics(geometry, limits.position_min[:J], limits.position_max[:J], planning.singularity_limit)
+    rest = _rest_pose(path, np.array(joints["rest"]), kinematics, bed)
     printer = Printer(
         name=name,
         path=path,
@@ -233,11 +236,33 @@ def printer_from_dict(data: dict, path: str = "<printer>") -> Printer:
         bed=bed,
         slicing=slicing,
         planning=planning,
-        kinematics_=make_kinematics(geometry, limits.position_min[:J], limits.position_max[:J], planning.singularity_limit),
+        kinematics_=kinematics,
+        rest_pose=rest,
         sources=dict(sources),
     )
     _check_reaches_something(printer)
     return printer
+
+
+def _rest_pose(path: str, rest: np.ndarray, kin, bed) -> np.ndarray:
+    """The joint positions the machine rests at (where it is when the player starts and where it
+    parks): ``[joints] rest`` (file units), or by default the highest reachable point above the
+    bed centre up to ``max_height``. A given pose must be within the joint limits and hold the
+    tool above the bed."""
+    if np.all(np.isnan(rest)):
+        z = np.linspace(bed.max_height, 0.0, 81)
+        pts = np.column_stack([np.zeros((len(z), 2)), z])
+        ok = kin.reachable(pts)
+        if not ok.any():
+            return np.full(kin.n_joints, np.nan)  # reported by _check_reaches_something
+        return kin.inverse(pts[np.flatnonzero(ok)[0]][None])[0]
+    p = kin.forward(rest[None])[0]
+    if not kin.within_joint_limits(rest[None])[0] or not np.all(np.isfinite(p)) or p[2] < 0:
+        where = "outside the joint limits" if not kin.within_joint_limits(rest[None])[0] else (
+            "a pose the mechanism cannot close" if not np.all(np.isfinite(p)) else f"the tool at z = {p[2]:.1f} mm, below the bed")
+        raise PrinterFileError(f"{path}: [joints] rest: {where}: expected joint positions within the limits that hold "
+                               "the tool above the bed")
+    return rest
 
 
 def _check_reaches_something(printer: Printer) -> None:

@@ -20,7 +20,7 @@ from ..toolpath import Toolpath
 from .pieces import Piece
 from .topp import RunSpec, plan_run
 from .trajectory import Trajectory
-from .travel import plan_travel
+from .travel import from_rest, plan_travel, to_rest
 
 __all__ = ["plan", "Piece", "Trajectory", "split_runs", "check_reachable"]
 
@@ -94,12 +94,22 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     if len(toolpath) == 0:
         raise DeltasliceError("the toolpath has no moves: nothing to plan")
     check_reachable(toolpath, printer)
+    if planner not in ("toppra", "trapezoid"):
+        raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
+    # Every trajectory starts at the machine's rest pose and parks there at the end.
+    kin = printer.kinematics()
+    head = from_rest(kin, printer, toolpath.start, speed_limit)
+    tail = to_rest(kin, printer, toolpath.xyz[-1], speed_limit)
     if planner == "trapezoid":
         from .trapezoid import plan_safe
 
-        return plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress)
-    if planner != "toppra":
-        raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
+        return plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress, head=head, tail=tail)
+    traj = _plan_toppra(toolpath, printer, speed_limit, workers, progress)
+    return Trajectory(printer, head + traj.pieces + tail, planner=traj.planner, speed_limit=speed_limit,
+                      e_start=traj.e_start, info=traj.info)
+
+
+def _plan_toppra(toolpath, printer, speed_limit, workers, progress) -> Trajectory:
 
     kin = printer.kinematics()
     ranges = split_runs(toolpath)

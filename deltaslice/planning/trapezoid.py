@@ -112,9 +112,11 @@ def peak_ratio(traj: Trajectory, rate: float) -> float:
     return _monitor(traj, rate).worst
 
 
-def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iterations=14):
+def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iterations=14, head=(), tail=()):
     """The conventional planner with the largest uniform limits that keep every joint
-    within its limits at the output rate (bisection on one scale k)."""
+    within its limits at the output rate (bisection on one scale k). head, tail: pieces
+    before and after the toolpath (the moves from and to rest); they are part of what is
+    sampled, so the samples checked are the samples written."""
     rate = printer.planning.output_rate
     lo, hi = 0.0, 1.0
     jd0 = FIRMWARE_SCV**2 * (np.sqrt(2) - 1) / FIRMWARE_ACCEL
@@ -124,7 +126,7 @@ def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iteration
             toolpath, printer, accel=FIRMWARE_ACCEL * k, jd=jd0 * k, vmax=FIRMWARE_VMAX * np.sqrt(k), speed_limit=speed_limit
         )
         info = {"accel": FIRMWARE_ACCEL * k, "junction_deviation": jd0 * k, "vmax": FIRMWARE_VMAX * np.sqrt(k), "scale": k}
-        return Trajectory(printer, [piece], planner="trapezoid-safe", speed_limit=speed_limit, info=info)
+        return Trajectory(printer, [*head, piece, *tail], planner="trapezoid-safe", speed_limit=speed_limit, info=info)
 
     if peak_ratio(make(1.0), rate) <= SAFE_TOLERANCE:
         return make(1.0)

@@ -109,3 +109,37 @@ def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None)
     feed = np.full(m, feed or printer.slicing.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
     return plan_run(kin, printer, spec, speed_limit, tolerance, kind="travel")
+
+
+def from_rest(kin, printer, point, speed_limit) -> list:
+    """Pieces from the printer's rest pose to ``point`` (3,) mm: a jerk-limited joint-space move
+    (ruckig) to the point lifted by the tool's travel lift, then straight down. Where the
+    joint-space move would leave the reachable volume or dip under the bed, a straight move."""
+    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=False)
+
+
+def to_rest(kin, printer, point, speed_limit) -> list:
+    """Pieces from ``point`` (3,) mm back to the rest pose: straight up by the travel lift, then
+    the joint-space move (the mirror of :func:`from_rest`)."""
+    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=True)
+
+
+def _rest_link(kin, printer, point, speed_limit, *, to_rest):
+    q_rest = np.asarray(printer.rest_pose, float)
+    p_rest = kin.forward(q_rest[None])[0]
+    lift = printer.tool.travel_lift(printer.planning)
+    above = np.array([point[0], point[1], point[2] + lift])
+    if lift <= 0 or not kin.reachable(above[None])[0]:
+        above = point
+    q_above = kin.inverse(above[None])[0]
+    ends = (q_above, q_rest) if to_rest else (q_rest, q_above)
+    joint = _ruckig_move(printer, *ends, layer=0)
+    if joint_move_clear(kin, joint, min(0.0, point[2])):
+        link = [joint]
+    else:
+        pts = np.array([above, p_rest] if to_rest else [p_rest, above])
+        link = _cartesian(kin, printer, pts, 0, speed_limit)
+    if np.array_equal(above, point):
+        return link
+    vertical = _cartesian(kin, printer, np.array([point, above] if to_rest else [above, point]), 0, speed_limit)
+    return vertical + link if to_rest else link + vertical
