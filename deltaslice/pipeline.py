@@ -15,9 +15,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from .errors import GcodeError, StreamError
+from .errors import GcodeError, PlanningError, StreamError
 from .formats import format_for, part_kind
 from .machine import LimitMonitor, Printer, load_printer
+from .machine.limits import TOLERANCE
 from .progress import stderr_progress
 from .report import CompileResult, piece_counts, slice_summary
 
@@ -88,14 +89,18 @@ def slice_to_gcode(part, printer, output, *, progress=False, echo=None, **mesh_o
     return slice_summary(str(output), toolpath.summary(), time.perf_counter() - t0)
 
 
-def write_output(trajectory, output, fmt: str | None = None, watch=None) -> int:
+def write_output(trajectory, output, fmt: str | None = None, watch=None, check=None) -> int:
     """Write a planned trajectory to ``output`` (format from the extension unless given),
-    atomically. Returns bytes written."""
+    atomically. Returns bytes written. check: called after the last byte and before the file
+    replaces ``output``; an exception from it leaves any previous output untouched."""
     from .emit import write_trajectory
 
     fmt = fmt or format_for(output)
     with atomic_output(output, "wb") as f:
-        return write_trajectory(trajectory, f, fmt, watch=watch)
+        size = write_trajectory(trajectory, f, fmt, watch=watch)
+        if check is not None:
+            check()
+        return size
 
 
 def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
@@ -167,7 +172,17 @@ def compile_part(
     )
     t_plan = time.perf_counter() - t0 - t_slice
     monitor = LimitMonitor(printer.limits, printer.tool, printer.planning.output_rate)
-    size = write_output(trajectory, output, fmt=fmt, watch=monitor.watch)
+
+    def within_limits():
+        beyond = monitor.beyond()
+        if beyond:
+            raise PlanningError(
+                f"{output}: not written: the planned motion goes beyond the limits of {printer.name} "
+                f"({', '.join(beyond)}; {100 * TOLERANCE:g} % allowed for sampling); this is a planner defect, "
+                "please report it with the part and printer file"
+            )
+
+    size = write_output(trajectory, output, fmt=fmt, watch=monitor.watch, check=within_limits)
     return CompileResult(
         printer=printer.name, output=str(output), fmt=fmt, size_bytes=size, layers=s["layers"], moves=s["moves"],
         pieces=piece_counts(trajectory.pieces), planner=trajectory.planner, speed_limit=speed_limit,

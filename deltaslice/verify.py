@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import StreamError
-from .machine.limits import acceleration_window, velocity_window, windowed_differences
+from .machine.limits import TOLERANCE, acceleration_window, velocity_window, windowed_differences
 
-MARGIN = 0.02
+MARGIN = TOLERANCE
 NOISE_FRACTION = 0.05
 CSV_RESOLUTION = 1e-10  # the CSV's 10 decimals (rounding error 5e-11)
 MAX_LISTED = 20

@@ -18,6 +18,10 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 KINDS = ("revolute", "prismatic", "extruder", "laser")
+
+#: How far above a limit a sampled output may go before the compile fails and verify says FAIL
+#: (finite differences of samples see discretisation that the continuous motion does not have).
+TOLERANCE = 0.02
 UNITS = {"revolute": "rad", "prismatic": "mm", "extruder": "mm", "laser": "0..1"}
 
 
@@ -239,6 +243,11 @@ class LimitMonitor:
     def worst(self) -> float:
         """Largest joint velocity or acceleration ratio seen."""
         return float(max(self.peak_v.max(initial=0), self.peak_a.max(initial=0)))
+
+    def beyond(self, tolerance: float = TOLERANCE) -> list[str]:
+        """The channels whose peak went beyond ``1 + tolerance`` times their limit, as
+        ``"<name> acc 103.1 %"`` (empty when the output is within every limit)."""
+        return [f"{k} {v:.1f} %" for k, v in self.peak_percent().items() if v > 100 * (1 + tolerance)]
 
     def peak_percent(self) -> dict:
         """{"<channel> vel": %, "<channel> acc": %} for every joint, and the tool channel's
