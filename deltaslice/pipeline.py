@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from pathlib import Path
 
-from .errors import DeltasliceError
+from .errors import DeltasliceError, MeshWarning
 from .printer import Printer, load_printer
 from .progress import stderr_progress
 
@@ -41,10 +42,17 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
 
         mesh = load_mesh(part, scale=scale, rotate_z=rotate, keep_position=keep_position)
         if echo is not None:
-            for note in mesh.repairs:
+            for note in (*mesh.repairs, mesh.placement):
                 echo(f"mesh: {note}")
         check_fits(mesh, printer)
-        toolpath = slice_mesh(mesh, printer, progress=progress)
+        with warnings.catch_warnings(record=True) as caught:  # the slicer's MeshWarnings become notes
+            warnings.simplefilter("always", MeshWarning)
+            toolpath = slice_mesh(mesh, printer, progress=progress)
+        for w in caught:
+            if not issubclass(w.category, MeshWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            elif echo is not None:
+                echo(f"mesh: {w.message}")
     else:
         raise DeltasliceError(
             f"{part}: unknown part type {suffix or '(no extension)'!r}: expected a mesh "
