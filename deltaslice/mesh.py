@@ -229,7 +229,18 @@ def _read_binary_stl(path: Path, n: int, size: int, notes: list[str]):
 def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unique undirected edges (k, 2) and how many faces use each (k,)."""
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(e, axis=0, return_counts=True)
+    n = int(faces.max()) + 1 if len(faces) else 1
+    keys, counts = np.unique(e[:, 0] * n + e[:, 1], return_counts=True)  # 1-D keys: far faster than axis=0
+    return np.column_stack([keys // n, keys % n]), counts
+
+
+def _first_of_each_face(faces: np.ndarray) -> np.ndarray:
+    """Index of the first face of each distinct vertex set."""
+    key = np.sort(faces, axis=1)
+    n = int(faces.max()) + 1
+    if n ** 3 < 2**62:
+        return np.unique((key[:, 0] * n + key[:, 1]) * n + key[:, 2], return_index=True)[1]
+    return np.unique(key, axis=0, return_index=True)[1]
 
 
 @dataclass(frozen=True)
@@ -281,7 +292,7 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
     if repeated.all():
         raise MeshError(f"{shown}: every triangle is degenerate (repeats a vertex)")
     keep = ~repeated
-    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    first = _first_of_each_face(f)
     unique = np.zeros(len(f), bool)
     unique[first] = True
     if not (unique | ~keep).all():
@@ -378,7 +389,7 @@ def _finish(vertices, faces, notes, closed, consistent, shown, placement="") -> 
 TINY_EXTENT = 5.0
 
 
-def _placement(shown, lo_file, hi_file, scale, shift) -> str:
+def _placement(lo_file, hi_file, scale, shift) -> str:
     """One line: the part's size in its own units, the scale, and the move onto the bed (mm)."""
     ext = hi_file - lo_file
     shift = np.asarray(shift, float) + 0.0  # no "-0" in the text
@@ -390,11 +401,15 @@ def _placement(shown, lo_file, hi_file, scale, shift) -> str:
     )
     text += f"; scaled {scale:g}x to {mm} mm" if scale != 1.0 else f" (read as {mm} mm)"
     text += f"; moved by ({shift[0]:.4g}, {shift[1]:.4g}, {shift[2]:.4g}) mm"
-    largest = float(ext.max()) * scale
-    if largest < TINY_EXTENT:
-        hint = "in inches? try --scale 25.4" if largest * 25.4 >= TINY_EXTENT else "in metres? try --scale 1000"
-        text += f"; the part is only {largest:.3g} mm across: {hint}"
     return text
+
+
+def _tiny_hint(extent_mm: float) -> str | None:
+    """A units hint for a part whose largest dimension is ``extent_mm`` (None if plausible)."""
+    if extent_mm >= TINY_EXTENT:
+        return None
+    hint = "drawn in inches? try --scale 25.4" if extent_mm * 25.4 >= TINY_EXTENT else "drawn in metres? try --scale 1000"
+    return f"the part is only {extent_mm:.3g} mm across: {hint}"
 
 
 def load_mesh(path, *, scale: float = 1.0, rotate_z: float = 0.0, keep_position: bool = False) -> Mesh:
@@ -428,8 +443,10 @@ def load_mesh(path, *, scale: float = 1.0, rotate_z: float = 0.0, keep_position:
     shift = np.array([0.0, 0.0, -lo[2]])
     if not keep_position:
         shift[:2] = -(lo[:2] + hi[:2]) / 2
-    placement = _placement(shown, lo_file, hi_file, float(scale), shift)
-    return _finish(vertices + shift, r.faces, read_notes + r.notes, r.closed, r.consistent, shown, placement)
+    placement = _placement(lo_file, hi_file, float(scale), shift)
+    hint = _tiny_hint(float((hi - lo).max()))
+    notes = read_notes + r.notes + ([hint] if hint else [])
+    return _finish(vertices + shift, r.faces, notes, r.closed, r.consistent, shown, placement)
 
 
 def mesh_from_arrays(vertices, faces, *, name: str = "<mesh>", place: bool = True) -> Mesh:
@@ -459,7 +476,7 @@ def check_fits(mesh: Mesh, printer) -> None:
     if height > bed.max_height + 1e-9:
         raise UnreachableError(
             f"{mesh.path}: the part is {height:.2f} mm tall, {height - bed.max_height:.2f} mm more than "
-            f"the printer's max height {bed.max_height:g} mm"
+            f"the printer's max height {bed.max_height:g} mm{_placed(mesh)}"
         )
     outline = _hull_xy(v[:, :2])
     kin = printer.kinematics()
@@ -480,7 +497,7 @@ def check_fits(mesh: Mesh, printer) -> None:
         bad = heights[~kin.reachable(col)]
         raise UnreachableError(
             f"{mesh.path}: the printer cannot reach the bed centre at z = {bad[0]:.2f} mm "
-            f"(the part is {height:.2f} mm tall)"
+            f"(the part is {height:.2f} mm tall){_placed(mesh)}"
         )
     for _ in range(30):
         mid = (lo + hi) / 2
@@ -489,8 +506,13 @@ def check_fits(mesh: Mesh, printer) -> None:
     raise UnreachableError(
         f"{mesh.path}: the part does not fit the printer's reachable volume: it reaches {r_part:.2f} mm from the bed "
         f"centre (up to z = {height:.2f} mm) but only {r_ok:.2f} mm are reachable in that shape: "
-        f"{r_part - r_ok:.2f} mm of radius too large (scale it by {lo:.3f} or less, or move it)"
+        f"{r_part - r_ok:.2f} mm of radius too large (scale it by {lo:.3f} or less, or move it){_placed(mesh)}"
     )
+
+
+def _placed(mesh: Mesh) -> str:
+    """'; placed: ...' for an error message, in the part's own units ('' if unknown)."""
+    return f"; {mesh.placement}" if mesh.placement else ""
 
 
 def _hull_xy(xy: np.ndarray) -> np.ndarray:

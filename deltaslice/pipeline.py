@@ -42,7 +42,7 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
 
         mesh = load_mesh(part, scale=scale, rotate_z=rotate, keep_position=keep_position)
         if echo is not None:
-            for note in (*mesh.repairs, mesh.placement):
+            for note in mesh.repairs:
                 echo(f"mesh: {note}")
         check_fits(mesh, printer)
         with warnings.catch_warnings(record=True) as caught:  # the slicer's MeshWarnings become notes

@@ -127,40 +127,62 @@ def _list_rank(nxt: np.ndarray) -> np.ndarray:
         dist, jump = dist_new, jump_new
 
 
-def _close_open(polylines: list[np.ndarray]):
-    """Join open polylines end to nearest end (possibly reversing one) until all close.
+def _nearest(pieces: list[np.ndarray], point: np.ndarray):
+    """(distance, index, at_end) of the piece end nearest ``point``; at_end: its last point."""
+    starts = np.array([p[0] for p in pieces])
+    ends = np.array([p[-1] for p in pieces])
+    ds = np.hypot(*(starts - point).T)
+    de = np.hypot(*(ends - point).T)
+    i, j = int(np.argmin(ds)), int(np.argmin(de))
+    return (float(ds[i]), i, False) if ds[i] <= de[j] else (float(de[j]), j, True)
 
-    polylines: list of (k, 2) float arrays, mm. Returns the closed loops, the
-    gap lengths of the joins (mm) and how many polylines were reversed. The
-    loop is over polylines, not points.
+
+def _close_open(polylines: list[np.ndarray], tolerance: float = 1e-6):
+    """Close open polylines as PrusaSlicer does: first join ends that coincide (within
+    ``tolerance`` mm: flipped faces, non-manifold edges split chains there), then join
+    each tail to the nearest free end (reversing that piece if needed) or to its own
+    head, whichever is nearer.
+
+    polylines: list of (k, 2) float arrays, mm. Returns the closed loops, the gap
+    lengths of the joins longer than ``tolerance`` (mm) and how many pieces were
+    reversed. The loops are over polylines, not points.
     """
-    loops, gaps, reversed_ = [], [], 0
+    pieces, reversed_ = [], 0
     open_ = [p for p in polylines if len(p) >= 2]
-    while open_:
+    while open_:  # exact joins at both ends
         cur = open_.pop()
+        while open_ and np.hypot(*(cur[0] - cur[-1])) > tolerance:
+            d, i, at_end = _nearest(open_, cur[-1])
+            if d <= tolerance:
+                nxt = open_.pop(i)
+                cur = np.vstack([cur, nxt[::-1] if at_end else nxt])
+                reversed_ += at_end
+                continue
+            d, i, at_end = _nearest(open_, cur[0])
+            if d <= tolerance:
+                prv = open_.pop(i)
+                cur = np.vstack([prv if at_end else prv[::-1], cur])
+                reversed_ += not at_end
+                continue
+            break
+        pieces.append(cur)
+
+    loops, gaps = [], []
+    while pieces:  # gaps: tail to the nearest end
+        cur = pieces.pop()
         while True:
-            tail = cur[-1]
-            d_self = float(np.hypot(*(cur[0] - tail)))
-            if open_:
-                starts = np.array([p[0] for p in open_])
-                ends = np.array([p[-1] for p in open_])
-                ds = np.hypot(*(starts - tail).T)
-                de = np.hypot(*(ends - tail).T)
-                i_s, i_e = int(np.argmin(ds)), int(np.argmin(de))
-                best = min(ds[i_s], de[i_e])
-            else:
-                best = np.inf
-            if d_self <= best:
+            d_self = float(np.hypot(*(cur[0] - cur[-1])))
+            d, i, at_end = _nearest(pieces, cur[-1]) if pieces else (np.inf, -1, False)
+            if d_self < d or not pieces:  # on a tie, join the other piece: a lone piece is rarely a whole outline
                 gaps.append(d_self)
                 loops.append(cur)
                 break
-            gaps.append(float(best))
-            if ds[i_s] <= de[i_e]:
-                cur = np.vstack([cur, open_.pop(i_s)])
-            else:
-                cur = np.vstack([cur, open_.pop(i_e)[::-1]])
-                reversed_ += 1
-    return loops, np.asarray(gaps, float), reversed_
+            gaps.append(d)
+            nxt = pieces.pop(i)
+            cur = np.vstack([cur, nxt[::-1] if at_end else nxt])
+            reversed_ += at_end
+    gaps = np.asarray(gaps, float)
+    return loops, gaps[gaps > tolerance], reversed_
 
 
 def open_sections(vertices, faces, z_mid, *, consistent: bool = True, tolerance: float = 1e-6):
@@ -208,9 +230,8 @@ def open_sections(vertices, faces, z_mid, *, consistent: bool = True, tolerance:
         loops = closed_by_layer[li]
         layer_rule = rule
         if open_by_layer[li]:
-            joined, gaps, rev = _close_open(open_by_layer[li])
+            joined, real, rev = _close_open(open_by_layer[li], tolerance)
             loops = loops + [p for p in joined if len(p) >= 3]
-            real = gaps[gaps > tolerance]
             if len(real):
                 n_layers += 1
                 n_gaps += len(real)
