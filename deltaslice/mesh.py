@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -131,6 +132,7 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         n = _binary_stl_count(path, size)
         if n is not None:
             return _read_binary_stl(path, n, size, notes)
+        return _read_ascii_stl(path, notes)
     try:
         loaded = trimesh.load(str(path), process=False)
     except MeshError:
@@ -224,6 +226,34 @@ def _read_binary_stl(path: Path, n: int, size: int, notes: list[str]):
         notes.append(f"ignored {extra} bytes after the {n} triangles the binary STL header announces")
     vertices = data["corners"].reshape(-1, 3).astype(np.float64)
     return vertices, np.arange(3 * n, dtype=np.int64).reshape(-1, 3), notes
+
+
+_ASCII_VERTEX = re.compile(rb"\bvertex\s+(\S+)\s+(\S+)\s+(\S+)", re.IGNORECASE)
+_ASCII_FACET = re.compile(rb"\bfacet\b", re.IGNORECASE)
+
+
+def _read_ascii_stl(path: Path, notes: list[str]):
+    """ASCII STL, any text encoding (only the numbers matter); every solid in the file."""
+    data = path.read_bytes()
+    found = _ASCII_VERTEX.findall(data)
+    if not found:
+        raise MeshError(f"{path}: ASCII STL without a single complete 'vertex x y z' line")
+    try:
+        vertices = np.array(found).astype(np.float64)
+    except ValueError:
+        for m in _ASCII_VERTEX.finditer(data):
+            try:
+                [float(x) for x in m.groups()]
+            except ValueError:
+                line = data.count(b"\n", 0, m.start()) + 1
+                raise MeshError(f"{path}: line {line}: {m.group(0).decode('latin-1')!r}: expected three numbers") from None
+        raise
+    facets = len(_ASCII_FACET.findall(data))
+    if len(vertices) % 3 or (facets and facets != len(vertices) // 3):
+        raise MeshError(
+            f"{path}: ASCII STL with {len(vertices)} vertices in {facets} facets: expected 3 vertices per facet"
+        )
+    return vertices, np.arange(len(vertices), dtype=np.int64).reshape(-1, 3), notes
 
 
 def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

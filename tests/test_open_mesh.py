@@ -351,3 +351,15 @@ def test_real_parts_load_and_slice(name, scale):
     tp = load_toolpath(PARTS / name, coarse, scale=scale, echo=notes.append)
     assert tp.summary()["layers"] >= int(m.vertices[:, 2].max()) - 1
     assert time.perf_counter() - t0 < 60
+
+
+def test_ascii_stl_in_any_encoding_and_bad_numbers(tmp_path):
+    text = trimesh.exchange.stl.export_stl_ascii(meshes.cube_trimesh(20)).replace("solid", "solid caf\xe9", 1)
+    (tmp_path / "latin.stl").write_bytes(text.encode("latin-1"))
+    assert load_mesh(tmp_path / "latin.stl").volume == pytest.approx(8000)
+    lines = text.splitlines()
+    k = next(i for i, line in enumerate(lines) if "vertex" in line and i > 10)
+    lines[k] = "      vertex 1.0 2,5 3.0"
+    (tmp_path / "bad.stl").write_text("\n".join(lines), encoding="latin-1")
+    with pytest.raises(MeshError, match=rf"line {k + 1}: 'vertex 1.0 2,5 3.0': expected three numbers"):
+        load_mesh(tmp_path / "bad.stl")
