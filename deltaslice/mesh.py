@@ -179,9 +179,11 @@ def _flatten_scene(scene, shown: str, notes: list[str]):
         raise MeshError(f"{shown}: model unit {unit!r}: expected one of {', '.join(UNITS_MM)}")
     moved = sum(not np.allclose(scene.graph[n][0], np.eye(4)) for n in nodes)
     if len(nodes) > 1 or moved:
+        named = sorted({n for n in names if not n.isdigit()})  # 3MF object ids are numbers: not worth showing
+        label = f" ({', '.join(named[:5])}{', ...' if len(named) > 5 else ''})" if named else ""
         notes.append(
-            f"read {len(nodes)} object{'s' if len(nodes) > 1 else ''} ({', '.join(sorted(set(names))[:5])}"
-            f"{', ...' if len(set(names)) > 5 else ''}), {moved} placed by their own transforms"
+            f"read {len(nodes)} object{'s' if len(nodes) > 1 else ''}{label}, {moved} placed by "
+            f"{'their' if len(nodes) > 1 else 'its'} build transform{'s' if len(nodes) > 1 else ''}"
         )
     if factor != 1.0:
         notes.append(f"model unit {unit}: multiplied by {factor:g} to mm")

@@ -278,7 +278,7 @@ def test_3mf_two_objects_with_transforms(tmp_path):
     path = _write_3mf(tmp_path / "two.3mf", {1: box, 2: cyl}, [(1, t_box), (2, t_cyl)])
     m = load_mesh(path, keep_position=True)
     assert m.closed
-    assert any("read 2 objects" in r and "2 placed by their own transforms" in r for r in m.repairs)
+    assert any("read 2 objects" in r and "2 placed by their build transforms" in r for r in m.repairs)
     assert np.allclose(m.bounds, [[45, -5, 0], [85, 5, 10]], atol=1e-6)
     assert m.volume == pytest.approx(1000 + np.pi * 25 * 10, rel=0.01)
     tp = slice_mesh(m, printer("delta_etitc"))
@@ -287,13 +287,13 @@ def test_3mf_two_objects_with_transforms(tmp_path):
 
 def test_3mf_written_by_trimesh_and_inch_units(tmp_path):
     scene = trimesh.Scene()
-    scene.add_geometry(trimesh.creation.box((1, 1, 1)), node_name="a", transform=trimesh.transformations.translation_matrix((2, 0, 0.5)))
-    scene.add_geometry(trimesh.creation.box((1, 1, 1)), node_name="b", transform=trimesh.transformations.translation_matrix((-2, 0, 0.5)))
+    scene.add_geometry(trimesh.creation.box((1, 1, 1)), node_name="a", geom_name="left", transform=trimesh.transformations.translation_matrix((2, 0, 0.5)))
+    scene.add_geometry(trimesh.creation.box((1, 1, 1)), node_name="b", geom_name="right", transform=trimesh.transformations.translation_matrix((-2, 0, 0.5)))
     path = tmp_path / "scene.3mf"
     path.write_bytes(trimesh.exchange.threemf.export_3MF(scene))
     m = load_mesh(path, keep_position=True)
     assert np.allclose(m.bounds, [[-2.5, -0.5, 0], [2.5, 0.5, 1]], atol=1e-9)
-    assert any("the part is only 5 mm across" not in r for r in m.repairs)
+    assert any("read 2 objects (left, right), 2 placed by their build transforms" in r for r in m.repairs)
     inch = _write_3mf(tmp_path / "inch.3mf", {1: trimesh.creation.box((1, 1, 1))}, [(1, None)], unit="inch")
     m = load_mesh(inch)
     assert np.allclose(m.bounds[1] - m.bounds[0], 25.4)
