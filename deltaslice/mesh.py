@@ -349,8 +349,11 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
             except Exception:  # a failed repair leaves the part to the layer-by-layer slicer
                 trial = None
             if trial is not None:
-                _, c2 = _edge_counts(np.asarray(trial.faces, np.int64))
-                if not ((c2 == 1).any() or (c2 > 2).any()):
+                f2 = np.asarray(trial.faces, np.int64)
+                _, c2 = _edge_counts(f2)
+                # a fill that backs a face with its own reverse makes a zero-volume membrane: not a repair
+                membrane = len(_first_of_each_face(f2)) < len(f2)
+                if not ((c2 == 1).any() or (c2 > 2).any() or membrane):
                     notes.append(f"filled {len(loops)} small hole{'s' if len(loops) > 1 else ''} with {len(trial.faces) - len(tm.faces)} triangles")
                     tm = trial
                     edges, counts = _edge_counts(np.asarray(tm.faces, np.int64))

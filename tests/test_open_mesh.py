@@ -363,3 +363,14 @@ def test_ascii_stl_in_any_encoding_and_bad_numbers(tmp_path):
     (tmp_path / "bad.stl").write_text("\n".join(lines), encoding="latin-1")
     with pytest.raises(MeshError, match=rf"line {k + 1}: 'vertex 1.0 2,5 3.0': expected three numbers"):
         load_mesh(tmp_path / "bad.stl")
+
+
+def test_triangle_soup_is_refused_naming_the_layer():
+    """Disconnected triangles enclose nothing: closing would invent most of every outline."""
+    rng = np.random.default_rng(3)
+    v = rng.uniform(0, 20, (300, 3))
+    m = mesh_from_arrays(v, np.arange(300).reshape(-1, 3))
+    assert not m.closed
+    mid, _ = _layers(m)
+    with pytest.raises(MeshError, match=r"too broken to slice: at layer \d+ \(z = [\d.]+ mm\).*invent \d+ %"):
+        mesh_sections(m, mid)
