@@ -66,7 +66,7 @@ class Mesh:
 
     @property
     def volume(self) -> float:
-        """Enclosed volume, mm^3 (divergence theorem)."""
+        """Enclosed volume, mm^3 (divergence theorem; only an estimate when the surface is not closed)."""
         t = self.vertices[self.faces]
         return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
 
