@@ -374,3 +374,9 @@ def test_triangle_soup_is_refused_naming_the_layer():
     mid, _ = _layers(m)
     with pytest.raises(MeshError, match=r"too broken to slice: at layer \d+ \(z = [\d.]+ mm\).*invent \d+ %"):
         mesh_sections(m, mid)
+
+
+def test_obj_that_is_not_utf8(tmp_path):
+    text = "# caf\xe9 (latin-1)\nv 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 0 10\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    (tmp_path / "latin.obj").write_bytes(text.encode("latin-1"))
+    assert load_mesh(tmp_path / "latin.obj").volume == pytest.approx(1000 / 6)
