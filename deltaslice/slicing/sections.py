@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from manifold3d import CrossSection, FillRule
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ..errors import MeshError, MeshWarning
 
@@ -295,9 +297,6 @@ def _chain_segments(start: np.ndarray, end: np.ndarray):
     nxt = np.where(skey[so][pos] == ekey, so[pos], -1)
     nxt[nxt == np.arange(S)] = -1  # a one-segment loop (degenerate) is left open
 
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     linked = nxt >= 0
     g = coo_matrix((np.ones(int(linked.sum())), (np.flatnonzero(linked), nxt[linked])), shape=(S, S))
     n_chain, label = connected_components(g, directed=False)
@@ -307,7 +306,6 @@ def _chain_segments(start: np.ndarray, end: np.ndarray):
     is_cycle[label[~has_pred]] = False
     head = np.full(n_chain, S, np.int64)
     np.minimum.at(head, label, np.arange(S))
-    nxt = nxt.copy()
     # in a cycle the segment pointing at the head (lowest index) becomes the tail
     nxt[is_cycle[label] & linked & (nxt == head[label])] = -1
     dist = _list_rank(nxt)
