@@ -33,3 +33,7 @@ class PlanningError(DeltasliceError):
 
 class StreamError(DeltasliceError):
     """A setpoint file or binary stream is corrupt, truncated or of the wrong kind."""
+
+
+class MeshWarning(UserWarning):
+    """A mesh was sliced, but only after closing gaps or similar guesswork the user should hear about."""

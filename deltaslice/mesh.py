@@ -1,16 +1,18 @@
 """Mesh stage: load a part (STL, OBJ, 3MF, PLY, OFF) with trimesh, repair what is
 safe to repair, place it on the bed, and check that it fits the printer.
 
-The result is a frozen :class:`Mesh`: vertices (mm, bed frame) and faces of a
-closed, consistently oriented triangle surface, plus the list of repairs made.
-Anything that cannot be repaired safely (an open surface, non-manifold edges, a
-surface manifold3d refuses) raises :class:`~deltaslice.errors.MeshError` saying
-what is wrong and where.
+The result is a frozen :class:`Mesh`: vertices (mm, bed frame) and faces, the
+repairs made and whether the surface is a closed solid. Only repairs that cannot
+open a surface are made; a mesh that stays open or non-manifold (or that
+manifold3d refuses) is kept, marked ``closed=False``, and sliced layer by layer
+(:mod:`deltaslice.slicing.sections`), as PrusaSlicer does. A file that cannot be
+read raises :class:`~deltaslice.errors.MeshError` saying what is wrong and where.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,17 +30,23 @@ MAX_HOLE_EDGES = 8
 
 @dataclass(frozen=True)
 class Mesh:
-    """A closed triangle surface placed in the bed frame.
+    """A triangle surface placed in the bed frame.
 
     vertices: (n, 3) float64, mm; faces: (m, 3) int64 indices, counter-clockwise
-    seen from outside; repairs: what was repaired, one human-readable note each;
-    path: the file it came from.
+    seen from outside; repairs: what was repaired or found, one human-readable
+    note each; path: the file it came from; closed: a watertight 2-manifold
+    manifold3d accepts (else the slicer cuts it layer by layer);
+    winding_consistent: the faces are oriented consistently (outward);
+    placement: where the part was in its file and how it was moved.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     repairs: tuple[str, ...] = ()
     path: str = ""
+    closed: bool = True
+    winding_consistent: bool = True
+    placement: str = ""
     _cache: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
 
     def __post_init__(self):
@@ -57,18 +65,21 @@ class Mesh:
 
     @property
     def volume(self) -> float:
-        """Enclosed volume, mm^3 (divergence theorem)."""
+        """Enclosed volume, mm^3 (divergence theorem; only an estimate when the surface is not closed)."""
         t = self.vertices[self.faces]
         return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
 
     def to_manifold(self):
-        """The part as a ``manifold3d.Manifold`` (cached). Raises MeshError if refused."""
+        """The part as a ``manifold3d.Manifold`` (cached). Raises MeshError if refused or not closed."""
+        if not self.closed:
+            raise MeshError(f"{self.path}: not a closed solid: no manifold3d solid for it (it is sliced layer by layer)")
         if "manifold" not in self._cache:
             self._cache["manifold"] = _to_manifold(self.vertices, self.faces, self.path)
         return self._cache["manifold"]
 
 
-def _to_manifold(vertices, faces, shown):
+def _manifold(vertices, faces):
+    """manifold3d's solid for a surface and its status name ('NoError' when accepted)."""
     import manifold3d
 
     mesh = manifold3d.Mesh64(
@@ -76,10 +87,17 @@ def _to_manifold(vertices, faces, shown):
         tri_verts=np.array(faces, dtype=np.uint64, order="C"),
     )
     man = manifold3d.Manifold(mesh)
-    status = man.status()
-    if str(status) != "Error.NoError" or (man.is_empty() and len(faces)):
+    status = str(man.status()).split(".")[-1]
+    if status == "NoError" and man.is_empty() and len(faces):
+        status = "Empty"
+    return man, status
+
+
+def _to_manifold(vertices, faces, shown):
+    man, status = _manifold(vertices, faces)
+    if status != "NoError":
         raise MeshError(
-            f"{shown}: the surface is not a closed 2-manifold ({str(status).split('.')[-1]}): "
+            f"{shown}: the surface is not a closed 2-manifold ({status}): "
             "expected a watertight part without self-intersecting or non-manifold edges"
         )
     return man
@@ -89,12 +107,13 @@ def _to_manifold(vertices, faces, shown):
 
 
 def _where(points: np.ndarray) -> str:
-    """A short 'near (x, y, z)' for a set of points."""
+    """A short 'near (x, y, z)' for a set of points, in the file's own coordinates and units."""
     c = np.asarray(points, float).reshape(-1, 3).mean(axis=0)
-    return f"near ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}) mm"
+    return f"near ({c[0]:.4g}, {c[1]:.4g}, {c[2]:.4g}) in file coordinates"
 
 
-def _read_trimesh(path: Path):
+def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Vertices (n, 3) float in file units, faces (m, 3) int64 and reading notes."""
     import trimesh
 
     shown = str(path)
@@ -107,34 +126,79 @@ def _read_trimesh(path: Path):
     if size == 0:
         raise MeshError(f"{shown}: empty file (0 bytes): expected a mesh")
     suffix = path.suffix.lower()
+    notes: list[str] = []
     if suffix == ".stl":
-        _check_stl(path, size)
+        n = _binary_stl_count(path, size)
+        if n is not None:
+            return _read_binary_stl(path, n, size, notes)
+        return _read_ascii_stl(path, notes)
     try:
-        loaded = trimesh.load(str(path), force="mesh", process=False)
+        loaded = trimesh.load(str(path), process=False)
     except MeshError:
         raise
     except Exception as exc:  # trimesh raises many types on bad input
         raise MeshError(f"{shown}: cannot parse as {suffix or 'a mesh'}: {type(exc).__name__}: {exc}") from None
-    if not hasattr(loaded, "faces") or loaded.vertices is None:
+    if isinstance(loaded, trimesh.Scene):
+        vertices, faces = _flatten_scene(loaded, shown, notes)
+    elif hasattr(loaded, "faces") and loaded.vertices is not None:
+        vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
+    else:
         raise MeshError(f"{shown}: no triangle mesh found in the file")
-    vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) == 0 or len(vertices) == 0:
         raise MeshError(f"{shown}: the mesh has no triangles")
-    return vertices, faces
+    return vertices, faces, notes
 
 
-def _check_stl(path: Path, size: int) -> None:
-    """Catch truncated binary STL before trimesh, with a precise message."""
+#: 3MF model units (the spec's list) in mm.
+UNITS_MM = {"micron": 1e-3, "millimeter": 1.0, "centimeter": 10.0, "inch": 25.4, "foot": 304.8, "meter": 1000.0}
+
+
+def _flatten_scene(scene, shown: str, notes: list[str]):
+    """Every object instance of a scene (3MF build items) with its transform applied, in mm."""
+    nodes = [n for n in scene.graph.nodes_geometry if len(getattr(scene.geometry[scene.graph[n][1]], "faces", ())) > 0]
+    if not nodes:
+        raise MeshError(f"{shown}: no triangle mesh found in the file")
+    vs, fs, offset, names = [], [], 0, []
+    for node in nodes:
+        transform, name = scene.graph[node]
+        geom = scene.geometry[name]
+        v = np.asarray(geom.vertices, np.float64).reshape(-1, 3)
+        v = v @ transform[:3, :3].T + transform[:3, 3]
+        f = np.asarray(geom.faces, np.int64).reshape(-1, 3)
+        if np.linalg.det(transform[:3, :3]) < 0:  # a mirroring transform turns the faces inside out
+            f = f[:, ::-1]
+        vs.append(v)
+        fs.append(f + offset)
+        offset += len(v)
+        names.append(str(name))
+    unit = str(scene.metadata.get("units") or "millimeter").lower().rstrip("s")
+    factor = UNITS_MM.get(unit)
+    if factor is None:
+        raise MeshError(f"{shown}: model unit {unit!r}: expected one of {', '.join(UNITS_MM)}")
+    moved = sum(not np.allclose(scene.graph[n][0], np.eye(4)) for n in nodes)
+    if len(nodes) > 1 or moved:
+        named = sorted({n for n in names if not n.isdigit()})  # 3MF object ids are numbers: not worth showing
+        label = f" ({', '.join(named[:5])}{', ...' if len(named) > 5 else ''})" if named else ""
+        notes.append(
+            f"read {len(nodes)} object{'s' if len(nodes) > 1 else ''}{label}, {moved} placed by "
+            f"{'their' if len(nodes) > 1 else 'its'} build transform{'s' if len(nodes) > 1 else ''}"
+        )
+    if factor != 1.0:
+        notes.append(f"model unit {unit}: multiplied by {factor:g} to mm")
+    return np.vstack(vs) * factor, np.vstack(fs)
+
+
+def _binary_stl_count(path: Path, size: int) -> int | None:
+    """The triangle count of a binary STL, None for ASCII; MeshError when truncated."""
     with open(path, "rb") as fh:
-        head = fh.read(84)
+        head = fh.read(1024)
     if head[:5].lower() == b"solid":
-        # Could still be binary with a header starting 'solid': check the count.
-        if len(head) == 84:
-            n = int.from_bytes(head[80:84], "little")
-            if 84 + 50 * n == size and n > 0:
-                return
-        return  # ASCII: trimesh reports its own errors
+        # A binary header may start with 'solid' too: an ASCII file says 'facet' early
+        n = int.from_bytes(head[80:84], "little") if len(head) >= 84 else -1
+        if b"facet" in head.lower() or b"endsolid" in head.lower() or n <= 0 or 84 + 50 * n > size:
+            return None
+        return n
     if size < 84:
         raise MeshError(f"{path}: truncated binary STL: {size} bytes, the 84-byte header alone is longer")
     n = int.from_bytes(head[80:84], "little")
@@ -147,11 +211,89 @@ def _check_stl(path: Path, size: int) -> None:
             f"{path}: truncated binary STL: header announces {n} triangles ({expected} bytes) "
             f"but the file has {size} bytes ({got} complete triangles)"
         )
+    return n
 
 
-def _repair(
-    vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = False
-) -> tuple[np.ndarray, np.ndarray, list[str]]:
+_STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+
+
+def _read_binary_stl(path: Path, n: int, size: int, notes: list[str]):
+    """The n triangles a binary STL header announces; bytes after them are ignored (as PrusaSlicer does)."""
+    with open(path, "rb") as fh:
+        fh.seek(84)
+        data = np.frombuffer(fh.read(50 * n), dtype=_STL_RECORD, count=n)
+    extra = size - 84 - 50 * n
+    if extra:
+        notes.append(f"ignored {extra} bytes after the {n} triangles the binary STL header announces")
+    vertices = data["corners"].reshape(-1, 3).astype(np.float64)
+    return vertices, np.arange(3 * n, dtype=np.int64).reshape(-1, 3), notes
+
+
+_ASCII_VERTEX = re.compile(rb"\bvertex\s+(\S+)\s+(\S+)\s+(\S+)", re.IGNORECASE)
+_ASCII_FACET = re.compile(rb"\bfacet\b", re.IGNORECASE)
+
+
+def _read_ascii_stl(path: Path, notes: list[str]):
+    """ASCII STL, any text encoding (only the numbers matter); every solid in the file."""
+    data = path.read_bytes()
+    found = _ASCII_VERTEX.findall(data)
+    if not found:
+        raise MeshError(f"{path}: ASCII STL without a single complete 'vertex x y z' line")
+    try:
+        vertices = np.array(found).astype(np.float64)
+    except ValueError:
+        for m in _ASCII_VERTEX.finditer(data):
+            try:
+                [float(x) for x in m.groups()]
+            except ValueError:
+                line = data.count(b"\n", 0, m.start()) + 1
+                raise MeshError(f"{path}: line {line}: {m.group(0).decode('latin-1')!r}: expected three numbers") from None
+        raise
+    facets = len(_ASCII_FACET.findall(data))
+    if len(vertices) % 3 or (facets and facets != len(vertices) // 3):
+        raise MeshError(
+            f"{path}: ASCII STL with {len(vertices)} vertices in {facets} facets: expected 3 vertices per facet"
+        )
+    return vertices, np.arange(len(vertices), dtype=np.int64).reshape(-1, 3), notes
+
+
+def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique undirected edges (k, 2) and how many faces use each (k,)."""
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    n = int(faces.max()) + 1 if len(faces) else 1
+    keys, counts = np.unique(e[:, 0] * n + e[:, 1], return_counts=True)  # 1-D keys: far faster than axis=0
+    return np.column_stack([keys // n, keys % n]), counts
+
+
+def _first_of_each_face(faces: np.ndarray) -> np.ndarray:
+    """Index of the first face of each distinct vertex set."""
+    key = np.sort(faces, axis=1)
+    n = int(faces.max()) + 1
+    if n ** 3 < 2**62:
+        return np.unique((key[:, 0] * n + key[:, 1]) * n + key[:, 2], return_index=True)[1]
+    return np.unique(key, axis=0, return_index=True)[1]
+
+
+@dataclass(frozen=True)
+class _Repaired:
+    vertices: np.ndarray
+    faces: np.ndarray
+    notes: list
+    closed: bool
+    consistent: bool
+
+
+def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = False) -> _Repaired:
+    """Repair what is safe, never opening a closed surface.
+
+    Merges duplicate vertices, drops faces that repeat a vertex and duplicate
+    faces (only when that leaves no more boundary edges than before), fills holes
+    of at most MAX_HOLE_EDGES edges when that closes the surface, makes the
+    winding consistent and outward. Faces of exactly zero area with three distinct
+    vertices are kept: they are part of a watertight surface's topology.
+    ``closed`` says whether the result is a watertight, 2-manifold, consistently
+    wound surface (sliced by manifold3d); anything else is sliced layer by layer.
+    """
     import trimesh
 
     notes: list[str] = []
@@ -164,80 +306,90 @@ def _repair(
     extent = used.max(axis=0) - used.min(axis=0)
     if extent.max() > MAX_EXTENT or np.abs(used).max() > 100 * MAX_EXTENT:
         raise MeshError(
-            f"{shown}: absurd size: {extent[0]:.4g} x {extent[1]:.4g} x {extent[2]:.4g} mm "
+            f"{shown}: absurd size: {extent[0]:.4g} x {extent[1]:.4g} x {extent[2]:.4g} file units "
             f"(limit {MAX_EXTENT:g} mm): wrong units? use --scale"
         )
     if extent.max() < MIN_EXTENT:
-        raise MeshError(f"{shown}: the part is degenerate: largest dimension {extent.max():.3g} mm")
+        raise MeshError(f"{shown}: the part is degenerate: largest dimension {extent.max():.3g} file units")
 
     tm = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
     nv = len(tm.vertices)
     tm.merge_vertices(merge_tex=True, merge_norm=True)
     if len(tm.vertices) < nv and not stl:  # STL stores every corner again: merging is routine there
         notes.append(f"merged {nv - len(tm.vertices)} duplicate vertices")
-    nf = len(tm.faces)
-    f = tm.faces
-    degenerate = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
-    area = tm.area_faces
-    scale = max(float(extent.max()), 1e-9)
-    degenerate |= area <= (1e-12 * scale * scale)
-    if degenerate.any():
-        tm.update_faces(~degenerate)
-    key = np.sort(tm.faces, axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
-    if len(first) < len(tm.faces):
-        keep = np.zeros(len(tm.faces), bool)
-        keep[first] = True
+    f = np.asarray(tm.faces, np.int64)
+    n_open_before = int((_edge_counts(f)[1] == 1).sum())
+    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    if repeated.all():
+        raise MeshError(f"{shown}: every triangle is degenerate (repeats a vertex)")
+    keep = ~repeated
+    first = _first_of_each_face(f)
+    unique = np.zeros(len(f), bool)
+    unique[first] = True
+    if not (unique | ~keep).all():
+        # duplicates: dropping them must not open edges (two opposite copies form a closed membrane)
+        trial = keep & unique
+        if int((_edge_counts(f[trial])[1] == 1).sum()) <= n_open_before:
+            keep = trial
+    if not keep.all():
+        notes.append(f"dropped {int((~keep).sum())} degenerate or duplicate faces")
         tm.update_faces(keep)
-    if len(tm.faces) < nf:
-        notes.append(f"dropped {nf - len(tm.faces)} degenerate or duplicate faces")
-    tm.remove_unreferenced_vertices()
-    if len(tm.faces) == 0:
-        raise MeshError(f"{shown}: every triangle is degenerate (zero area)")
+        tm.remove_unreferenced_vertices()
 
-    # Edge topology: non-manifold edges are not safe to repair.
-    edges = np.sort(tm.edges, axis=1)
-    uniq, counts = np.unique(edges, axis=0, return_counts=True)
-    nonman = uniq[counts > 2]
-    if len(nonman):
-        raise MeshError(
-            f"{shown}: {len(nonman)} non-manifold edges (shared by more than two triangles), first "
-            f"{_where(tm.vertices[nonman[0]])}: expected each edge to join exactly two triangles"
-        )
-    open_edges = uniq[counts == 1]
-    if len(open_edges):
-        n_open = len(open_edges)
+    edges, counts = _edge_counts(np.asarray(tm.faces, np.int64))
+    nonman = edges[counts > 2]
+    open_edges = edges[counts == 1]
+    if len(open_edges) and not len(nonman):
         loops = _boundary_loops(open_edges)
-        if loops and max(len(lp) for lp in loops) <= MAX_HOLE_EDGES:
-            before = len(tm.faces)
-            trimesh.repair.fill_holes(tm)
-            e2 = np.sort(tm.edges, axis=1)
-            _, c2 = np.unique(e2, axis=0, return_counts=True)
-            if (c2 == 1).any() or (c2 > 2).any():
-                raise MeshError(
-                    f"{shown}: open surface: {len(loops)} holes ({n_open} boundary edges), first "
-                    f"{_where(tm.vertices[open_edges[0]])}, could not be closed safely"
-                )
-            notes.append(f"filled {len(loops)} small holes with {len(tm.faces) - before} triangles")
-        else:
-            big = max(loops, key=len) if loops else open_edges[0]
-            raise MeshError(
-                f"{shown}: open surface: {n_open} boundary edges in {len(loops)} holes; the largest, "
-                f"{len(big)} edges, {_where(tm.vertices[np.asarray(big).ravel()])} (file coordinates): expected a closed (watertight) "
-                "part; close it in the CAD program"
-            )
+        if max(len(lp) for lp in loops) <= MAX_HOLE_EDGES:
+            trial = tm.copy()
+            try:
+                trimesh.repair.fill_holes(trial)
+            except Exception:  # a failed repair leaves the part to the layer-by-layer slicer
+                trial = None
+            if trial is not None:
+                f2 = np.asarray(trial.faces, np.int64)
+                _, c2 = _edge_counts(f2)
+                # a fill that backs a face with its own reverse makes a zero-volume membrane: not a repair
+                membrane = len(_first_of_each_face(f2)) < len(f2)
+                if not ((c2 == 1).any() or (c2 > 2).any() or membrane):
+                    notes.append(f"filled {len(loops)} small hole{'s' if len(loops) > 1 else ''} with {len(trial.faces) - len(tm.faces)} triangles")
+                    tm = trial
+                    edges, counts = _edge_counts(np.asarray(tm.faces, np.int64))
+                    open_edges = edges[counts == 1]
 
-    # Orientation: consistent winding, then outward normals.
-    wind_before = tm.faces.copy()
-    trimesh.repair.fix_winding(tm)
+    wind_before = np.asarray(tm.faces).copy()
+    try:
+        trimesh.repair.fix_winding(tm)
+    except Exception:  # non-manifold neighbourhoods can defeat it: the even-odd fill does not need it
+        tm = trimesh.Trimesh(tm.vertices, wind_before, process=False, validate=False)
     if not np.array_equal(wind_before, tm.faces):
         notes.append(f"fixed the winding of {int(np.any(wind_before != tm.faces, axis=1).sum())} faces")
-    if not tm.is_winding_consistent:
-        raise MeshError(f"{shown}: the surface cannot be oriented consistently (a Moebius-like or self-touching surface)")
-    if tm.volume < 0:
+    consistent = bool(tm.is_winding_consistent)
+    if consistent and _signed_volume(tm.vertices, tm.faces) < 0:
         tm.invert()
         notes.append("turned the normals outward (the part was inside out)")
-    return np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64), notes
+    closed = consistent and not len(open_edges) and not len(nonman)
+    if not closed:
+        what = []
+        if len(open_edges):
+            loops = _boundary_loops(open_edges)
+            big = max(loops, key=len)
+            what.append(
+                f"{len(loops)} hole{'s' if len(loops) > 1 else ''} ({len(open_edges)} boundary edges; the largest, "
+                f"{len(big)} edges, {_where(tm.vertices[np.asarray(big).ravel()])})"
+            )
+        if len(nonman):
+            what.append(f"{len(nonman)} non-manifold edges (first {_where(tm.vertices[nonman[0]])})")
+        if not consistent:
+            what.append("faces that cannot be oriented consistently")
+        notes.append(f"not a closed solid: {'; '.join(what)}: sliced layer by layer, closing each layer's outlines")
+    return _Repaired(np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64), notes, closed, consistent)
+
+
+def _signed_volume(vertices, faces) -> float:
+    t = np.asarray(vertices)[np.asarray(faces)]
+    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
 
 
 def _boundary_loops(open_edges: np.ndarray) -> list[list[int]]:
@@ -254,14 +406,56 @@ def _boundary_loops(open_edges: np.ndarray) -> list[list[int]]:
     return [open_edges[edge_label == i].tolist() for i in range(k)]
 
 
+def _finish(vertices, faces, notes, closed, consistent, shown, placement="") -> Mesh:
+    """A Mesh, checked by manifold3d when closed; a surface it refuses goes to the layer-by-layer slicer."""
+    mesh = Mesh(vertices, faces, tuple(notes), shown, closed=closed, winding_consistent=consistent, placement=placement)
+    if closed:
+        man, status = _manifold(mesh.vertices, mesh.faces)
+        if status == "NoError":
+            mesh._cache["manifold"] = man
+        else:
+            notes = list(notes) + [f"manifold3d refused the closed surface ({status}): sliced layer by layer"]
+            mesh = Mesh(vertices, faces, tuple(notes), shown, closed=False, winding_consistent=consistent, placement=placement)
+    return mesh
+
+
+#: Below this size (mm, largest dimension) a part is probably drawn in other units.
+TINY_EXTENT = 5.0
+
+
+def _placement(lo_file, hi_file, scale, shift) -> str:
+    """One line: the part's size in its own units, the scale, and the move onto the bed (mm)."""
+    ext = hi_file - lo_file
+    shift = np.asarray(shift, float) + 0.0  # no "-0" in the text
+    size = " x ".join(f"{e:.4g}" for e in ext)
+    mm = " x ".join(f"{e * scale:.4g}" for e in ext)
+    text = (
+        f"placed: {size} file units, x-y centre ({(lo_file[0] + hi_file[0]) / 2:.4g}, {(lo_file[1] + hi_file[1]) / 2:.4g}), "
+        f"bottom z {lo_file[2]:.4g}"
+    )
+    text += f"; scaled {scale:g}x to {mm} mm" if scale != 1.0 else f" (read as {mm} mm)"
+    text += f"; moved by ({shift[0]:.4g}, {shift[1]:.4g}, {shift[2]:.4g}) mm"
+    return text
+
+
+def _tiny_hint(extent_mm: float) -> str | None:
+    """A units hint for a part whose largest dimension is ``extent_mm`` (None if plausible)."""
+    if extent_mm >= TINY_EXTENT:
+        return None
+    hint = "drawn in inches? try --scale 25.4" if extent_mm * 25.4 >= TINY_EXTENT else "drawn in metres? try --scale 1000"
+    return f"the part is only {extent_mm:.3g} mm across: {hint}"
+
+
 def load_mesh(path, *, scale: float = 1.0, rotate_z: float = 0.0, keep_position: bool = False) -> Mesh:
     """Load, repair and place a part.
 
-    path: .stl (ASCII or binary), .obj, .3mf, .ply or .off, mm. scale: factor;
-    rotate_z: degrees about z (counter-clockwise). The part is scaled, rotated,
-    centred on the bed (x-y bounding-box centre at the origin) unless
-    ``keep_position``, and always dropped onto the bed (min z = 0).
-    Raises :class:`MeshError` on anything unreadable or unrepairable.
+    path: .stl (ASCII or binary), .obj, .3mf (every object with its transform,
+    the model's unit), .ply or .off, in mm unless the file says otherwise.
+    scale: factor; rotate_z: degrees about z (counter-clockwise). The part is
+    scaled, rotated, centred on the bed (x-y bounding-box centre at the origin)
+    unless ``keep_position``, and always dropped onto the bed (min z = 0).
+    ``Mesh.placement`` says where it was and what was done, in the file's units.
+    Raises :class:`MeshError` on anything unreadable.
     """
     path = Path(path)
     shown = str(path)
@@ -269,9 +463,10 @@ def load_mesh(path, *, scale: float = 1.0, rotate_z: float = 0.0, keep_position:
         raise MeshError(f"{shown}: scale = {scale!r}: expected a finite number > 0")
     if not math.isfinite(rotate_z):
         raise MeshError(f"{shown}: rotate = {rotate_z!r}: expected a finite angle in degrees")
-    vertices, faces = _read_trimesh(path)
-    vertices, faces, notes = _repair(vertices, faces, shown, stl=path.suffix.lower() == ".stl")
-    vertices = vertices * float(scale)
+    vertices, faces, read_notes = _read(path)
+    r = _repair(vertices, faces, shown, stl=path.suffix.lower() == ".stl")
+    lo_file, hi_file = r.vertices.min(axis=0), r.vertices.max(axis=0)
+    vertices = r.vertices * float(scale)
     if rotate_z:
         a = math.radians(rotate_z)
         c, s = math.cos(a), math.sin(a)
@@ -282,22 +477,21 @@ def load_mesh(path, *, scale: float = 1.0, rotate_z: float = 0.0, keep_position:
     shift = np.array([0.0, 0.0, -lo[2]])
     if not keep_position:
         shift[:2] = -(lo[:2] + hi[:2]) / 2
-    vertices = vertices + shift
-    mesh = Mesh(vertices, faces, tuple(notes), shown)
-    mesh.to_manifold()  # refuse now, with the file name, what slicing could not use
-    return mesh
+    placement = _placement(lo_file, hi_file, float(scale), shift)
+    hint = _tiny_hint(float((hi - lo).max()))
+    notes = read_notes + r.notes + ([hint] if hint else [])
+    return _finish(vertices + shift, r.faces, notes, r.closed, r.consistent, shown, placement)
 
 
 def mesh_from_arrays(vertices, faces, *, name: str = "<mesh>", place: bool = True) -> Mesh:
     """A :class:`Mesh` from arrays (for libraries and tests): repaired like a file,
     and placed on the bed (centred, dropped to z = 0) when ``place``."""
-    vertices, faces, notes = _repair(np.asarray(vertices, float).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3), name)
+    r = _repair(np.asarray(vertices, float).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3), name)
+    vertices = r.vertices
     if place:
         lo, hi = vertices.min(axis=0), vertices.max(axis=0)
         vertices = vertices - np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-    mesh = Mesh(vertices, faces, tuple(notes), name)
-    mesh.to_manifold()
-    return mesh
+    return _finish(vertices, r.faces, r.notes, r.closed, r.consistent, name)
 
 
 # --------------------------------------------------------------------------- fit
@@ -316,7 +510,7 @@ def check_fits(mesh: Mesh, printer) -> None:
     if height > bed.max_height + 1e-9:
         raise UnreachableError(
             f"{mesh.path}: the part is {height:.2f} mm tall, {height - bed.max_height:.2f} mm more than "
-            f"the printer's max height {bed.max_height:g} mm"
+            f"the printer's max height {bed.max_height:g} mm{_placed(mesh)}"
         )
     outline = _hull_xy(v[:, :2])
     kin = printer.kinematics()
@@ -337,7 +531,7 @@ def check_fits(mesh: Mesh, printer) -> None:
         bad = heights[~kin.reachable(col)]
         raise UnreachableError(
             f"{mesh.path}: the printer cannot reach the bed centre at z = {bad[0]:.2f} mm "
-            f"(the part is {height:.2f} mm tall)"
+            f"(the part is {height:.2f} mm tall){_placed(mesh)}"
         )
     for _ in range(30):
         mid = (lo + hi) / 2
@@ -346,8 +540,13 @@ def check_fits(mesh: Mesh, printer) -> None:
     raise UnreachableError(
         f"{mesh.path}: the part does not fit the printer's reachable volume: it reaches {r_part:.2f} mm from the bed "
         f"centre (up to z = {height:.2f} mm) but only {r_ok:.2f} mm are reachable in that shape: "
-        f"{r_part - r_ok:.2f} mm of radius too large (scale it by {lo:.3f} or less, or move it)"
+        f"{r_part - r_ok:.2f} mm of radius too large (scale it by {lo:.3f} or less, or move it){_placed(mesh)}"
     )
+
+
+def _placed(mesh: Mesh) -> str:
+    """'; placed: ...' for an error message, in the part's own units ('' if unknown)."""
+    return f"; {mesh.placement}" if mesh.placement else ""
 
 
 def _hull_xy(xy: np.ndarray) -> np.ndarray:

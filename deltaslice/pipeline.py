@@ -13,9 +13,10 @@ import contextlib
 import os
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
-from .errors import GcodeError, PlanningError, StreamError
+from .errors import GcodeError, MeshWarning, PlanningError, StreamError
 from .formats import format_for, part_kind
 from .machine import LimitMonitor, Printer, load_printer
 from .machine.limits import TOLERANCE
@@ -65,7 +66,15 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
         for note in mesh.repairs:
             echo(f"mesh: {note}")
     check_fits(mesh, printer)
-    return slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
+    with warnings.catch_warnings(record=True) as caught:  # the slicer's MeshWarnings become notes
+        warnings.simplefilter("always", MeshWarning)
+        toolpath = slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
+    for w in caught:
+        if not issubclass(w.category, MeshWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        elif echo is not None:
+            echo(f"mesh: {w.message}")
+    return toolpath
 
 
 def write_gcode(toolpath, output, printer=None) -> None:

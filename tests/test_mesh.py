@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -90,20 +92,24 @@ def test_absurd_size(tmp_path):
         load_mesh(path)
 
 
-def test_open_mesh_refused_with_location(tmp_path):
+def test_open_mesh_kept_with_location(tmp_path):
     s = trimesh.creation.icosphere(3, radius=10)
     s.update_faces(np.arange(len(s.faces)) >= 60)
-    with pytest.raises(MeshError, match=r"open surface: \d+ boundary edges.*near \("):
-        load_mesh(meshes.write(s, tmp_path / "open.stl"))
+    m = load_mesh(meshes.write(s, tmp_path / "open.stl"))
+    assert not m.closed and m.winding_consistent
+    assert any(re.search(r"not a closed solid: \d+ holes? \(\d+ boundary edges.*near \(.*file coordinates", r) for r in m.repairs)
+    with pytest.raises(MeshError, match="not a closed solid"):
+        m.to_manifold()
 
 
-def test_non_manifold_edges_refused(tmp_path):
+def test_non_manifold_edges_kept(tmp_path):
     a = meshes.cube_trimesh(10)
     b = meshes.cube_trimesh(10)
     b.apply_translation((10, 10, 0))  # touches a along one edge
     both = trimesh.util.concatenate([a, b])
-    with pytest.raises(MeshError, match="non-manifold"):
-        load_mesh(meshes.write(both, tmp_path / "nm.stl"))
+    m = load_mesh(meshes.write(both, tmp_path / "nm.stl"))
+    assert not m.closed
+    assert any("non-manifold edges" in r for r in m.repairs)
 
 
 def test_garbage_and_missing(tmp_path):

@@ -1,4 +1,4 @@
-"""Layer heights and cross-sections (manifold3d slices at mid-layer heights)."""
+"""Layer heights: tops, mid-heights and thicknesses of the layers of a part."""
 
 from __future__ import annotations
 
@@ -23,8 +23,3 @@ def layer_heights(height: float, layer_height: float, first_layer_height: float)
     mid = top - thickness / 2
     keep = mid < height - 1e-9
     return top[keep], mid[keep], thickness[keep]
-
-
-def cross_sections(manifold, z_mid) -> list:
-    """One ``manifold3d.CrossSection`` per height (a loop per layer; the work is C++)."""
-    return [manifold.slice(float(z)) for z in z_mid]

@@ -11,9 +11,10 @@ from ..errors import DeltasliceError, MeshError
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .extrusion import bead_spacing, feed_for
 from .infill import clean, rectilinear, solid_masks
-from .layers import cross_sections, layer_heights
+from .layers import layer_heights
 from .ordering import MoveWriter, Path, nearest_order
 from .perimeters import infill_boundary, perimeter_loops
+from .sections import mesh_sections
 from .skirt import skirt_loops
 
 
@@ -32,12 +33,11 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
             f"{name}: slicing a mesh needs an extruder, this printer has a {tool.channel_kind}: "
             "give it an image or G-code instead"
         )
-    manifold = mesh.to_manifold()
     height = float(mesh.vertices[:, 2].max())
     top, mid, thick = layer_heights(height, s.layer_height, s.first_layer_height)
     if len(top) == 0:
         raise MeshError(f"{mesh.path}: the part is {height:.3f} mm tall, too thin for a {s.first_layer_height:g} mm first layer")
-    sections = cross_sections(manifold, mid)
+    sections = mesh_sections(mesh, mid)  # manifold3d, or layer by layer for an open mesh
     n = len(sections)
 
     builder = ToolpathBuilder(start=(0.0, 0.0, 0.0))
