@@ -163,6 +163,7 @@ class Laser:
     max_power: float
     power_counts: float
     travel_height: float
+    spot_size: float = 0.1  # mm: focused spot diameter, the default raster line pitch
 
 
 Tool = Extruder | Laser
@@ -461,6 +462,7 @@ def _read_tool(sec: _Section) -> Tool:
             max_power=sec.getfloat("max_power", above=0),
             power_counts=sec.getfloat("power_counts", above=0),
             travel_height=sec.getfloat("travel_height", 0.0, minval=0),
+            spot_size=sec.getfloat("spot_size", 0.1, above=0, maxval=10),
         )
     nozzle = sec.getfloat("nozzle_diameter", above=0, maxval=5)
     return Extruder(
