@@ -46,13 +46,23 @@ ACTIVE = 0.95  # a limit counts as active within 5 % of it
 
 @dataclass(frozen=True)
 class RunSpec:
-    """What the planner needs of one run. points (m+1,3) mm; feed, e: per segment (m,)."""
+    """What the planner needs of one run. points (m+1,3) mm; feed, e: per segment (m,).
+
+    power: per segment (m,) laser power 0..1, or None (``tool`` throughout); with
+    dynamic_power the power is scaled by the tool's speed over the segment's feed (GRBL M4)."""
 
     points: np.ndarray
     feed: np.ndarray
     e: np.ndarray
     tool: float
     layer: int
+    power: np.ndarray | None = None
+    dynamic_power: bool = False
+
+    def part(self, a: int, b: int) -> "RunSpec":
+        """Segments a..b-1 as a run of their own."""
+        power = None if self.power is None else self.power[a:b]
+        return RunSpec(self.points[a : b + 1], self.feed[a:b], self.e[a:b], self.tool, self.layer, power, self.dynamic_power)
 
 
 @dataclass(frozen=True)
@@ -76,6 +86,9 @@ class RunPiece:
     layer: int
     active_time: float = 0.0
     kind: str = "run"
+    power: np.ndarray | None = None  # (k,) laser power per piece of the blended path
+    nominal_feed: np.ndarray | None = None  # (k,) mm/s, the toolpath's feed per piece (dynamic power)
+    dynamic_power: bool = False
 
     @property
     def duration(self) -> float:
@@ -89,6 +102,12 @@ class RunPiece:
         x = self.x[i] + self.xd[i] * dt + 0.5 * self.xdd[i] * dt * dt
         return np.clip(x, 0.0, 1.0) * self.S
 
+    def speed_at(self, tau: np.ndarray) -> np.ndarray:
+        """Tool speed (mm/s) at times tau (s, relative to the run start): S x_dot, exact per stage. (n,)"""
+        tau = np.clip(tau, 0.0, self.duration)
+        i = np.clip(np.searchsorted(self.t, tau, side="right") - 1, 0, len(self.xdd) - 1)
+        return np.maximum(self.xd[i] + self.xdd[i] * (tau - self.t[i]), 0.0) * self.S
+
     def filament_at(self, s: np.ndarray, piece: np.ndarray) -> np.ndarray:
         """Filament pushed since the run start at arc lengths s, mm."""
         return self.cum_e[piece] + (s - self.path.piece_start[piece]) * self.e_ratio[piece]
@@ -98,7 +117,12 @@ class RunPiece:
         s = self.arc_length_at(tau)
         k = self.path.locate(s)
         q = kin.inverse(self.path.evaluate(s, 0, k))
-        return q, self.filament_at(s, k), np.full(len(s), self.tool)
+        if self.power is None:
+            return q, self.filament_at(s, k), np.full(len(s), self.tool)
+        tool = self.power[k]
+        if self.dynamic_power:
+            tool = tool * np.clip(self.speed_at(tau) / self.nominal_feed[k], 0.0, 1.0)
+        return q, self.filament_at(s, k), tool
 
     @property
     def filament_total(self) -> float:
@@ -262,8 +286,7 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         if m < 2:
             raise
         h = m // 2
-        first = RunSpec(spec.points[: h + 1], spec.feed[:h], spec.e[:h], spec.tool, spec.layer)
-        second = RunSpec(spec.points[h:], spec.feed[h:], spec.e[h:], spec.tool, spec.layer)
+        first, second = spec.part(0, h), spec.part(h, m)
         out = []
         for part in (first, second):
             res = plan_run(kin, printer, part, speed_limit, tolerance)
@@ -347,4 +370,10 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     dq, ddq = rp(x_grid[:-1], 1), rp(x_grid[:-1], 2)
     acc = np.abs(dq * xdd[:, None] + ddq * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
-    return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()))
+    power = nominal = None
+    if spec.power is not None:
+        # dedupe drops the same segments from any per-segment array passed as its feed
+        power = dedupe(spec.points, spec.power, spec.e)[1][path.segment]
+        nominal = feed[path.segment]
+    return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()),
+                    power=power, nominal_feed=nominal, dynamic_power=spec.dynamic_power)
