@@ -17,16 +17,19 @@ from .progress import stderr_progress
 
 MESH_SUFFIXES = (".stl", ".obj", ".3mf", ".ply", ".off")
 GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
+ENGRAVE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".svg")
 
 
 def _printer(printer) -> Printer:
     return printer if isinstance(printer, Printer) else load_printer(printer)
 
 
-def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None):
-    """A Toolpath from a mesh (sliced here) or a G-code file (read), in the bed frame.
+def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None):
+    """A Toolpath from a mesh (sliced here), a G-code file (read) or, for a laser, an
+    image or SVG (engraved: :mod:`deltaslice.engrave`), in the bed frame.
 
-    part: path to .stl/.obj/.3mf or .gcode; printer: Printer or path.
+    part: path to .stl/.obj/.3mf, .gcode, .png/.jpg/.svg; printer: Printer or path.
+    engrave: :class:`~deltaslice.engrave.EngraveOptions` or a dict of its fields (images only).
     progress: callable(done, total) or None; echo: callable(str) for notes (repairs, skipped commands).
     """
     printer = _printer(printer)
@@ -45,10 +48,15 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
                 echo(f"mesh: {note}")
         check_fits(mesh, printer)
         toolpath = slice_mesh(mesh, printer, progress=progress)
+    elif suffix in ENGRAVE_SUFFIXES:
+        from .engrave import engrave as engrave_image
+
+        toolpath = engrave_image(part, printer, engrave)
     else:
         raise DeltasliceError(
             f"{part}: unknown part type {suffix or '(no extension)'!r}: expected a mesh "
-            f"({', '.join(MESH_SUFFIXES)}) or G-code ({', '.join(GCODE_SUFFIXES)})"
+            f"({', '.join(MESH_SUFFIXES)}), G-code ({', '.join(GCODE_SUFFIXES)}) or, for a laser, an image "
+            f"({', '.join(ENGRAVE_SUFFIXES)})"
         )
     return toolpath
 
