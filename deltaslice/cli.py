@@ -193,11 +193,12 @@ def decode_cmd(stream, units, printer_path):
 @click.option("--printer", "printer_path", required=True, type=click.Path(dir_okay=False), help="Printer file (printers/*.toml).")
 @click.option("--toolpath", "toolpath_path", type=click.Path(dir_okay=False), default=None,
               help="The part or G-code compiled, to check the path deviation.")
-def verify_cmd(output, printer_path, toolpath_path):
+@_engrave_options
+def verify_cmd(output, printer_path, toolpath_path, **engrave):
     """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 1 on any violation."""
     from .verify import verify_file
 
-    report = _run(verify_file, output, printer_path, toolpath_path=toolpath_path)
+    report = _run(verify_file, output, printer_path, toolpath_path=toolpath_path, engrave=_engrave_dict(**engrave))
     click.echo(report.text())
     sys.exit(0 if report.ok else 1)
 

@@ -368,7 +368,7 @@ def _fracs(k):
     return pos / np.repeat(k, k + 1)
 
 
-def verify_file(output, printer_path, toolpath_path=None) -> VerifyReport:
+def verify_file(output, printer_path, toolpath_path=None, engrave=None) -> VerifyReport:
     """Read a setpoints CSV or binary stream and check it against the printer file.
 
     toolpath_path: the part (mesh) or G-code that was compiled, to check path deviation."""
@@ -386,5 +386,5 @@ def verify_file(output, printer_path, toolpath_path=None) -> VerifyReport:
     if toolpath_path is not None:
         from .pipeline import load_toolpath
 
-        toolpath = load_toolpath(toolpath_path, printer)
+        toolpath = load_toolpath(toolpath_path, printer, engrave=engrave)
     return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=toolpath, output=str(output))
