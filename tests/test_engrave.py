@@ -309,3 +309,36 @@ def test_example_engraves_and_verifies(tmp_path, monkeypatch, capsys):
     assert exc.value.code == 0, capsys.readouterr().out
     for name in ("badge.png", "badge_vector.dsl", "badge_raster.dsl", "badge_vector.gcode", "badge_raster.gcode"):
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_run_speed_at_is_the_derivative_of_arc_length():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from deltaslice.planning.topp import RunSpec, plan_run
+
+    pr = shipped(ESPE)
+    kin = pr.kinematics()
+
+    @settings(max_examples=8, deadline=None)
+    @given(st.lists(st.tuples(st.floats(-30, 30), st.floats(-30, 30)), min_size=3, max_size=6, unique=True))
+    def check(xy):
+        pts = np.column_stack([np.array(xy), np.zeros(len(xy))])
+        if np.linalg.norm(np.diff(pts, axis=0), axis=1).min() < 1.0:
+            return
+        m = len(pts) - 1
+        power = np.linspace(0.2, 1.0, m)
+        spec = RunSpec(pts, np.full(m, 20.0), np.zeros(m), 1.0, 0, power=power, dynamic_power=True)
+        piece = plan_run(kin, pr, spec, "feed")
+        piece = piece[0] if isinstance(piece, list) else piece
+        tau = np.linspace(0, piece.duration, 4001)
+        h = 1e-6
+        numeric = (piece.arc_length_at(tau + h) - piece.arc_length_at(tau - h)) / (2 * h)
+        inside = (tau > h) & (tau < piece.duration - h)
+        assert np.allclose(piece.speed_at(tau)[inside], numeric[inside], atol=1e-3 * 20)
+        _q, _e, tool = piece.sample(kin, tau)
+        # power x speed / feed, never above the move's power, zero at rest at both ends
+        assert np.all(tool <= power.max() + 1e-12) and tool[0] == 0 and tool[-1] < 1e-6
+        assert np.allclose(tool, piece.power[piece.path.locate(piece.arc_length_at(tau))] * piece.speed_at(tau) / 20.0)
+
+    check()
