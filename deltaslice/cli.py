@@ -19,6 +19,7 @@ EPILOG_COMPILE = """\b
 Examples:
   deltaslice examples/parts/calibration_cube.stl --printer printers/delta_etitc.toml -o cube.csv
   deltaslice part.gcode --printer printers/delta_ucb.toml -o part.dsl --speed-limit machine
+  deltaslice logo.png --printer printers/delta_espe_laser.toml --width 60 --mode vector -o logo.dsl
 """
 
 
@@ -42,6 +43,35 @@ def _placement_options(fn):
     ):
         fn = option(fn)
     return fn
+
+
+def _engrave_options(fn):
+    """--mode, --width, --height, --invert and the detector settings: how an image is engraved."""
+    for option in reversed(
+        [
+            click.option("--mode", type=click.Choice(["vector", "raster"]), default="vector", show_default=True,
+                         help="Image: trace edges (vector) or scan lines with grey-level power (raster)."),
+            click.option("--width", type=float, default=None, help="Image width on the work, mm (default: the largest that fits)."),
+            click.option("--height", type=float, default=None, help="Image height on the work, mm."),
+            click.option("--invert", is_flag=True, help="Image: burn the light areas instead of the dark ones."),
+            click.option("--power", type=float, default=1.0, show_default=True, help="Laser power, fraction of max_power."),
+            click.option("--constant-power", is_flag=True,
+                         help="Constant power (M3) instead of power proportional to the tool speed (M4)."),
+            click.option("--blur", type=float, default=1.0, show_default=True, help="Vector: Gaussian blur sigma, px."),
+            click.option("--gamma", type=float, default=1.0, show_default=True, help="Exponent on the grey levels (> 1 darkens)."),
+            click.option("--low", type=float, default=50.0, show_default=True, help="Vector: Canny low threshold (0..255)."),
+            click.option("--high", type=float, default=150.0, show_default=True, help="Vector: Canny high threshold (0..255)."),
+            click.option("--line-pitch", type=float, default=None, help="Raster: line spacing, mm (default: the laser spot size)."),
+            click.option("--dither", is_flag=True, help="Raster: on/off ordered dithering instead of grey-level power."),
+        ]
+    ):
+        fn = option(fn)
+    return fn
+
+
+def _engrave_dict(mode, width, height, invert, power, constant_power, blur, gamma, low, high, line_pitch, dither):
+    return dict(mode=mode, width=width, height=height, invert=invert, power=power, dynamic_power=not constant_power,
+                blur=blur, gamma=gamma, low=low, high=high, line_pitch=line_pitch, dither=dither)
 
 
 def _run(fn, *args, **kwargs):
@@ -73,10 +103,12 @@ def main():
 @click.option("--planner", type=click.Choice(["toppra", "trapezoid"]), default="toppra", show_default=True,
               help="toppra: time-optimal in joint space; trapezoid: the conventional Cartesian planner (made safe).")
 @_placement_options
+@_engrave_options
 @click.option("--workers", type=int, default=None, help="Planning processes (default: all cores).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers, quiet):
-    """Compile PART (mesh or G-code) into a trajectory for the printer."""
+def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers, quiet,
+                **engrave):
+    """Compile PART (mesh, G-code, or an image or SVG for a laser) into a trajectory for the printer."""
     from .pipeline import compile_part
     from .report import compile_summary
 
@@ -91,6 +123,7 @@ def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, ro
         scale=scale,
         rotate=rotate,
         keep_position=keep_position,
+        engrave=_engrave_dict(**engrave),
         workers=workers,
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),
@@ -161,11 +194,12 @@ def decode_cmd(stream, units, printer_path):
 @click.option("--printer", "printer_path", required=True, type=click.Path(dir_okay=False), help="Printer file (printers/*.toml).")
 @click.option("--toolpath", "toolpath_path", type=click.Path(dir_okay=False), default=None,
               help="The part or G-code compiled, to check the path deviation.")
-def verify_cmd(output, printer_path, toolpath_path):
+@_engrave_options
+def verify_cmd(output, printer_path, toolpath_path, **engrave):
     """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 1 on any violation."""
     from .pipeline import verify_output
 
-    report = _run(verify_output, output, printer_path, toolpath=toolpath_path)
+    report = _run(verify_output, output, printer_path, toolpath=toolpath_path, engrave=_engrave_dict(**engrave))
     click.echo(report.text())
     sys.exit(0 if report.ok else 1)
 

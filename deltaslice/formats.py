@@ -8,6 +8,7 @@ from .errors import DeltasliceError
 
 MESH_SUFFIXES = (".stl", ".obj", ".3mf", ".ply", ".off")
 GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
+ENGRAVE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".svg")
 
 OUTPUT_FORMATS = ("csv", "stream", "gcode")
 OUTPUT_SUFFIXES = {
@@ -19,15 +20,19 @@ OUTPUT_SUFFIXES = {
 
 
 def part_kind(path) -> str:
-    """"mesh" or "gcode" from a part file's extension; DeltasliceError otherwise."""
+    """"mesh", "gcode" or "image" (an image or SVG to engrave) from a part file's extension;
+    DeltasliceError otherwise."""
     suffix = Path(str(path)).suffix.lower()
     if suffix in MESH_SUFFIXES:
         return "mesh"
     if suffix in GCODE_SUFFIXES:
         return "gcode"
+    if suffix in ENGRAVE_SUFFIXES:
+        return "image"
     raise DeltasliceError(
         f"{path}: unknown part type {suffix or '(no extension)'!r}: expected a mesh "
-        f"({', '.join(MESH_SUFFIXES)}) or G-code ({', '.join(GCODE_SUFFIXES)})"
+        f"({', '.join(MESH_SUFFIXES)}), G-code ({', '.join(GCODE_SUFFIXES)}) or, for a laser, an image "
+        f"({', '.join(ENGRAVE_SUFFIXES)})"
     )
 
 

@@ -35,6 +35,7 @@ _ROLE_NAMES = {
     Role.TOP_SOLID_INFILL: "Top solid infill",
     Role.SKIRT: "Skirt/Brim",
     Role.LASER: "Laser",
+    Role.LASER_DYNAMIC: "Laser dynamic",
     Role.OTHER: "Custom",
 }
 _TYPE_TO_ROLE = {name.upper(): role for role, name in _ROLE_NAMES.items()}
@@ -100,11 +101,14 @@ def gcode_text(toolpath: Toolpath, printer=None) -> str:
         last_type = None
         roles = tp.role
         lines = out
+        laser = _laser_states(tp, printer)
         for i in range(n):
             if i in pending:
                 for li in pending[i]:
                     lines.append(f";LAYER:{li}")
                     lines.append(f";Z:{tp.layer_z[li]:.6f}")
+            if laser is not None:
+                lines.extend(laser[0][i])
             r = int(roles[i])
             if work[i] and r != last_type:
                 lines.append(f";TYPE:{_ROLE_NAMES.get(Role(r), 'Custom')}")
@@ -124,7 +128,12 @@ def gcode_text(toolpath: Toolpath, printer=None) -> str:
                 last_f = f_s[i]
             if not has_e[i] and not m.any():  # a zero-length travel still counts as a move
                 words[1:1] = ["X" + xyz_s[i, 0], "Y" + xyz_s[i, 1], "Z" + xyz_s[i, 2]]
+            if laser is not None and laser[1][i] is not None:
+                words[0] = "G1"  # laser moves at S0 (overscan) are still cut moves in GRBL's laser mode
+                words.append(laser[1][i])
             lines.append(" ".join(words))
+        if laser is not None and laser[2]:
+            lines.append("M5")
         tail = [li for idx, lis in pending.items() if idx >= n for li in lis]
         for li in tail:
             lines.append(f";LAYER:{li}")
@@ -134,6 +143,35 @@ def gcode_text(toolpath: Toolpath, printer=None) -> str:
             out += [f";LAYER:{li}", f";Z:{tp.layer_z[li]:.6f}"]
     out.append("; end")
     return "\n".join(out) + "\n"
+
+
+def _laser_states(tp: Toolpath, printer):
+    """GRBL laser commands for a laser printer's toolpath, or None for an extruder.
+
+    Returns (lines before each move (n lists), S word of each move or None, whether the
+    last move is in a run). A run (working moves and the power-0 laser moves inside it)
+    starts with ``M4 S0`` (dynamic power: GRBL scales S by speed / feed) or ``M3 S0``
+    (``Role.LASER``, constant power), carries ``S`` = power x [tool] power_counts on
+    every move, and ends with ``M5``."""
+    if printer is None or printer.tool.channel_kind != "laser":
+        return None
+    laser_roles = np.isin(tp.role, (int(Role.LASER), int(Role.LASER_DYNAMIC)))
+    in_run = tp.working | laser_roles
+    mode = np.where(tp.role == int(Role.LASER), "M3", "M4")
+    counts = np.rint(tp.tool * printer.tool.power_counts).astype(int)
+    before: list[list[str]] = [[] for _ in range(len(tp))]
+    words: list[str | None] = [None] * len(tp)
+    prev_in, prev_mode = False, None
+    for i in range(len(tp)):
+        if in_run[i]:
+            if not prev_in or mode[i] != prev_mode:
+                before[i].append(f"{mode[i]} S0")
+            words[i] = f"S{counts[i]}"
+            prev_mode = mode[i]
+        elif prev_in:
+            before[i].append("M5")
+        prev_in = bool(in_run[i])
+    return before, words, bool(in_run[-1]) if len(tp) else False
 
 
 # --------------------------------------------------------------------------- reading

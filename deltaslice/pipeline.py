@@ -47,17 +47,24 @@ def atomic_output(path, mode: str = "wb", **open_kwargs):
         raise
 
 
-def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None):
-    """A Toolpath from a mesh (sliced here) or a G-code file (read), in the bed frame.
+def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None):
+    """A Toolpath from a mesh (sliced here), a G-code file (read) or, for a laser, an
+    image or SVG (engraved: :mod:`deltaslice.engrave`), in the bed frame.
 
-    part: path to a mesh or G-code file; printer: Printer or path.
+    part: path to a mesh, G-code, image or SVG file; printer: Printer or path.
+    engrave: :class:`~deltaslice.engrave.EngraveOptions` or a dict of its fields (images only).
     progress: callable(done, total) or None; echo: callable(str) for notes (repairs, skipped commands).
     """
     printer = _printer(printer)
-    if part_kind(part) == "gcode":
+    kind = part_kind(part)
+    if kind == "gcode":
         from .gcode import read_gcode
 
         return read_gcode(part, printer=printer, echo=echo)
+    if kind == "image":
+        from .engrave import engrave as engrave_image
+
+        return engrave_image(part, printer, engrave)
     from .mesh import check_fits, load_mesh
     from .slicing import slice_mesh
 

@@ -20,6 +20,8 @@ plus ``start`` (3,) f8, mm, and ``layer_z`` (L,) f8, mm: the top of each layer.
 A move with ``tool > 0`` is a working move; consecutive working moves form a
 *run*, and everything between runs (travels, retracts, lifts) is a *travel*.
 A zero-length move with ``e != 0`` is a retract or an unretract.
+Laser moves (roles ``LASER`` and ``LASER_DYNAMIC``) with ``tool = 0`` belong to the
+run around them (raster overscan, short white gaps): the planner does not stop there.
 
 The object is frozen; the arrays are read-only views, so a Toolpath can be
 shared between stages and processes without copies.
@@ -44,8 +46,9 @@ class Role(enum.IntEnum):
     TOP_SOLID_INFILL = 5
     SKIRT = 6
     RETRACT = 7
-    LASER = 8
+    LASER = 8  # laser at the move's power (GRBL M3)
     OTHER = 9
+    LASER_DYNAMIC = 10  # laser power scaled by the tool's actual speed over the move's feed (GRBL M4)
 
 
 @dataclass(frozen=True)

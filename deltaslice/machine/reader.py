@@ -84,6 +84,7 @@ def _read_tool(sec: Section) -> Tool:
             max_power=sec.getfloat("max_power", above=0),
             power_counts=sec.getfloat("power_counts", above=0),
             travel_height=sec.getfloat("travel_height", 0.0, minval=0),
+            spot_size=sec.getfloat("spot_size", 0.1, above=0, maxval=10),
         )
     nozzle = sec.getfloat("nozzle_diameter", above=0, maxval=5)
     return Extruder(

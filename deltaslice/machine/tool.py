@@ -79,6 +79,7 @@ class Laser:
     max_power: float
     power_counts: float
     travel_height: float
+    spot_size: float = 0.1  # mm: focused spot diameter, the default raster line pitch
 
     channel_kind = "laser"
     channel_name = "laser"

@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
-from ..toolpath import Toolpath
+from ..toolpath import Role, Toolpath
 from .pieces import Piece
 from .topp import RunSpec, plan_run
 from .trajectory import Trajectory
@@ -53,8 +53,25 @@ def check_reachable(toolpath: Toolpath, printer) -> None:
         )
 
 
+LASER_ROLES = (int(Role.LASER), int(Role.LASER_DYNAMIC))
+
+
 def split_runs(toolpath: Toolpath):
-    """[(i, j)] half-open ranges of working moves with one tool value each."""
+    """[(i, j)] half-open ranges of working moves with one tool value each.
+
+    Laser moves instead form runs with a power per move (zero in overscans and short gaps,
+    which the tool crosses without stopping), cut only where the power mode (M3/M4) changes."""
+    laser = np.isin(toolpath.role, LASER_ROLES)
+    if laser.any():
+        member = np.concatenate([[False], toolpath.working | laser, [False]]).astype(np.int8)
+        edges = np.flatnonzero(np.diff(member))
+        dynamic = toolpath.role == int(Role.LASER_DYNAMIC)
+        out = []
+        for i, j in zip(edges[0::2].tolist(), edges[1::2].tolist()):
+            cuts = np.flatnonzero(np.diff(dynamic[i:j])) + 1 + i
+            bounds = [i, *cuts.tolist(), j]
+            out.extend(zip(bounds[:-1], bounds[1:]))
+        return out
     out = []
     for i, j in toolpath.runs():
         tool = toolpath.tool[i:j]
@@ -67,6 +84,12 @@ def split_runs(toolpath: Toolpath):
 def _run_spec(toolpath: Toolpath, i: int, j: int) -> RunSpec:
     start = toolpath.start if i == 0 else toolpath.xyz[i - 1]
     pts = np.concatenate([start[None], toolpath.xyz[i:j]])
+    roles = toolpath.role[i:j]
+    if np.isin(roles, LASER_ROLES).any():
+        power = toolpath.tool[i:j].copy()
+        dynamic = bool(np.any(roles == int(Role.LASER_DYNAMIC)))
+        return RunSpec(pts, toolpath.feed[i:j].copy(), toolpath.e[i:j].copy(), float(power.max()), int(toolpath.layer[i]),
+                       power=power, dynamic_power=dynamic)
     return RunSpec(pts, toolpath.feed[i:j].copy(), toolpath.e[i:j].copy(), float(toolpath.tool[i]), int(toolpath.layer[i]))
 
 

@@ -69,6 +69,9 @@ class RunPiece:
     kind: str = "run"
     q_start: np.ndarray | None = None
     q_end: np.ndarray | None = None
+    power: np.ndarray | None = None  # (k,) laser power per piece of the blended path
+    nominal_feed: np.ndarray | None = None  # (k,) mm/s, the toolpath's feed per piece (dynamic power)
+    dynamic_power: bool = False
 
     @property
     def duration(self) -> float:
@@ -82,6 +85,12 @@ class RunPiece:
         x = self.x[i] + self.xd[i] * dt + 0.5 * self.xdd[i] * dt * dt
         return np.clip(x, 0.0, 1.0) * self.S
 
+    def speed_at(self, tau: np.ndarray) -> np.ndarray:
+        """Tool speed (mm/s) at times tau (s, relative to the run start): S x_dot, exact per stage. (n,)"""
+        tau = np.clip(tau, 0.0, self.duration)
+        i = np.clip(np.searchsorted(self.t, tau, side="right") - 1, 0, len(self.xdd) - 1)
+        return np.maximum(self.xd[i] + self.xdd[i] * (tau - self.t[i]), 0.0) * self.S
+
     def filament_at(self, s: np.ndarray, piece: np.ndarray) -> np.ndarray:
         """Filament pushed since the run start at arc lengths s, mm."""
         return self.cum_e[piece] + (s - self.path.piece_start[piece]) * self.e_ratio[piece]
@@ -91,7 +100,12 @@ class RunPiece:
         s = self.arc_length_at(tau)
         k = self.path.locate(s)
         q = kin.inverse(self.path.evaluate(s, 0, k))
-        return q, self.filament_at(s, k), np.full(len(s), self.tool)
+        if self.power is None:
+            return q, self.filament_at(s, k), np.full(len(s), self.tool)
+        tool = self.power[k]
+        if self.dynamic_power:  # GRBL M4: power follows the tool's speed over the requested feed
+            tool = tool * np.clip(self.speed_at(tau) / self.nominal_feed[k], 0.0, 1.0)
+        return q, self.filament_at(s, k), tool
 
     @property
     def filament_total(self) -> float:

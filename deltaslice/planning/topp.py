@@ -47,13 +47,23 @@ ACTIVE = 0.95  # a limit counts as active within 5 % of it
 
 @dataclass(frozen=True)
 class RunSpec:
-    """What the planner needs of one run. points (m+1,3) mm; feed, e: per segment (m,)."""
+    """What the planner needs of one run. points (m+1,3) mm; feed, e: per segment (m,).
+
+    power: per segment (m,) laser power 0..1, or None (``tool`` throughout); with
+    dynamic_power the power is scaled by the tool's speed over the segment's feed (GRBL M4)."""
 
     points: np.ndarray
     feed: np.ndarray
     e: np.ndarray
     tool: float
     layer: int
+    power: np.ndarray | None = None
+    dynamic_power: bool = False
+
+    def part(self, a: int, b: int) -> "RunSpec":
+        """Segments a..b-1 as a run of their own."""
+        power = None if self.power is None else self.power[a:b]
+        return RunSpec(self.points[a : b + 1], self.feed[a:b], self.e[a:b], self.tool, self.layer, power, self.dynamic_power)
 
 
 class RunPath(AbstractGeometricPath):
@@ -212,9 +222,7 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         if m < 2:
             raise
         h = m // 2
-        first = RunSpec(spec.points[: h + 1], spec.feed[:h], spec.e[:h], spec.tool, spec.layer)
-        second = RunSpec(spec.points[h:], spec.feed[h:], spec.e[h:], spec.tool, spec.layer)
-        return [p for part in (first, second) for p in plan_run(kin, printer, part, speed_limit, tolerance, kind)]
+        return [p for part in (spec.part(0, h), spec.part(h, m)) for p in plan_run(kin, printer, part, speed_limit, tolerance, kind)]
 
 
 def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str) -> RunPiece:
@@ -292,5 +300,10 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     acc = np.abs(dq * xdd[:, None] + ddq * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
     q_ends = rp(np.array([0.0, 1.0]))[:, : kin.n_joints]
+    power = nominal = None
+    if spec.power is not None:
+        # dedupe drops the same segments from any per-segment array passed as its feed
+        power = dedupe(spec.points, spec.power, spec.e)[1][path.segment]
+        nominal = feed[path.segment]
     return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()), kind,
-                    q_ends[0], q_ends[1])
+                    q_ends[0], q_ends[1], power=power, nominal_feed=nominal, dynamic_power=spec.dynamic_power)
