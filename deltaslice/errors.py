@@ -33,3 +33,8 @@ class PlanningError(DeltasliceError):
 
 class StreamError(DeltasliceError):
     """A setpoint file or binary stream is corrupt, truncated or of the wrong kind."""
+
+
+class OutputError(DeltasliceError):
+    """An output cannot be written: missing or read-only directory, the input itself, a full
+    disk, or a job beyond the size and time bounds."""

@@ -11,6 +11,7 @@ key, the value and the bound it broke.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from pathlib import Path
@@ -156,24 +157,66 @@ def _read_bed(sec: Section) -> Bed:
 SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "sources")
 
 
-def load_printer(path: str | Path) -> Printer:
+def resolve_printer(path) -> Path:
+    """The file a ``--printer`` value names: an existing path, else a shipped printer's name
+    (``delta_etitc``, see ``deltaslice printers``). Raises PrinterFileError for neither."""
+    from ..printers import shipped_names, shipped_path
+
+    if path is None or not isinstance(path, (str, Path)) or not str(path):
+        raise PrinterFileError(f"printer: expected a printer file path or a shipped printer's name, got {path!r}")
+    p = Path(path)
+    if p.exists() or p.suffix or len(p.parts) > 1:
+        return p
+    shipped = shipped_path(str(path))
+    if shipped is None:
+        close = difflib.get_close_matches(str(path), shipped_names(), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise PrinterFileError(
+            f"{path}: no such printer file or shipped printer{hint}: shipped are {', '.join(shipped_names())}"
+        )
+    return shipped
+
+
+def apply_overrides(data: dict, overrides, path: str) -> dict:
+    """A copy of a parsed printer file with ``{"section.key": value}`` set (``--set``); the
+    result is validated like the file itself. Raises PrinterFileError on a malformed key."""
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    for dotted, value in dict(overrides or {}).items():
+        section, _, key = str(dotted).partition(".")
+        if not section or not key or "." in key:
+            raise PrinterFileError(f"{path}: override {dotted!r}: expected section.key=value (e.g. slicing.layer_height=0.3)")
+        if section not in SECTIONS:
+            close = difflib.get_close_matches(section, SECTIONS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise PrinterFileError(f"{path}: override {dotted!r}: no section [{section}]{hint}: expected one of {', '.join(SECTIONS)}")
+        table = out.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise PrinterFileError(f"{path}: [{section}] expected a table")
+        table[key] = value
+    return out
+
+
+def load_printer(path: str | Path, overrides: dict | None = None) -> Printer:
     """Read and validate a printer file.
 
-    path: a ``.toml`` printer file. Returns a frozen :class:`Printer`.
-    Raises :class:`PrinterFileError` naming the file, key, value and bound on any problem.
+    path: a ``.toml`` printer file or the name of a shipped printer. overrides:
+    ``{"section.key": value}`` applied before validation. Returns a frozen :class:`Printer`.
+    Raises :class:`PrinterFileError` naming the file, key, value and bound of every problem.
     """
-    path = Path(path)
+    path = resolve_printer(path)
     shown = str(path)
     try:
         text = path.read_bytes().decode("utf-8")
     except FileNotFoundError:
-        raise PrinterFileError(f"{shown}: no such printer file (the ones shipped are in printers/)") from None
+        raise PrinterFileError(f"{shown}: no such printer file (the shipped ones: deltaslice printers)") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise PrinterFileError(f"{shown}: cannot read printer file: {exc}") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise PrinterFileError(f"{shown}: not valid TOML: {exc}") from None
+    if overrides:
+        data = apply_overrides(data, overrides, shown)
     return printer_from_dict(data, shown)
 
 
