@@ -15,6 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from . import interrupt
 from .errors import DeltasliceError, OutputError, StreamError
 from .formats import format_for, part_kind
@@ -162,7 +164,30 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
         for note in mesh.repairs:
             echo(f"mesh: {note}")
     check_fits(mesh, printer)
-    return slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
+    toolpath = slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
+    _check_on_bed(toolpath, printer, part)
+    return toolpath
+
+
+def _check_on_bed(toolpath, printer, part) -> None:
+    """Every working move (skirt included) on the bed: a part kept near the edge
+    (--keep-position) can fit while its skirt does not."""
+    from .errors import UnreachableError
+
+    work = toolpath.tool > 0
+    if not work.any():
+        return
+    pts = toolpath.xyz[work, :2]
+    off = ~printer.bed.contains_xy(pts)
+    if off.any():
+        r = np.hypot(pts[off, 0], pts[off, 1])
+        i = int(np.argmax(r))
+        x, y = pts[off][i]
+        raise UnreachableError(
+            f"{part}: {int(off.sum())} printing moves leave the bed (the farthest at x = {x:.1f}, y = {y:.1f} mm, "
+            f"{r[i]:.1f} mm from the centre; bed radius {printer.bed.radius:g} mm, skirt included): move the part "
+            "inwards or drop --keep-position"
+        )
 
 
 def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> None:

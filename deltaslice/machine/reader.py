@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import Section
+from ..config import MISSING, Problems, Section, _Stop
 from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
 from .limits import Limits
@@ -32,6 +32,7 @@ ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
 def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     """Joint channels of the ``[joints]`` table as per-channel lists (radians inside)."""
     n = len(kinds)
+    sec._record("names", "list", False, [f"q{i + 1}" for i in range(n)])
     names = sec.get("names", [f"q{i + 1}" for i in range(n)])
     if not isinstance(names, list) or len(names) != n or not all(isinstance(s, str) for s in names):
         sec.fail("names", names, f"a list of {n} strings")
@@ -39,7 +40,9 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     hi = sec.getfloats("position_max", n)
     vel = sec.getfloats("velocity_max", n, above=0)
     acc = sec.getfloats("acceleration_max", n, above=0)
-    jerk = sec.getfloats("jerk_max", n, default=[0.0] * n, minval=0) if "jerk_max" in sec.data else (None,) * n
+    jerk = sec.getfloats("jerk_max", n, default=[0.0] * n, minval=0)
+    if "jerk_max" not in sec.data:
+        jerk = (None,) * n
     cpu = sec.getfloats("counts_per_unit", n, above=0)
     zero = sec.getfloats("zero_count", n, default=[0.0] * n)
     for i in range(n):
@@ -132,7 +135,7 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
 
 def _read_planning(sec: Section) -> PlanningSettings:
     return PlanningSettings(
-        output_rate=sec.getfloat("output_rate", 1000.0, above=0, maxval=100000),
+        output_rate=sec.getfloat("output_rate", 1000.0, minval=50, maxval=100000),
         blend_tolerance=sec.getfloat("blend_tolerance", 0.02, above=0, maxval=5),
         limit_margin=sec.getfloat("limit_margin", 0.01, minval=0, maxval=0.5),
         travel_lift=sec.getfloat("travel_lift", 1.0, minval=0),
@@ -221,46 +224,64 @@ def load_printer(path: str | Path, overrides: dict | None = None) -> Printer:
 
 
 def printer_from_dict(data: dict, path: str = "<printer>") -> Printer:
-    """Validate an already-parsed printer description (same rules as :func:`load_printer`)."""
-    top = Section(path, "top level", data)
-    name = top.getstr("name")
+    """Validate an already-parsed printer description (same rules as :func:`load_printer`).
+
+    Every section is read even after a problem, and one PrinterFileError lists them all."""
+    if not isinstance(data, dict):
+        raise PrinterFileError(f"{path}: expected a table of sections, got {type(data).__name__}")
+    problems = Problems(str(path))
+
+    def section(name, default=MISSING):
+        raw = data.get(name, {} if default is not MISSING else None)
+        if raw is None:
+            problems.add("top level", name, f"[{name}] missing: expected a table (required section)", missing=True)
+            return None
+        try:
+            return Section(path, name, raw, problems)
+        except _Stop:
+            return None
+
+    def read(sec, fn, *args):
+        """fn(sec, *args) with sec's problems collected; None if the section could not be read."""
+        if sec is None:
+            return None
+        try:
+            value = fn(sec, *args)
+        except _Stop:
+            value = None
+        sec.check_unknown()
+        return value
+
+    top = Section(path, "top level", data, problems)
+    name = top._soft(lambda: top.getstr("name"), "")
     description = top.getstr("description", "", required=False) or ""
-    for key in SECTIONS:
-        top.used.add(key)
-        if key not in data and key not in ("planning", "sources"):
-            raise PrinterFileError(f"{path}: [{key}] missing: expected a table (required section)")
+    top.used.update(SECTIONS)
     top.check_unknown()
 
-    ksec = Section(path, "kinematics", data["kinematics"])
-    family_name = ksec.getstr("family", choices=FAMILIES)
-    module = family(family_name)
-    geometry = module.read_geometry(ksec)
-    ksec.check_unknown()
+    ksec, jsec, tsec = section("kinematics"), section("joints"), section("tool")
+    bsec, ssec, psec = section("bed"), section("slicing"), section("planning", default={})
 
-    jsec = Section(path, "joints", data["joints"])
-    actuator = jsec.getstr("actuator", choices=ACTUATOR_KINDS)
-    joints = _read_joints(jsec, module.KINEMATICS.joint_kinds)
-    jsec.check_unknown()
-
-    tsec = Section(path, "tool", data["tool"])
-    tool = _read_tool(tsec)
-    tsec.check_unknown()
-
-    bsec = Section(path, "bed", data["bed"])
-    bed = _read_bed(bsec)
-    bsec.check_unknown()
-
-    ssec = Section(path, "slicing", data["slicing"])
-    slicing = _read_slicing(ssec, tool)
-    ssec.check_unknown()
-
-    psec = Section(path, "planning", data.get("planning", {}))
-    planning = _read_planning(psec)
-    psec.check_unknown()
+    family_name = module = None
+    if ksec is not None:
+        family_name = ksec._soft(lambda: ksec.getstr("family", choices=FAMILIES), None)
+        if family_name is not None and not any(k == "family" for _s, k, _m, _x in problems.items):
+            module = family(family_name)
+    geometry = read(ksec, module.read_geometry) if module is not None else None
+    if module is None and ksec is not None:
+        ksec.used.update(ksec.data)  # the family decides which keys are valid
+    actuator = jsec._soft(lambda: jsec.getstr("actuator", choices=ACTUATOR_KINDS), None) if jsec is not None else None
+    joints = read(jsec, _read_joints, module.KINEMATICS.joint_kinds) if module is not None else None
+    if module is None and jsec is not None:
+        jsec.used.update(jsec.data)
+    tool = read(tsec, _read_tool)
+    bed = read(bsec, _read_bed)
+    slicing = read(ssec, _read_slicing, tool) if tool is not None else read(ssec, _read_slicing, Laser(1.0, 1.0, 0.0))
+    planning = read(psec, _read_planning)
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
-        raise PrinterFileError(f"{path}: [sources] expected a table of key = \"where the number comes from\"")
+        problems.add("sources", None, '[sources] expected a table of key = "where the number comes from"')
+    problems.raise_if_any()
 
     limits = _limits(joints, tool)
     J = limits.n_joints
