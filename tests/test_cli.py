@@ -167,3 +167,10 @@ def test_exit_codes_are_documented():
     assert r.exit_code == 0
     for code in ("0 done", "1 error", "2 usage", "3 verify", "130 interrupted"):
         assert code in r.output, r.output
+
+
+def test_workspace_plot_path_is_checked_before_the_work(tmp_path):
+    r = _run("workspace", "--printer", "delta_etitc", "--plot", tmp_path / "missing" / "ws.png")
+    assert r.exit_code == 1 and "does not exist" in r.stderr and r.stderr.count("\n") == 1
+    r = _run("workspace", "--printer", "delta_etitc", "--plot", tmp_path / "ws.pdf")
+    assert r.exit_code == 1 and ".png" in r.stderr

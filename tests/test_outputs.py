@@ -224,11 +224,17 @@ def test_ctrl_c_at_any_moment_keeps_the_previous_output(tmp_path, delay):
     out = tmp_path / "cube.dsl"
     out.write_bytes(b"previous output")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "deltaslice", str(part), "--printer", ETITC, "-o", str(out),
-                             "--workers", "1", "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tmp_path)
-    time.sleep(delay)
-    proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=120)
+    for _attempt in range(4):
+        proc = subprocess.Popen([sys.executable, "-m", "deltaslice", str(part), "--printer", ETITC, "-o", str(out),
+                                 "--workers", "1", "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                                cwd=tmp_path)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+        assert out.read_bytes() == b"previous output"
+        if proc.returncode != -signal.SIGINT:
+            break
+        delay += 0.3  # a loaded machine had not started Python's first line of deltaslice yet: try later
     if proc.returncode == 0:
         pytest.skip("the compile finished before the signal")
     assert proc.returncode == 130, stderr.decode()
