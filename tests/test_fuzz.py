@@ -90,3 +90,27 @@ def test_gcode_reader_raises_only_the_family(tmp_path_factory, tokens):
     path = tmp_path_factory.mktemp("g") / "f.gcode"
     path.write_text("".join(tokens))
     _only_family(read_gcode, path)
+
+
+@settings(max_examples=60, deadline=None)
+@given(scale=anything, rotate=anything, keep=anything)
+def test_mesh_placement_arguments_raise_only_the_family(scale, rotate, keep):
+    from deltaslice.mesh import load_mesh
+
+    from conftest import ROOT
+
+    _only_family(load_mesh, ROOT / "examples" / "parts" / "calibration_cube.stl", scale=scale, rotate_z=rotate,
+                 keep_position=keep)
+
+
+@settings(max_examples=80, deadline=None)
+@given(rate=anything, fmt=anything, n=st.integers(0, 5), fill=st.floats(allow_nan=True, allow_infinity=True))
+def test_verify_arguments_raise_only_the_family(rate, fmt, n, fill):
+    from deltaslice.samples import Samples
+    from deltaslice.verify import verify_samples
+
+    from conftest import printer
+
+    s = Samples(np.arange(n) / 1000.0, np.full((n, 3), fill), np.full(n, fill), np.full(n, fill))
+    _only_family(verify_samples, s, printer("delta_etitc"), rate=rate, fmt=fmt)
+    _only_family(verify_samples, s, printer("delta_etitc"), rate=1000.0, fmt="csv")
