@@ -51,6 +51,7 @@ def test_a_printer_by_name_and_a_misspelt_name(tmp_path):
 def test_the_wheel_carries_the_printers_and_names_work_installed(tmp_path):
     """Build the wheel, install it (no dependencies) into a folder, and run from there."""
     pytest.importorskip("wheel")
+    pytest.importorskip("setuptools")
     src = tmp_path / "src"
     shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", ".git", "build", "*.egg-info", "__pycache__",
                                                             ".hypothesis", ".pytest_cache", "tests", "examples"),
