@@ -1,5 +1,9 @@
 """``python -m deltaslice``: the same as the ``deltaslice`` command."""
 
-from .cli import main
+from . import interrupt
 
-main()
+interrupt.install()  # before the heavy imports below: Ctrl-C during them must not be lost
+
+from .cli import run  # noqa: E402
+
+run()

@@ -1,48 +1,107 @@
 """Command line: parses arguments and calls the library. Nothing else lives here.
 
-    deltaslice PART --printer FILE [-o OUT]      compile (the default command)
-    deltaslice slice PART --printer FILE -o part.gcode
-    deltaslice workspace --printer FILE [--plot ws.png]
+    deltaslice PART --printer P [-o OUT]          compile (the default command; OUT defaults to PART.dsl)
+    deltaslice slice PART --printer P -o part.gcode
+    deltaslice preview PART --printer P -o view.png
+    deltaslice workspace --printer P [--plot ws.png]
     deltaslice decode STREAM [--units]
-    deltaslice verify OUTPUT --printer FILE [--toolpath PART]
+    deltaslice verify OUTPUT --printer P [--toolpath PART]
+    deltaslice printers
+
+P is a printer file or the name of a shipped printer (``deltaslice printers``).
+
+Exit codes (also in ``deltaslice --help``): 0 done; 1 error (one line on stderr, no traceback);
+2 usage error (unknown command or option, bad value); 3 ``verify`` found violations;
+130 interrupted by Ctrl-C (any previous output is left unchanged).
 """
 
 from __future__ import annotations
 
-import sys
+from . import interrupt
 
-import click
+interrupt.install()  # before click, numpy, trimesh: a Ctrl-C during the imports is not lost
 
-from .errors import DeltasliceError
+import json  # noqa: E402
+import os  # noqa: E402
+import sys  # noqa: E402
+from dataclasses import asdict, is_dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import click  # noqa: E402
+
+from .errors import DeltasliceError  # noqa: E402
+
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_VERIFY_FAILED, EXIT_INTERRUPTED = 0, 1, 2, 3, interrupt.EXIT_INTERRUPTED
 
 EPILOG_COMPILE = """\b
 Examples:
-  deltaslice examples/parts/calibration_cube.stl --printer printers/delta_etitc.toml -o cube.csv
-  deltaslice part.gcode --printer printers/delta_ucb.toml -o part.dsl --speed-limit machine
-  deltaslice logo.png --printer printers/delta_espe_laser.toml --width 60 --mode vector -o logo.dsl
+  deltaslice examples/parts/calibration_cube.stl --printer delta_etitc
+  deltaslice part.gcode --printer printers/delta_ucb.toml -o part.csv --speed-limit machine
+  deltaslice logo.png --printer delta_espe_laser --width 60 --mode vector -o logo.dsl
+"""
+
+EPILOG_MAIN = """\b
+Exit codes: 0 done, 1 error, 2 usage error, 3 verify found violations,
+130 interrupted (Ctrl-C; any previous output is left unchanged).
 """
 
 
+def _looks_like_part(arg: str) -> bool:
+    """A first argument that is a file path (an extension, a folder, or an existing file), not a command."""
+    p = Path(arg)
+    return bool(p.suffix) or len(p.parts) > 1 or p.exists()
+
+
 class _DefaultGroup(click.Group):
-    """A group whose first argument, when it is not a command name, goes to ``compile``."""
+    """A group whose first argument, when it looks like a file path, goes to ``compile``; a
+    mistyped command gets click's "No such command"."""
 
     def parse_args(self, ctx, args):
-        if args and args[0] not in self.commands and args[0] not in ("--help", "-h", "--version"):
+        if args and args[0] not in self.commands and not args[0].startswith("-") and _looks_like_part(args[0]):
             args = ["compile", *args]
         return super().parse_args(ctx, args)
 
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            raise _Interrupted() from None  # click would print a blank line and "Aborted!"
 
-def _placement_options(fn):
-    """--scale, --rotate, --keep-position: how a mesh is placed on the bed."""
-    for option in reversed(
-        [
-            click.option("--scale", type=float, default=1.0, show_default=True, help="Scale the part."),
-            click.option("--rotate", type=float, default=0.0, show_default=True, help="Rotate the part about z, degrees."),
-            click.option("--keep-position", is_flag=True, help="Keep the part's x-y position instead of centring it."),
-        ]
-    ):
-        fn = option(fn)
-    return fn
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """click's main, with Ctrl-C at any moment -> one line and exit 130."""
+        interrupt.install()
+        interrupt.reset()
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except (_Interrupted, KeyboardInterrupt, click.exceptions.Abort):
+            _interrupted()
+        except click.exceptions.Exit as exc:
+            sys.exit(exc.exit_code)
+        except click.ClickException as exc:
+            exc.show()
+            sys.exit(exc.exit_code)
+        except SystemExit:
+            raise
+        except BaseException:
+            # A Ctrl-C inside a C extension's import can surface as any exception (pybind11:
+            # "ImportError: initialization failed"): it is still an interrupt.
+            if interrupt.requested():
+                _interrupted()
+            raise
+        if interrupt.requested():  # a Ctrl-C some library swallowed
+            _interrupted()
+        if not standalone_mode:
+            return rv
+        sys.exit(EXIT_OK)
+
+
+class _Interrupted(Exception):
+    """Ctrl-C, carried past click's own KeyboardInterrupt handling."""
+
+
+def _interrupted():
+    click.echo(interrupt.MESSAGE, err=True)
+    sys.exit(EXIT_INTERRUPTED)
 
 
 def _engrave_options(fn):
@@ -79,35 +138,127 @@ def _run(fn, *args, **kwargs):
     try:
         return fn(*args, **kwargs)
     except DeltasliceError as exc:
+        if interrupt.requested():
+            _interrupted()
         click.echo(f"error: {exc}", err=True)
-        sys.exit(1)
+        sys.exit(EXIT_ERROR)
 
 
-@click.group(cls=_DefaultGroup, context_settings={"help_option_names": ["-h", "--help"]})
+def _echo_json(obj, **extra):
+    data = asdict(obj) if is_dataclass(obj) else dict(obj)
+    data.update(extra)
+    click.echo(json.dumps(_jsonable(data), indent=2, allow_nan=False))
+
+
+def _jsonable(value):
+    """Plain JSON: numpy values as numbers and lists, non-finite floats as null."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "tolist"):
+        return _jsonable(value.tolist())
+    if isinstance(value, float):
+        return value if value == value and abs(value) != float("inf") else None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+# ---------------------------------------------------------------------------- option groups
+
+
+def _options(*decorators):
+    def apply(fn):
+        for option in reversed(decorators):
+            fn = option(fn)
+        return fn
+
+    return apply
+
+
+def _parse_set(ctx, param, values):
+    """--set section.key=value (repeatable) -> {"section.key": value}; the value is read as TOML."""
+    import tomllib
+
+    out = {}
+    for item in values:
+        key, sep, text = item.partition("=")
+        if not sep or "." not in key:
+            raise click.BadParameter(f"{item!r}: expected section.key=value, e.g. slicing.layer_height=0.3")
+        try:
+            value = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text  # a bare word: a string
+        out[key.strip()] = value
+    return out
+
+
+printer_options = _options(
+    click.option("--printer", "printer_path", required=True, metavar="FILE|NAME",
+                 help="Printer file, or the name of a shipped printer (see `deltaslice printers`)."),
+    click.option("--set", "overrides", multiple=True, callback=_parse_set, metavar="SECTION.KEY=VALUE",
+                 help="Override a printer-file value (validated like the file), e.g. --set slicing.layer_height=0.3."),
+)
+
+placement_options = _options(
+    click.option("--scale", type=float, default=1.0, show_default=True, help="Scale the part."),
+    click.option("--rotate", type=float, default=0.0, show_default=True, help="Rotate the part about z, degrees."),
+    click.option("--keep-position", is_flag=True, help="Keep the part's x-y position instead of centring it."),
+)
+
+json_option = click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+
+bound_options = _options(
+    click.option("--max-time", type=click.FloatRange(min=0), default=48.0, show_default=True, metavar="HOURS",
+                 help="Refuse a job whose print time exceeds this, before writing (0: no bound)."),
+    click.option("--max-size", type=click.FloatRange(min=0), default=4096.0, show_default=True, metavar="MIB",
+                 help="Refuse an output larger than this, before writing (0: no bound)."),
+)
+
+
+def _printer(printer_path, overrides):
+    from .machine import load_printer
+
+    return _run(load_printer, printer_path, overrides=overrides or None)
+
+
+def _placement(scale, rotate, keep_position) -> dict:
+    return {"scale": scale, "rotate": rotate, "keep_position": keep_position}
+
+
+# ---------------------------------------------------------------------------- commands
+
+
+@click.group(cls=_DefaultGroup, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EPILOG_MAIN)
 @click.version_option(package_name="deltaslice")
 def main():
     """deltaslice: compile a part (STL/OBJ/3MF or G-code) into time-stamped joint
     setpoints for a delta or five-bar robot, within its actuators' limits.
 
-    Run `deltaslice PART --printer FILE -o OUT` to compile; see each command's --help.
+    Run `deltaslice PART --printer NAME` to compile (writes PART.dsl beside the part);
+    `deltaslice printers` lists the shipped printers; see each command's --help.
     """
 
 
 @main.command("compile", epilog=EPILOG_COMPILE)
 @click.argument("part", type=click.Path(dir_okay=False))
-@click.option("--printer", "printer_path", required=True, type=click.Path(dir_okay=False), help="Printer file (printers/*.toml).")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), help="Output file: .csv setpoints, .dsl binary stream, .gcode.")
+@printer_options
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="Output file: .dsl binary stream (default: PART.dsl beside the part), .csv setpoints, .gcode.")
 @click.option("--format", "fmt", type=click.Choice(["csv", "stream", "gcode"]), help="Override the format chosen from the extension.")
 @click.option("--speed-limit", type=click.Choice(["feed", "machine"]), default="feed", show_default=True,
               help="feed: obey the toolpath's feed rates; machine: only the actuators' limits.")
 @click.option("--planner", type=click.Choice(["toppra", "trapezoid"]), default="toppra", show_default=True,
               help="toppra: time-optimal in joint space; trapezoid: the conventional Cartesian planner (made safe).")
-@_placement_options
+@placement_options
 @_engrave_options
-@click.option("--workers", type=int, default=None, help="Planning processes (default: all cores).")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Planning processes (default: all cores).")
+@bound_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers, quiet,
-                **engrave):
+@json_option
+def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers,
+                max_time, max_size, quiet, as_json, **engrave):
     """Compile PART (mesh, G-code, or an image or SVG for a laser) into a trajectory for the printer."""
     from .pipeline import compile_part
     from .report import compile_summary
@@ -115,94 +266,158 @@ def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, ro
     result = _run(
         compile_part,
         part,
-        printer_path,
+        _printer(printer_path, overrides),
         output=output,
         fmt=fmt,
         speed_limit=speed_limit,
         planner=planner,
-        scale=scale,
-        rotate=rotate,
-        keep_position=keep_position,
-        engrave=_engrave_dict(**engrave),
         workers=workers,
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),
+        max_duration_s=max_time * 3600.0 or None,
+        max_bytes=int(max_size * 1024**2) or None,
+        engrave=_engrave_dict(**engrave),
+        **_placement(scale, rotate, keep_position),
     )
-    click.echo(compile_summary(result))
+    if as_json:
+        _echo_json(result)
+    else:
+        click.echo(compile_summary(result))
 
 
 @main.command("slice")
 @click.argument("part", type=click.Path(dir_okay=False))
-@click.option("--printer", "printer_path", required=True, type=click.Path(dir_okay=False), help="Printer file (printers/*.toml).")
+@printer_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code file to write.")
-@_placement_options
+@placement_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def slice_cmd(part, printer_path, output, scale, rotate, keep_position, quiet):
+def slice_cmd(part, printer_path, overrides, output, scale, rotate, keep_position, quiet):
     """Slice a mesh into G-code (absolute E, ;LAYER:n markers, feeds in mm/min).
 
     \b
     Example:
-      deltaslice slice examples/parts/calibration_cube.stl --printer printers/delta_etitc.toml -o cube.gcode
+      deltaslice slice examples/parts/calibration_cube.stl --printer delta_etitc -o cube.gcode
     """
     from .pipeline import slice_to_gcode
 
     summary = _run(
         slice_to_gcode,
         part,
-        printer_path,
+        _printer(printer_path, overrides),
         output,
-        scale=scale,
-        rotate=rotate,
-        keep_position=keep_position,
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),
+        **_placement(scale, rotate, keep_position),
     )
     click.echo(summary)
 
 
+@main.command("preview")
+@click.argument("part", type=click.Path(dir_okay=False))
+@printer_options
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG file to write.")
+@click.option("--layer", type=int, default=None, help="Layer to draw (default: the middle layer).")
+@placement_options
+def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, keep_position):
+    """Draw PART as a PNG: a mesh or G-code as a layer coloured by role with its travels and a side
+    view; a compiled .dsl/.csv as joint position, speed and acceleration against their limits over
+    time, and the tool speed.
+
+    \b
+    Examples:
+      deltaslice preview cube.stl --printer delta_etitc -o cube_layers.png
+      deltaslice preview cube.dsl --printer delta_etitc -o cube_joints.png
+    """
+    from .pipeline import preview
+
+    click.echo(_run(preview, part, _printer(printer_path, overrides), output, layer=layer,
+                    **_placement(scale, rotate, keep_position)))
+
+
 @main.command("workspace")
-@click.option("--printer", "printer_path", required=True, type=click.Path(dir_okay=False), help="Printer file (printers/*.toml).")
+@printer_options
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="PNG to write (default: <printer name>_workspace.png).")
-def workspace_cmd(printer_path, plot_path):
+@json_option
+def workspace_cmd(printer_path, overrides, plot_path, as_json):
     """Print the reachable volume, largest cylinder and cube, singularity margin and
     resolution of a printer, and plot them.
 
     \b
     Example:
-      deltaslice workspace --printer printers/delta_etitc.toml --plot etitc.png
+      deltaslice workspace --printer delta_etitc --plot etitc.png
     """
-    from .pipeline import workspace_report
+    from .pipeline import workspace_analysis
+    from .report import workspace_summary
 
-    click.echo(_run(workspace_report, printer_path, plot_path))
+    result = _run(workspace_analysis, _printer(printer_path, overrides), plot_path)
+    if as_json:
+        _echo_json(result)
+    else:
+        click.echo(workspace_summary(result))
 
 
 @main.command("decode")
 @click.argument("stream", type=click.Path(dir_okay=False))
 @click.option("--units", is_flag=True, help="Print the setpoints CSV format (joint units) instead of integer counts.")
-@click.option("--printer", "printer_path", type=click.Path(dir_okay=False), default=None,
-              help="Printer file; needed with --units only when the stream's own header is not enough.")
+@click.option("--printer", "printer_path", default=None, metavar="FILE|NAME",
+              help="Printer the stream must match; needed with --units only when the stream's own header is not enough.")
 def decode_cmd(stream, units, printer_path):
     """Print the samples of a binary stream, one line per sample."""
     from .pipeline import decode_stream
 
-    _run(decode_stream, stream, sys.stdout, units=units, printer=printer_path)
+    _run(decode_stream, stream, sys.stdout, units=units, printer=None if printer_path is None else _printer(printer_path, None))
 
 
 @main.command("verify")
 @click.argument("output", type=click.Path(dir_okay=False))
-@click.option("--printer", "printer_path", required=True, type=click.Path(dir_okay=False), help="Printer file (printers/*.toml).")
+@printer_options
 @click.option("--toolpath", "toolpath_path", type=click.Path(dir_okay=False), default=None,
-              help="The part or G-code compiled, to check the path deviation.")
+              help="The part or G-code compiled, to check the path deviation (give the same placement options).")
+@placement_options
 @_engrave_options
-def verify_cmd(output, printer_path, toolpath_path, **engrave):
-    """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 1 on any violation."""
+@json_option
+def verify_cmd(output, printer_path, overrides, toolpath_path, scale, rotate, keep_position, as_json, **engrave):
+    """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 3 on any violation."""
     from .pipeline import verify_output
 
-    report = _run(verify_output, output, printer_path, toolpath=toolpath_path, engrave=_engrave_dict(**engrave))
-    click.echo(report.text())
-    sys.exit(0 if report.ok else 1)
+    report = _run(verify_output, output, _printer(printer_path, overrides), toolpath=toolpath_path,
+                  engrave=_engrave_dict(**engrave), **_placement(scale, rotate, keep_position))
+    if as_json:
+        _echo_json(report, ok=report.ok)
+    else:
+        click.echo(report.text())
+    sys.exit(EXIT_OK if report.ok else EXIT_VERIFY_FAILED)
+
+
+@main.command("printers")
+@json_option
+def printers_cmd(as_json):
+    """List the printers shipped with deltaslice (usable by name: --printer NAME)."""
+    from .pipeline import shipped_printers
+
+    rows = _run(shipped_printers)
+    if as_json:
+        click.echo(json.dumps(rows, indent=2))
+        return
+    width = max(len(r["name"]) for r in rows)
+    for r in rows:
+        click.echo(f"{r['name']:<{width}}  {r['family']:<13} {r['tool']:<8} {r['description']}")
+
+
+def run():
+    """The console script: :data:`main`, leaving at once on an interrupt. Python kills itself
+    with SIGINT at exit when a KeyboardInterrupt ever passed through C code (an extension's
+    import) even if it was handled, which would turn exit 130 into "killed by signal"."""
+    try:
+        main()
+    except SystemExit as exc:
+        if exc.code == EXIT_INTERRUPTED:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(EXIT_INTERRUPTED)
+        raise
 
 
 if __name__ == "__main__":  # pragma: no cover
-    main()
+    run()

@@ -37,3 +37,7 @@ class StreamError(DeltasliceError):
 
 class MeshWarning(UserWarning):
     """A mesh was sliced, but only after closing gaps or similar guesswork the user should hear about."""
+
+class OutputError(DeltasliceError):
+    """An output cannot be written: missing or read-only directory, the input itself, a full
+    disk, or a job beyond the size and time bounds."""

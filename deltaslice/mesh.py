@@ -12,6 +12,8 @@ read raises :class:`~deltaslice.errors.MeshError` saying what is wrong and where
 from __future__ import annotations
 
 import math
+import numbers
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -457,9 +459,15 @@ def load_mesh(path, *, scale: float = 1.0, rotate_z: float = 0.0, keep_position:
     ``Mesh.placement`` says where it was and what was done, in the file's units.
     Raises :class:`MeshError` on anything unreadable.
     """
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise MeshError(f"path: expected a mesh file path, got {path!r}")
     path = Path(path)
     shown = str(path)
-    if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+    if not (isinstance(rotate_z, numbers.Real) and not isinstance(rotate_z, bool)):
+        raise MeshError(f"{shown}: rotate = {rotate_z!r}: expected a finite angle in degrees")
+    if not isinstance(keep_position, (bool, np.bool_)):
+        raise MeshError(f"{shown}: keep_position = {keep_position!r}: expected True or False")
+    if not (isinstance(scale, numbers.Real) and not isinstance(scale, bool) and math.isfinite(scale) and scale > 0):
         raise MeshError(f"{shown}: scale = {scale!r}: expected a finite number > 0")
     if not math.isfinite(rotate_z):
         raise MeshError(f"{shown}: rotate = {rotate_z!r}: expected a finite angle in degrees")

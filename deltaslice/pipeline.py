@@ -16,7 +16,10 @@ import time
 import warnings
 from pathlib import Path
 
-from .errors import GcodeError, MeshWarning, PlanningError, StreamError
+import numpy as np
+
+from . import interrupt
+from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError
 from .formats import format_for, part_kind
 from .machine import LimitMonitor, Printer, load_printer
 from .machine.limits import TOLERANCE
@@ -25,26 +28,123 @@ from .report import CompileResult, piece_counts, slice_summary
 
 
 def _printer(printer) -> Printer:
+    """A Printer as given, or loaded from a path or a shipped printer's name."""
     return printer if isinstance(printer, Printer) else load_printer(printer)
 
 
-@contextlib.contextmanager
-def atomic_output(path, mode: str = "wb", **open_kwargs):
-    """Open a temporary file next to ``path``; on success it replaces ``path``. A failure
-    anywhere while writing removes it and leaves any previous file untouched."""
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+# Bounds on a job before it is written (overridable: compile_part(max_duration_s=None, max_bytes=None),
+# CLI --max-time/--max-size 0). A G-code with F0.0001 plans to days of samples; these stop it first.
+MAX_DURATION_S = 48 * 3600.0
+MAX_BYTES = 4 * 1024**3
+
+
+def _same_file(a, b) -> bool:
     try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def check_output(output, inputs=()) -> Path:
+    """Refuse an output before any work: the same file as an input, a missing or read-only
+    directory, a directory. Returns the path written (a symlink's target). Raises OutputError."""
+    if output is None or not isinstance(output, (str, os.PathLike)) or not str(output):
+        raise OutputError(f"output: expected a file path, got {output!r}")
+    path = Path(output)
+    for src in inputs:
+        if src is not None and isinstance(src, (str, os.PathLike)) and _same_file(path, src):
+            raise OutputError(f"{output}: is the input file {src}: refusing to overwrite it (choose another -o)")
+    target = Path(os.path.realpath(path))
+    if target.is_dir():
+        raise OutputError(f"{output}: is a directory: expected a file path")
+    if target.exists() and not target.is_file():
+        return target  # a device or a pipe: written directly
+    directory = target.parent
+    if not directory.is_dir():
+        raise OutputError(f"{output}: directory {directory} does not exist")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise OutputError(f"{output}: directory {directory} is not writable")
+    if target.exists() and not os.access(target, os.W_OK):
+        raise OutputError(f"{output}: file is read-only")
+    return target
+
+
+class _BoundedFile:
+    """A file object that refuses to grow past ``limit`` bytes (None: no bound)."""
+
+    def __init__(self, f, limit, name):
+        self.f, self.limit, self.name, self.written = f, limit, name, 0
+
+    def write(self, data):
+        self.written += len(data)
+        if self.limit is not None and self.written > self.limit:
+            raise OutputError(
+                f"{self.name}: output would exceed {self.limit / 1024**2:.0f} MiB; nothing written "
+                "(raise the bound with --max-size MiB, 0 for none)"
+            )
+        return self.f.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+
+@contextlib.contextmanager
+def atomic_output(path, mode: str = "wb", *, max_bytes=None, **open_kwargs):
+    """Open ``path`` for writing so that a failure or Ctrl-C leaves any previous file untouched.
+
+    A regular file (or a new one) is written to a temporary file beside it and renamed over
+    it at the end, keeping an existing file's permission bits (a new file gets the umask's).
+    A symlink is followed: its target is replaced, the link stays. A character device or a
+    pipe (``/dev/null``, ``/dev/stdout``) is written directly, never replaced. ``max_bytes``
+    bounds the bytes written (OutputError beyond). OSError (full disk, permissions) becomes
+    OutputError naming the path."""
+    target = check_output(path)
+    if target.exists() and not target.is_file():
+        try:
+            with open(target, mode, **open_kwargs) as f:
+                yield _BoundedFile(f, max_bytes, str(path))
+        except OSError as exc:
+            raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        return
+    if target.exists():
+        file_mode = target.stat().st_mode & 0o7777
+    else:
+        umask = os.umask(0)
+        os.umask(umask)
+        file_mode = 0o666 & ~umask
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        os.fchmod(fd, file_mode)
         with os.fdopen(fd, mode, **open_kwargs) as f:
-            yield f
+            yield _BoundedFile(f, max_bytes, str(path))
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+        interrupt.check()  # a Ctrl-C swallowed by a library still keeps the previous file
+        os.replace(tmp, target)
+        tmp = None
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    finally:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
+
+def check_job(duration_s: float, n_samples_per_s: float, bytes_per_sample: float, *, max_duration_s, max_bytes,
+              output="output") -> None:
+    """Refuse a job whose print time or estimated output size is beyond the bounds (None: no bound)."""
+    if max_duration_s is not None and not duration_s <= max_duration_s:
+        raise OutputError(
+            f"{output}: print time {duration_s / 3600:.1f} h exceeds the bound {max_duration_s / 3600:g} h "
+            "(a feed rate near zero in the part?); raise it with --max-time HOURS, 0 for none"
+        )
+    size = duration_s * n_samples_per_s * bytes_per_sample
+    if max_bytes is not None and not size <= max_bytes:
+        raise OutputError(
+            f"{output}: the output would be about {size / 1024**2:.0f} MiB, over the bound {max_bytes / 1024**2:.0f} MiB; "
+            "raise it with --max-size MiB (0 for none), or write the compact .dsl stream"
+        )
 
 
 def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None):
@@ -81,49 +181,102 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         elif echo is not None:
             echo(f"mesh: {w.message}")
+    _check_on_bed(toolpath, printer, part)
     return toolpath
 
 
-def write_gcode(toolpath, output, printer=None) -> None:
+def _check_on_bed(toolpath, printer, part) -> None:
+    """Every working move (skirt included) on the bed: a part kept near the edge
+    (--keep-position) can fit while its skirt does not."""
+    from .errors import UnreachableError
+
+    work = toolpath.tool > 0
+    if not work.any():
+        return
+    pts = toolpath.xyz[work, :2]
+    off = ~printer.bed.contains_xy(pts)
+    if off.any():
+        r = np.hypot(pts[off, 0], pts[off, 1])
+        i = int(np.argmax(r))
+        x, y = pts[off][i]
+        raise UnreachableError(
+            f"{part}: {int(off.sum())} printing moves leave the bed (the farthest at x = {x:.1f}, y = {y:.1f} mm, "
+            f"{r[i]:.1f} mm from the centre; bed radius {printer.bed.radius:g} mm, skirt included): move the part "
+            "inwards or drop --keep-position"
+        )
+
+
+def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> None:
     """Write a Toolpath as G-code to ``output``, atomically."""
     from .gcode import gcode_text
 
+    _check_toolpath(toolpath)
     text = gcode_text(toolpath, printer)
-    try:
-        with atomic_output(output, "w", encoding="ascii", newline="\n") as f:
-            f.write(text)
-    except OSError as exc:
-        raise GcodeError(f"{output}: cannot write G-code: {exc}") from None
+    with atomic_output(output, "w", encoding="ascii", newline="\n", max_bytes=max_bytes) as f:
+        f.write(text)
 
 
 def slice_to_gcode(part, printer, output, *, progress=False, echo=None, **mesh_options) -> str:
     """Slice a mesh and write G-code. Returns a summary line."""
+    _check_path(part, "part")
+    check_output(output, inputs=[part])
     printer = _printer(printer)
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
+    interrupt.check()
     write_gcode(toolpath, output, printer)
     return slice_summary(str(output), toolpath.summary(), time.perf_counter() - t0)
 
 
-def write_output(trajectory, output, fmt: str | None = None, watch=None, check=None) -> int:
+def _check_path(value, what):
+    if not isinstance(value, (str, os.PathLike)) or not str(value):
+        raise DeltasliceError(f"{what}: expected a file path, got {value!r}")
+
+
+def _check_toolpath(toolpath):
+    from .toolpath import Toolpath
+
+    if not isinstance(toolpath, Toolpath):
+        raise DeltasliceError(f"toolpath: expected a Toolpath, got {type(toolpath).__name__}")
+
+
+def _bytes_per_sample(fmt, n_channels):
+    """A generous estimate of an output's bytes per sample, for the size bound."""
+    return 12.0 * (n_channels + 1) if fmt == "csv" else 1.0 * n_channels
+
+
+def write_output(trajectory, output, fmt: str | None = None, watch=None, *, max_duration_s=MAX_DURATION_S,
+                 max_bytes=MAX_BYTES, check=None) -> int:
     """Write a planned trajectory to ``output`` (format from the extension unless given),
-    atomically. Returns bytes written. check: called after the last byte and before the file
-    replaces ``output``; an exception from it leaves any previous output untouched."""
+    atomically. Refuses a job beyond ``max_duration_s`` or ``max_bytes`` (None: no bound)
+    before writing. check: called after the last byte and before the file replaces
+    ``output``; an exception from it leaves any previous output untouched. Returns bytes written."""
     from .emit import write_trajectory
 
+    if not all(hasattr(trajectory, a) for a in ("printer", "duration", "iter_samples", "metadata")) or not isinstance(
+            getattr(trajectory, "printer", None), Printer):
+        raise DeltasliceError(f"trajectory: expected a planned Trajectory, got {type(trajectory).__name__}")
     fmt = fmt or format_for(output)
-    with atomic_output(output, "wb") as f:
+    if fmt not in ("csv", "stream"):
+        raise DeltasliceError(f"{output}: a trajectory is written as csv or stream, not {fmt!r}")
+    printer = trajectory.printer
+    check_output(output)
+    check_job(trajectory.duration, printer.planning.output_rate, _bytes_per_sample(fmt, printer.n_joints + 1),
+              max_duration_s=max_duration_s, max_bytes=max_bytes, output=str(output))
+    with atomic_output(output, "wb", max_bytes=max_bytes) as f:
         size = write_trajectory(trajectory, f, fmt, watch=watch)
         if check is not None:
             check()
         return size
 
 
-def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
+def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None,
+                  max_bytes=MAX_BYTES) -> int:
     """Write Samples blocks for ``printer`` to ``output`` as ``fmt``, atomically. Returns bytes written."""
     from .emit import write_samples as encode
 
-    with atomic_output(output, "wb") as f:
+    printer = _printer(printer)
+    with atomic_output(output, "wb", max_bytes=max_bytes) as f:
         return encode(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata)
 
 
@@ -150,6 +303,11 @@ def read_output(path):
     return decode(data, str(path))
 
 
+def default_output(part) -> Path:
+    """``PART.dsl`` beside the part: the compact binary stream (a CSV is ~80 bytes a sample)."""
+    return Path(part).with_suffix(".dsl")
+
+
 def compile_part(
     part,
     printer,
@@ -161,22 +319,31 @@ def compile_part(
     workers=None,
     progress=False,
     echo=None,
+    max_duration_s=MAX_DURATION_S,
+    max_bytes=MAX_BYTES,
     **mesh_options,
 ) -> CompileResult:
-    """Slice (or read), plan and emit. Returns what was done (see :mod:`deltaslice.report`)."""
+    """Slice (or read), plan and emit. Returns what was done (see :mod:`deltaslice.report`).
+
+    output: path (default ``PART.dsl`` beside the part); checked before any work (not the
+    input, directory exists and is writable). max_duration_s, max_bytes: bounds on the
+    planned print time and the output size checked before writing (None: no bound)."""
     from .planning import plan
 
-    printer = _printer(printer)
+    _check_path(part, "part")
     if output is None:
-        output = str(Path(part).with_suffix(".csv").name)
+        output = default_output(part)
     fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
+    check_output(output, inputs=[part, getattr(printer, "path", printer)])
+    printer = _printer(printer)
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
+    interrupt.check()
     t_slice = time.perf_counter() - t0
     s = toolpath.summary()
     if fmt == "gcode":  # G-code is a toolpath output: nothing to plan
-        write_gcode(toolpath, output, printer)
-        return CompileResult(printer.name, str(output), fmt, Path(output).stat().st_size, s["layers"], s["moves"], {},
+        write_gcode(toolpath, output, printer, max_bytes=max_bytes)
+        return CompileResult(printer.name, str(output), fmt, _size(output), s["layers"], s["moves"], {},
                              "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
     trajectory = plan(
         toolpath,
@@ -186,6 +353,7 @@ def compile_part(
         workers=workers or os.cpu_count() or 1,
         progress=stderr_progress(progress, "planning runs"),
     )
+    interrupt.check()
     t_plan = time.perf_counter() - t0 - t_slice
     monitor = LimitMonitor(printer.limits, printer.tool, printer.planning.output_rate)
 
@@ -198,7 +366,9 @@ def compile_part(
                 "please report it with the part and printer file"
             )
 
-    size = write_output(trajectory, output, fmt=fmt, watch=monitor.watch, check=within_limits)
+    watch = _watch_progress(monitor.watch, progress, trajectory.duration)
+    size = write_output(trajectory, output, fmt=fmt, watch=watch, max_duration_s=max_duration_s, max_bytes=max_bytes,
+                        check=within_limits)
     return CompileResult(
         printer=printer.name, output=str(output), fmt=fmt, size_bytes=size, layers=s["layers"], moves=s["moves"],
         pieces=piece_counts(trajectory.pieces), planner=trajectory.planner, speed_limit=speed_limit,
@@ -207,52 +377,129 @@ def compile_part(
     )
 
 
-def verify_output(output, printer, toolpath=None, **mesh_options):
-    """Read a setpoints CSV or binary stream and check it against the printer (path or Printer).
+def _size(output) -> int:
+    try:
+        return Path(output).stat().st_size
+    except OSError:
+        return 0
 
-    toolpath: the part (mesh) or G-code that was compiled, to check path deviation.
+
+def _watch_progress(watch, progress, duration):
+    """Compose the limit monitor with a 'writing' progress bar over the trajectory's time."""
+    bar = stderr_progress(progress, "writing output", unit="s")
+    if bar is None:
+        return watch
+
+    def watched(blocks):
+        for block in watch(blocks):
+            interrupt.check()
+            if len(block):
+                bar(min(float(block.t[-1]), duration), duration)
+            yield block
+        bar(duration, duration)
+
+    return watched
+
+
+def verify_output(output, printer, toolpath=None, **mesh_options):
+    """Read a setpoints CSV or binary stream and check it against the printer (path, name or Printer).
+
+    toolpath: the part (mesh) or G-code that was compiled, to check path deviation; give the
+    placement options (scale, rotate, keep_position) the compile had.
     Returns a :class:`~deltaslice.verify.VerifyReport`."""
     from .verify import verify_samples
 
+    _check_path(output, "output")
     printer = _printer(printer)
     meta, samples = read_output(output)
     fmt = meta.get("format", "csv")
+    raw = meta.get("rate_hz", printer.planning.output_rate)
     try:
-        rate = float(meta.get("rate_hz", printer.planning.output_rate))
-    except ValueError:
-        raise StreamError(f"{output}: rate_hz {meta.get('rate_hz')!r} is not a number") from None
+        rate = float(raw)
+    except (TypeError, ValueError):
+        raise StreamError(f"{output}: rate_hz {raw!r} is not a number") from None
     tp = None if toolpath is None else load_toolpath(toolpath, printer, **mesh_options)
     return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output))
 
 
 def decode_stream(path, out, *, units=False, printer=None) -> int:
     """Print a stream file's samples to the text file ``out`` (see ``emit.stream.decode_to_text``);
-    printer: a path or Printer the stream must match, or None."""
+    printer: a path, name or Printer the stream must match, or None."""
     from .emit.stream import decode_to_text
 
+    _check_path(path, "stream")
     loaded = None if printer is None else _printer(printer)
     try:
         f = open(path, "rb")
     except OSError as exc:
-        raise StreamError(f"{path}: cannot open stream: {exc}") from None
+        raise StreamError(f"{path}: cannot open stream: {exc.strerror or exc}") from None
     with f:
         return decode_to_text(f, out, units=units, printer=loaded, name=str(path))
 
 
-def workspace_report(printer, plot_path=None) -> str:
-    """Workspace figures of a printer as text; writes a PNG plot."""
+def shipped_printers() -> list[dict]:
+    """The printers packaged with deltaslice: [{name, family, tool, description, path}]."""
+    from .printers import shipped_names, shipped_path
+
+    rows = []
+    for name in shipped_names():
+        p = load_printer(shipped_path(name))
+        rows.append({"name": name, "family": p.family, "tool": p.tool.channel_kind, "description": p.description,
+                     "path": str(p.path)})
+    return rows
+
+
+def _check_png(path) -> None:
+    _check_path(path, "plot")
+    if Path(path).suffix.lower() != ".png":
+        raise OutputError(f"{path}: expected a .png file name")
+    check_output(path)
+
+
+def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
+    """Draw ``part`` to the PNG ``output``: a mesh or G-code as one layer coloured by role with
+    its travels, plus a side view; a compiled .csv/.dsl as joint position, speed and
+    acceleration against the printer's limits over time, and the tool speed. Returns a line."""
+    from . import preview as draw
+
+    _check_path(part, "part")
+    _check_png(output)
+    if not Path(part).exists():
+        raise DeltasliceError(f"{part}: no such file")
+    check_output(output, inputs=[part])
+    printer = _printer(printer)
+    if Path(part).suffix.lower() in (".csv", ".dsl", ".stream"):
+        meta, samples = read_output(part)
+        fig = draw.trajectory_figure(samples, printer, title=f"{Path(part).name} on {printer.name}")
+        what = f"{len(samples)} samples"
+    else:
+        toolpath = load_toolpath(part, printer, **mesh_options)
+        fig, shown = draw.toolpath_figure(toolpath, printer, layer=layer, title=f"{Path(part).name} on {printer.name}")
+        what = f"layer {shown} of {toolpath.n_layers}"
+    interrupt.check()
+    with atomic_output(output, "wb") as f:
+        draw.save(fig, f)
+    return f"{output}: {what}"
+
+
+def workspace_analysis(printer, plot_path=None):
+    """Workspace figures of a printer (:class:`~deltaslice.report.WorkspaceResult`); writes a PNG plot."""
     import numpy as np
 
     from .kinematics.workspace import analyse, plot
+    from .report import WorkspaceResult
 
     printer = _printer(printer)
+    plot_path = plot_path or f"{printer.name}_workspace.png"
+    _check_png(plot_path)
     kin = printer.kinematics()
     cpu = np.abs(printer.limits.counts_per_unit[: printer.n_joints])
     z_range = (-0.25 * printer.bed.max_height - 10.0, 2.0 * printer.bed.max_height + 20.0)
     radius_max = max(1.6 * printer.bed.radius, 50.0)
     rep = analyse(kin, cpu, z_range, radius_max)
-    plot_path = plot_path or f"{printer.name}_workspace.png"
-    plot(kin, rep, cpu, plot_path, title=f"{printer.name}: workspace")
+    interrupt.check()
+    with atomic_output(plot_path, "wb") as f:
+        plot(kin, rep, cpu, f, title=f"{printer.name}: workspace")
 
     xy = np.linspace(-1, 1, 41)
     X, Y = np.meshgrid(xy, xy)
@@ -261,25 +508,24 @@ def workspace_report(printer, plot_path=None) -> str:
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= printer.bed.radius]
     else:
         pts = np.stack([X.ravel() * printer.bed.size_x / 2, Y.ravel() * printer.bed.size_y / 2], 1)
-    bed_cover = []
+    bed_cover = {}
     for z in (0.0, printer.bed.max_height):
         ok = kin.reachable(np.column_stack([pts, np.full(len(pts), z)]))
-        bed_cover.append(f"{100 * ok.mean():.1f} % at z = {z:g} mm")
+        bed_cover[f"{z:g}"] = float(100 * ok.mean())
+    return WorkspaceResult(
+        printer=printer.name, family=printer.family, path=str(printer.path),
+        z_range=(float(z_range[0]), float(z_range[1])), radius_max=float(radius_max), z_step=float(rep.z[1] - rep.z[0]),
+        reachable_litres=float(rep.reachable_volume / 1e6), cylinder=rep.cylinder.describe(),
+        cylinder_on_bed=rep.cylinder_on_bed.describe(), cube=rep.cube.describe(), cube_on_bed=rep.cube_on_bed.describe(),
+        bed_reachable_percent=bed_cover, condition_median=float(rep.condition_median),
+        condition_max=float(rep.condition_max), singularity_limit=float(printer.planning.singularity_limit),
+        resolution_mm=(float(rep.resolution_min), float(rep.resolution_median), float(rep.resolution_max)),
+        plot=str(plot_path),
+    )
 
-    lines = [
-        f"printer: {printer.name} ({printer.family}, {printer.path})",
-        f"searched: z {z_range[0]:.0f}..{z_range[1]:.0f} mm, radius <= {radius_max:.0f} mm "
-        f"(grid step {rep.z[1] - rep.z[0]:.2f} mm in z)",
-        f"reachable volume: {rep.reachable_volume / 1e6:.2f} litres (within joint limits, tilt and singularity limit)",
-        f"largest cylinder: {rep.cylinder.describe()}",
-        f"largest cylinder standing on the bed: {rep.cylinder_on_bed.describe()}",
-        f"largest cube: {rep.cube.describe()}",
-        f"largest cube standing on the bed: {rep.cube_on_bed.describe()}",
-        f"bed area reachable: {', '.join(bed_cover)}",
-        f"singularity margin (Jacobian condition number in the bed cylinder): median {rep.condition_median:.2f}, "
-        f"worst {rep.condition_max:.2f} (limit {printer.planning.singularity_limit:g})",
-        f"resolution (tool motion per actuator count, worst joint): best {rep.resolution_min:.4f} mm, "
-        f"median {rep.resolution_median:.4f} mm, worst {rep.resolution_max:.4f} mm",
-        f"plot: {plot_path}",
-    ]
-    return "\n".join(lines)
+
+def workspace_report(printer, plot_path=None) -> str:
+    """Workspace figures of a printer as text; writes a PNG plot."""
+    from .report import workspace_summary
+
+    return workspace_summary(workspace_analysis(printer, plot_path))

@@ -1,22 +1,63 @@
-"""Progress reporting for long work: a ``progress(done, total)`` callback on stderr."""
+"""Progress reporting for long work: a ``progress(done, total)`` callback on stderr.
+
+On a terminal it is a tqdm bar (rate and ETA). In a pipe or a log file there is no
+carriage return: one plain line per tenth of the work (and at the end), each with the
+elapsed time and tqdm's ETA, so a log holds at most a dozen lines per stage.
+"""
 
 from __future__ import annotations
 
 import sys
+import time
+
+PIPE_STEPS = 10
 
 
-def stderr_progress(enabled: bool, label: str):
-    """A callback writing one updating line ``label: done/total (pct%)`` on stderr, or None."""
+def stderr_progress(enabled: bool, label: str, unit: str = "it", stream=None):
+    """A callback ``progress(done, total)`` drawing on ``stream`` (default stderr), or None when disabled."""
     if not enabled:
         return None
-    state = {"last": -1}
+    stream = stream or sys.stderr
+    isatty = getattr(stream, "isatty", lambda: False)()
+    return _TtyBar(label, unit, stream) if isatty else _PipeLines(label, unit, stream)
 
-    def progress(done: int, total: int) -> None:
-        pct = int(100 * done / max(total, 1))
-        if pct != state["last"] or done >= total:
-            state["last"] = pct
-            end = "\n" if done >= total else ""
-            sys.stderr.write(f"\r{label}: {done}/{total} ({pct}%){end}")
-            sys.stderr.flush()
 
-    return progress
+class _TtyBar:
+    def __init__(self, label, unit, stream):
+        self.label, self.unit, self.stream, self.bar = label, unit, stream, None
+
+    def __call__(self, done, total):
+        from tqdm import tqdm
+
+        if self.bar is None:
+            fmt = "{l_bar}{bar}| {n:.0f}/{total:.0f} {unit} [{elapsed}<{remaining}]" if self.unit == "s" else None
+            self.bar = tqdm(total=total, desc=self.label, unit=self.unit, file=self.stream, leave=True,
+                            dynamic_ncols=True, **({"bar_format": fmt} if fmt else {}))
+        self.bar.total = total
+        self.bar.update(done - self.bar.n)
+        if done >= total:
+            self.bar.close()
+
+
+class _PipeLines:
+    def __init__(self, label, unit, stream):
+        self.label, self.unit, self.stream = label, unit, stream
+        self.t0 = time.monotonic()
+        self.next_step = 1
+        self.finished = False
+
+    def __call__(self, done, total):
+        from tqdm import tqdm
+
+        if self.finished:
+            return
+        frac = done / total if total > 0 else 1.0
+        if frac < self.next_step / PIPE_STEPS and done < total:
+            return
+        self.next_step = int(frac * PIPE_STEPS) + 1
+        elapsed = time.monotonic() - self.t0
+        eta = "" if done >= total or frac <= 0 else f", ETA {tqdm.format_interval(elapsed * (1 - frac) / frac)}"
+        shown = f"{done:.0f}/{total:.0f} {self.unit}" if self.unit == "s" else f"{done}/{total}"
+        self.stream.write(f"{self.label}: {shown} ({100 * frac:.0f}%), {tqdm.format_interval(elapsed)} elapsed{eta}\n")
+        self.stream.flush()
+        self.finished = done >= total

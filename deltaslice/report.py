@@ -56,3 +56,49 @@ def slice_summary(output: str, summary: dict, seconds: float) -> str:
         f"{output}: {summary['layers']} layers, {summary['moves']} moves, {summary['filament_mm']:.1f} mm filament, "
         f"{seconds:.2f} s"
     )
+
+
+@dataclass(frozen=True)
+class WorkspaceResult:
+    """A printer's workspace figures (mm, litres); ``bed_reachable_percent`` by height (mm)."""
+
+    printer: str
+    family: str
+    path: str
+    z_range: tuple
+    radius_max: float
+    z_step: float
+    reachable_litres: float
+    cylinder: str
+    cylinder_on_bed: str
+    cube: str
+    cube_on_bed: str
+    bed_reachable_percent: dict
+    condition_median: float
+    condition_max: float
+    singularity_limit: float
+    resolution_mm: tuple
+    plot: str
+
+
+def workspace_summary(r: WorkspaceResult) -> str:
+    """What ``deltaslice workspace`` prints."""
+    best, median, worst = r.resolution_mm
+    cover = ", ".join(f"{v:.1f} % at z = {k} mm" for k, v in r.bed_reachable_percent.items())
+    lines = [
+        f"printer: {r.printer} ({r.family}, {r.path})",
+        f"searched: z {r.z_range[0]:.0f}..{r.z_range[1]:.0f} mm, radius <= {r.radius_max:.0f} mm "
+        f"(grid step {r.z_step:.2f} mm in z)",
+        f"reachable volume: {r.reachable_litres:.2f} litres (within joint limits, tilt and singularity limit)",
+        f"largest cylinder: {r.cylinder}",
+        f"largest cylinder standing on the bed: {r.cylinder_on_bed}",
+        f"largest cube: {r.cube}",
+        f"largest cube standing on the bed: {r.cube_on_bed}",
+        f"bed area reachable: {cover}",
+        f"singularity margin (Jacobian condition number in the bed cylinder): median {r.condition_median:.2f}, "
+        f"worst {r.condition_max:.2f} (limit {r.singularity_limit:g})",
+        f"resolution (tool motion per actuator count, worst joint): best {best:.4f} mm, "
+        f"median {median:.4f} mm, worst {worst:.4f} mm",
+        f"plot: {r.plot}",
+    ]
+    return "\n".join(lines)

@@ -51,6 +51,35 @@ class Role(enum.IntEnum):
     LASER_DYNAMIC = 10  # laser power scaled by the tool's actual speed over the move's feed (GRBL M4)
 
 
+MIN_FEED = 1e-3  # mm/s (0.06 mm/min): slower is a units mistake, and a print of years
+MAX_FEED = 1e5  # mm/s
+
+
+def _column(name, value, dtype):
+    """``value`` as an array of ``dtype``; DeltasliceError naming ``name`` for anything that is
+    not real numbers of that kind (None, strings, complex numbers, out-of-range integers)."""
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise DeltasliceError(f"{name}: expected numbers: {exc}") from None
+    if raw.dtype.kind not in "biuf":
+        raise DeltasliceError(f"{name}: expected real numbers, got {raw.dtype} values")
+    if np.dtype(dtype).kind in "iu" and raw.size:
+        if raw.dtype.kind == "f" and not np.all(np.isfinite(raw) & (raw == np.round(raw))):
+            raise DeltasliceError(f"{name}: expected whole numbers")
+        info = np.iinfo(dtype)
+        if raw.min() < info.min or raw.max() > info.max:
+            raise DeltasliceError(f"{name}: values {raw.min()}..{raw.max()} outside {info.min}..{info.max}")
+    return np.array(raw, dtype=dtype)
+
+
+def _check_range(name, x, lo, hi, what):
+    bad = ~((x >= lo) & (x <= hi))
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DeltasliceError(f"Toolpath.{name}: move {i}: {float(x[i]):g} outside {lo:g}..{hi:g} {what}")
+
+
 @dataclass(frozen=True)
 class Toolpath:
     start: np.ndarray
@@ -63,7 +92,10 @@ class Toolpath:
     layer_z: np.ndarray
 
     def __post_init__(self):
-        n = len(self.xyz)
+        xyz = _column("Toolpath.xyz", self.xyz, np.float64)
+        if xyz.ndim != 2:
+            raise DeltasliceError(f"Toolpath.xyz: expected shape (n, 3), got {xyz.shape}")
+        n = len(xyz)
         casts = {
             "start": (np.float64, (3,)),
             "xyz": (np.float64, (n, 3)),
@@ -74,21 +106,31 @@ class Toolpath:
             "layer": (np.int32, (n,)),
         }
         for name, (dtype, shape) in casts.items():
-            arr = np.array(getattr(self, name), dtype=dtype)
+            arr = _column(f"Toolpath.{name}", getattr(self, name), dtype)
             if arr.shape != shape:
                 raise DeltasliceError(f"Toolpath.{name}: expected shape {shape}, got {arr.shape}")
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
-        lz = np.array(self.layer_z, dtype=np.float64).reshape(-1)
+        lz = _column("Toolpath.layer_z", self.layer_z, np.float64).reshape(-1)
+        if not np.all(np.isfinite(lz)):
+            raise DeltasliceError("Toolpath.layer_z: non-finite layer height")
         lz.setflags(write=False)
         object.__setattr__(self, "layer_z", lz)
         if n:
             if not np.all(np.isfinite(self.xyz)) or not np.all(np.isfinite(self.e)):
                 raise DeltasliceError("Toolpath: non-finite coordinate or extrusion")
-            if not np.all(self.feed > 0):
-                raise DeltasliceError("Toolpath: every move needs a feed rate > 0")
+            _check_range("feed", self.feed, MIN_FEED, MAX_FEED, "mm/s (a feed this slow or fast is a units mistake)")
+            _check_range("tool", self.tool, 0.0, 1.0, "(0 off, 1 full extrusion or laser power)")
+            bad_role = ~np.isin(self.role, [int(r) for r in Role])
+            if bad_role.any():
+                i = int(np.argmax(bad_role))
+                raise DeltasliceError(f"Toolpath.role: move {i}: {int(self.role[i])} is not a Role (0..{max(Role)})")
             if np.any(np.diff(self.layer) < 0):
                 raise DeltasliceError("Toolpath: layer indices must not decrease")
+            if self.layer.min() < 0 or (len(lz) and self.layer.max() >= len(lz)) or (not len(lz) and self.layer.max() > 0):
+                raise DeltasliceError(
+                    f"Toolpath.layer: indices {int(self.layer.min())}..{int(self.layer.max())} outside the "
+                    f"{len(lz)} layer heights in layer_z")
 
     # -- construction ------------------------------------------------------------
     @classmethod
@@ -212,15 +254,32 @@ class ToolpathBuilder:
         return len(self.layer_z) - 1
 
     def new_layer(self, z: float) -> None:
+        z = _column("ToolpathBuilder.new_layer: z", z, np.float64)
+        if z.shape != () or not np.isfinite(z):
+            raise DeltasliceError(f"ToolpathBuilder.new_layer: z = {z!r}: expected one finite height, mm")
         self.layer_z.append(float(z))
 
     def add(self, xyz, feed, e, tool, role) -> None:
         """Append moves to ``xyz`` ((k,3) mm) with per-move or scalar feed, e, tool, role."""
-        xyz = np.atleast_2d(np.asarray(xyz, dtype=float))
+        xyz = _column("ToolpathBuilder.add: xyz", xyz, np.float64)
+        if xyz.size == 0:
+            return
+        if xyz.ndim == 1 and xyz.shape == (3,):
+            xyz = xyz[None]
+        if xyz.ndim != 2 or xyz.shape[1] != 3:
+            raise DeltasliceError(f"ToolpathBuilder.add: xyz: expected shape (k, 3) mm, got {xyz.shape}")
         k = len(xyz)
         if k == 0:
             return
-        b = lambda v, dt: np.broadcast_to(np.asarray(v, dtype=dt), (k,))  # noqa: E731
+
+        def b(v, dt):
+            arr = _column(f"ToolpathBuilder.add: {_names[dt]}", v, dt)
+            try:
+                return np.broadcast_to(arr, (k,))
+            except ValueError:
+                raise DeltasliceError(f"ToolpathBuilder.add: expected one value or {k} values, got shape {arr.shape}") from None
+
+        _names = {float: "feed, e or tool", np.uint8: "role"}
         self._chunks.append(
             (xyz, b(feed, float), b(e, float), b(tool, float), b(role, np.uint8), np.full(k, max(self.layer, 0), np.int32))
         )

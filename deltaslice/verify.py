@@ -67,6 +67,10 @@ class Violation:
 
 @dataclass(frozen=True)
 class ChannelStat:
+    """One channel's figures. ``velocity_limit`` is the limit that applies where the velocity
+    uses the largest share of its limit (an extruder: the melt-flow limit while printing, the
+    retract speed while idle), ``peak_velocity`` the velocity there."""
+
     name: str
     unit: str
     low: float
@@ -77,6 +81,28 @@ class ChannelStat:
     peak_acceleration: float
     acceleration_limit: float
     acceleration_window: int
+    velocity_index: int = 0
+    acceleration_index: int = 0
+    position_min: float = -math.inf
+    position_max: float = math.inf
+
+
+@dataclass(frozen=True)
+class CheckRow:
+    """One row of the verify table: a check on one channel, its worst sample and PASS/FAIL.
+    percent: the peak's share of the limit (None where a share means nothing: time steps,
+    non-finite values); place: the tool tip (mm, bed frame) at the worst sample, when known."""
+
+    check: str
+    channel: str
+    unit: str
+    peak: float
+    limit: float
+    percent: float | None
+    time: float
+    index: int
+    place: tuple | None
+    ok: bool
 
 
 @dataclass(frozen=True)
@@ -95,10 +121,27 @@ class VerifyReport:
     deviation_samples: int = 0
     notes: tuple[str, ...] = field(default_factory=tuple)
     planner_margin: float = 0.0
+    rows: tuple[CheckRow, ...] = field(default_factory=tuple)
 
     @property
     def ok(self) -> bool:
         return self.violation_count == 0
+
+    def table(self) -> list[str]:
+        """The check table: one row per check and channel, PASS or FAIL (revolute joints in degrees)."""
+        head = f"{'check':<22} {'channel':<14} {'peak':>11} {'limit':>11} {'unit':<8} {'use':>7}  {'worst at':<36} result"
+        lines = [head, "-" * len(head)]
+        for r in self.rows:
+            k, unit = (180.0 / math.pi, "deg" + r.unit[3:]) if r.unit.startswith("rad") else (1.0, r.unit)
+            use = "" if r.percent is None else f"{r.percent:6.1f}%"
+            where = "" if r.index < 0 else f"t = {r.time:.3f} s"
+            if r.place is not None and all(math.isfinite(v) for v in r.place):
+                where += " at ({:.1f}, {:.1f}, {:.1f})".format(*r.place)
+            lines.append(
+                f"{r.check:<22} {r.channel:<14} {r.peak * k:>11.5g} {r.limit * k:>11.5g} {unit:<8} {use:>7}  {where:<36} "
+                f"{'PASS' if r.ok else 'FAIL'}"
+            )
+        return lines
 
     def text(self) -> str:
         lines = [
@@ -106,18 +149,10 @@ class VerifyReport:
             f"{self.duration:.3f} s at {self.rate:g} Hz",
             f"limits allowed {100 * MARGIN:g} % above their value (the planner keeps {100 * self.planner_margin:g} %); "
             "differences over windows "
-            f"that keep quantisation noise under {100 * NOISE_FRACTION:g} % of each limit (bound added to the threshold)",
-            f"{'channel':<10} {'unit':<5} {'range':>23}  {'peak vel':>10} {'% lim':>7} {'window':>7}  "
-            f"{'peak acc':>10} {'% lim':>7} {'window':>7}",
+            f"that keep quantisation noise under {100 * NOISE_FRACTION:g} % of each limit (bound added to the threshold); "
+            "'use' is the peak's share of its limit, 'worst at' the time and tool position (mm) of the peak",
+            *self.table(),
         ]
-        for c in self.channels:
-            pv = 100 * c.peak_velocity / c.velocity_limit if c.velocity_limit else float("nan")
-            pa = 100 * c.peak_acceleration / c.acceleration_limit if c.acceleration_limit else float("nan")
-            ms = 1000.0 / self.rate
-            lines.append(
-                f"{c.name:<10} {c.unit:<5} {c.low:>11.4f}..{c.high:<10.4f}  {c.peak_velocity:>10.4g} {pv:>6.1f}% "
-                f"{c.velocity_window * ms:>5.0f}ms  {c.peak_acceleration:>10.4g} {pa:>6.1f}% {c.acceleration_window * ms:>5.0f}ms"
-            )
         if self.max_deviation is not None:
             lines.append(
                 f"path deviation: max {self.max_deviation:.4f} mm over {self.deviation_samples} working samples "
@@ -155,45 +190,101 @@ class _Collector:
         self.t = t
         self.items: list[Violation] = []
         self.count = 0
+        self.by_key: dict = {}
+
+    def failed(self, kind, channel) -> bool:
+        return self.by_key.get((kind, channel), 0) > 0
 
     def add_mask(self, kind, channel, mask, value, limit, unit, index_offset=0):
         """mask/value over difference positions; index_offset maps them to a sample index."""
         limit_arr = np.broadcast_to(np.asarray(limit, dtype=float), mask.shape)
-        runs = _runs(mask, np.abs(value) - limit_arr)
+        runs = _runs(mask, np.nan_to_num(np.abs(value) - limit_arr, nan=np.inf))
         self.count += len(runs)
+        self.by_key[(kind, channel)] = self.by_key.get((kind, channel), 0) + len(runs)
         for a, b, worst in runs[: 4 * MAX_LISTED]:
             i = min(worst + index_offset, len(self.t) - 1)
             self.items.append(Violation(kind, channel, i, float(self.t[i]), float(value[worst]), float(limit_arr[worst]), unit, b - a))
 
     def add(self, v: Violation):
         self.count += 1
+        self.by_key[(v.kind, v.channel)] = self.by_key.get((v.kind, v.channel), 0) + 1
         self.items.append(v)
 
 
 # --------------------------------------------------------------------------- main entry
 
 
+MIN_RATE = 50.0  # Hz: below this the motion between samples is not constrained by anything checked here
+
+
+def _nan_argmax(x) -> int:
+    return int(np.nanargmax(x)) if len(x) and np.isfinite(x).any() else -1
+
+
 def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None = None, toolpath=None,
                    output: str = "<samples>") -> VerifyReport:
     """Check Samples against the printer (see the module docstring). ``fmt`` "csv" or "stream"
-    sets the quantisation assumed."""
+    sets the quantisation assumed. rate: the file's sample rate, Hz (finite, > 0).
+
+    Fails (violations, not exceptions) on: no samples, any non-finite value, a rate below
+    MIN_RATE, non-uniform time steps, and every limit. Raises StreamError on arguments that
+    cannot describe a file (rate not a positive number, wrong joint count)."""
+    from .machine import Printer
+    from .samples import Samples
+
+    if not isinstance(samples, Samples):
+        raise StreamError(f"{output}: samples: expected Samples, got {type(samples).__name__}")
+    if not isinstance(printer, Printer):
+        raise StreamError(f"{output}: printer: expected a loaded Printer, got {type(printer).__name__}")
+    try:
+        rate = float(rate)
+    except (TypeError, ValueError):
+        raise StreamError(f"{output}: rate {rate!r}: expected a number of samples per second") from None
+    if not math.isfinite(rate) or rate <= 0:
+        raise StreamError(f"{output}: rate_hz = {rate:g}: expected a finite rate > 0 Hz")
+    if fmt not in ("csv", "stream"):
+        raise StreamError(f"{output}: format {fmt!r}: expected 'csv' or 'stream'")
     meta = meta or {}
     n = len(samples)
     if samples.n_joints != printer.n_joints:
         raise StreamError(f"{output}: {samples.n_joints} joint columns, printer {printer.name} has {printer.n_joints} joints")
     t = samples.t
-    col = _Collector(t)
+    col = _Collector(t if n else np.zeros(1))
     notes = []
+    rows: list[CheckRow] = []
+
+    if n == 0:
+        col.add(Violation("samples", "file", 0, 0.0, 0.0, 1.0, "(the file holds no samples)"))
+        rows.append(CheckRow("samples", "file", "", 0.0, 1.0, None, 0.0, -1, None, False))
+    if rate < MIN_RATE:
+        col.add(Violation("rate", "t", 0, 0.0, rate, MIN_RATE, "Hz (too slow to check the motion between samples)"))
+    rows.append(CheckRow("rate", "t", "Hz", rate, MIN_RATE, None, 0.0, -1, None, not col.failed("rate", "t")))
+
+    # any non-finite value fails; the checks below see the finite values only
+    arrays = [("t", t)] + [(f"q{j + 1}", samples.q[:, j]) for j in range(samples.n_joints)] + [("e", samples.e),
+                                                                                            ("tool", samples.tool)]
+    bad_total, first_bad = 0, -1
+    for name, x in arrays:
+        bad = ~np.isfinite(x)
+        if bad.any():
+            col.add_mask("non_finite", name, bad, np.where(bad, np.inf, 0.0), np.zeros(n), "")
+            bad_total += int(bad.sum())
+            i = int(np.argmax(bad))
+            first_bad = i if first_bad < 0 else min(first_bad, i)
+    rows.append(CheckRow("non-finite values", "all", "", float(bad_total), 0.0, None,
+                         float(np.nan_to_num(t[first_bad])) if first_bad >= 0 else 0.0, first_bad, None, bad_total == 0))
 
     fp = meta.get("fingerprint")
     if fp is not None:
         try:
             fp_val = int(fp, 16)
-        except ValueError:
+        except (TypeError, ValueError):
             fp_val = None
         if fp_val != printer.fingerprint():
             col.add(Violation("fingerprint", "printer", 0, 0.0, float(fp_val or 0), float(printer.fingerprint()),
                               f"(file made for {meta.get('printer', '?')!r}, fingerprint {fp}, not 0x{printer.fingerprint():08x})"))
+        rows.append(CheckRow("printer fingerprint", str(meta.get("printer", "?")), "", float(fp_val or 0),
+                             float(printer.fingerprint()), None, 0.0, -1, None, not col.failed("fingerprint", "printer")))
     if abs(rate - printer.planning.output_rate) > 1e-9 * rate:
         notes.append(f"file rate {rate:g} Hz differs from the printer's output_rate {printer.planning.output_rate:g} Hz")
 
@@ -203,12 +294,18 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         dt = np.diff(t)
         tol = max(1e-3 * period, 2e-9)
         col.add_mask("time_step", "t", np.abs(dt - period) > tol, dt, period, "s", index_offset=1)
+        err = np.abs(dt - period)
+        k = _nan_argmax(err)
+        rows.append(CheckRow("time step error", "t", "s", float(err[k]) if k >= 0 else 0.0, tol, None,
+                             float(t[k + 1]) if k >= 0 else 0.0, k + 1 if k >= 0 else -1, None,
+                             not col.failed("time_step", "t")))
 
     lim = printer.limits
     quantised = fmt == "stream"
     stats = []
 
-    def channel(name, unit, x, lo, hi, vmax, amax, resolution, vkind="velocity", akind="acceleration", vlimit_arr=None):
+    def channel(name, unit, x, lo, hi, vmax, amax, resolution, vkind="velocity", akind="acceleration", vlimit_arr=None,
+                pkind="position", pchannel=None):
         wv, nv = velocity_window(vmax, resolution, rate, NOISE_FRACTION)
         wa, na = acceleration_window(amax, resolution, rate, NOISE_FRACTION)
         half = 0.5 * resolution if quantised else CSV_RESOLUTION
@@ -216,22 +313,43 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
             col.add_mask("position", name, x < lo - half, x, lo, unit)
             col.add_mask("position", name, x > hi + half, x, hi, unit)
         v, a = windowed_differences(x, t, wv, wa)
-        vlim = (vmax if vlimit_arr is None else vlimit_arr[: len(v)]) * (1 + MARGIN) + nv
+        vbase = np.full(len(v), float(vmax)) if vlimit_arr is None else vlimit_arr[: len(v)]
+        vlim = vbase * (1 + MARGIN) + nv
         if len(v):
             col.add_mask(vkind, name, np.abs(v) > vlim, v, vlim, f"{unit}/s", index_offset=wv // 2)
         alim = amax * (1 + MARGIN) + na
         if len(a):
             col.add_mask(akind, name, np.abs(a) > alim, a, alim, f"{unit}/s^2", index_offset=wa)
-        stats.append(ChannelStat(
-            name, unit, float(x.min()) if n else 0.0, float(x.max()) if n else 0.0,
-            float(np.abs(v).max()) if len(v) else 0.0, float(vmax), wv,
-            float(np.abs(a).max()) if len(a) else 0.0, float(amax), wa,
-        ))
+        iv = _nan_argmax(np.abs(v) / vbase) if len(v) else -1
+        ia = _nan_argmax(np.abs(a)) if len(a) else -1
+        finite = x[np.isfinite(x)]
+        stat = ChannelStat(
+            name, unit, float(finite.min()) if len(finite) else 0.0, float(finite.max()) if len(finite) else 0.0,
+            float(abs(v[iv])) if iv >= 0 else 0.0, float(vbase[iv]) if iv >= 0 else float(vmax), wv,
+            float(abs(a[ia])) if ia >= 0 else 0.0, float(amax), wa,
+            min(iv + wv // 2, n - 1) if iv >= 0 else -1, min(ia + wa, n - 1) if ia >= 0 else -1,
+            -math.inf if lo is None else float(lo), math.inf if hi is None else float(hi),
+        )
+        stats.append(stat)
+        if lo is not None and len(finite):
+            near_hi = (stat.high - hi) >= (lo - stat.low)
+            i = _nan_argmax(x if near_hi else -x)
+            rows.append(CheckRow("position", name, unit, stat.high if near_hi else stat.low, hi if near_hi else lo, None,
+                                 float(t[i]), i, None, not col.failed("position", name)))
+        pct = lambda peak, limit: 100.0 * peak / limit if limit > 0 else None  # noqa: E731
+        rows.append(CheckRow(vkind.replace("_", " "), name, f"{unit}/s", stat.peak_velocity, stat.velocity_limit,
+                             pct(stat.peak_velocity, stat.velocity_limit), float(t[stat.velocity_index]) if iv >= 0 else 0.0,
+                             stat.velocity_index, None, not col.failed(vkind, name)))
+        rows.append(CheckRow(akind.replace("_", " "), name, f"{unit}/s^2", stat.peak_acceleration, stat.acceleration_limit,
+                             pct(stat.peak_acceleration, stat.acceleration_limit),
+                             float(t[stat.acceleration_index]) if ia >= 0 else 0.0, stat.acceleration_index, None,
+                             not col.failed(akind, name)))
 
-    for j, joint in enumerate(lim.joints):
-        res = 1.0 / abs(joint.counts_per_unit) if quantised else CSV_RESOLUTION
-        channel(f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}", joint.unit, samples.q[:, j],
-                joint.position_min, joint.position_max, joint.velocity_max, joint.acceleration_max, res)
+    if n:
+        for j, joint in enumerate(lim.joints):
+            res = 1.0 / abs(joint.counts_per_unit) if quantised else CSV_RESOLUTION
+            channel(f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}", joint.unit, samples.q[:, j],
+                    joint.position_min, joint.position_max, joint.velocity_max, joint.acceleration_max, res)
 
     # The tool channel, from its limits: a laser has a power range (0..1) and no rate limit; an
     # extruder has no range, a melt-flow speed limit while extruding and its retract speed when idle.
@@ -239,11 +357,15 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
     ch = lim.channel(T)
     x = printer.tool.channel_values(samples.e, samples.tool)
     res = 1.0 / abs(ch.counts_per_unit) if quantised else CSV_RESOLUTION
-    if math.isfinite(ch.position_min) or math.isfinite(ch.position_max):
+    if n and (math.isfinite(ch.position_min) or math.isfinite(ch.position_max)):
         half = 0.5 * res if quantised else CSV_RESOLUTION
         bad = (x < ch.position_min - half) | (x > ch.position_max + half)
         col.add_mask(f"{ch.name}_power", "tool", bad, x, np.where(x < ch.position_min, ch.position_min, ch.position_max), "")
-    if math.isfinite(ch.velocity_max):
+        i = _nan_argmax(x)
+        rows.append(CheckRow(f"{ch.name} power", "tool", ch.unit, float(x[i]) if i >= 0 else 0.0, ch.position_max,
+                             100.0 * float(x[i]) / ch.position_max if i >= 0 and ch.position_max > 0 else None,
+                             float(t[i]) if i >= 0 else 0.0, i, None, not col.failed(f"{ch.name}_power", "tool")))
+    if n and math.isfinite(ch.velocity_max):
         working, idle = ch.velocity_max, float(lim.idle_velocity[T])
         vlimit_arr = None
         if quantised:
@@ -264,18 +386,37 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
                 f"{ch.name}_speed", f"{ch.name}_acceleration", vlimit_arr=vlimit_arr)
         tl = samples.tool
         col.add_mask("tool", "tool", (tl < 0) | (tl > 1), tl, np.where(tl < 0, 0.0, 1.0), "")
+        rows.append(CheckRow("tool state 0..1", "tool", "", float(np.nanmax(np.abs(tl))) if np.isfinite(tl).any() else 0.0,
+                             1.0, None, 0.0, -1, None, not col.failed("tool", "tool")))
 
     max_dev = tol_max = None
     n_dev = 0
-    if toolpath is not None:
-        max_dev, tol_max, n_dev = _check_deviation(samples, printer, toolpath, quantised, col)
+    if toolpath is not None and n:
+        max_dev, tol_max, n_dev, i_dev = _check_deviation(samples, printer, toolpath, quantised, col)
+        rows.append(CheckRow("path deviation", "tool tip", "mm", max_dev, tol_max,
+                             100.0 * max_dev / tol_max if tol_max else None, float(t[i_dev]) if i_dev >= 0 else 0.0,
+                             i_dev, None, not col.failed("deviation", "path")))
+    rows = _with_places(rows, samples, printer)
     col.items.sort(key=lambda v: (v.index, v.kind))
     return VerifyReport(
         output=str(output), printer=printer.name, format=fmt, n_samples=n, rate=rate,
         duration=float(t[-1] - t[0]) if n > 1 else 0.0, channels=tuple(stats), violations=tuple(col.items),
         violation_count=col.count, max_deviation=max_dev, deviation_tolerance=tol_max, deviation_samples=n_dev,
-        notes=tuple(notes), planner_margin=printer.planning.limit_margin,
+        notes=tuple(notes), planner_margin=printer.planning.limit_margin, rows=tuple(rows),
     )
+
+
+def _with_places(rows, samples, printer):
+    """Rows with the tool tip (forward kinematics) at their worst sample."""
+    import dataclasses
+
+    idx = [r.index for r in rows if 0 <= r.index < len(samples)]
+    if not idx:
+        return rows
+    q = samples.q[np.asarray(idx)]
+    pts = printer.kinematics().forward(np.where(np.isfinite(q), q, np.nan))
+    where = dict(zip(idx, map(tuple, pts.tolist())))
+    return [dataclasses.replace(r, place=where.get(r.index)) for r in rows]
 
 
 def _check_deviation(samples, printer, toolpath, quantised, col):
@@ -291,7 +432,7 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
     a, b = starts[seg_ok], ends[seg_ok]
     blend = printer.planning.blend_tolerance
     if len(idx) == 0 or len(a) == 0:
-        return 0.0, blend, 0
+        return 0.0, blend, 0, -1
     kin = printer.kinematics()
     q = samples.q[idx]
     p = kin.forward(q)
@@ -329,7 +470,8 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
     limit = np.zeros(len(samples))
     limit[idx] = tol
     col.add_mask("deviation", "path", mask, value, limit, "mm")
-    return float(dist.max()), float(tol.max()), int(len(idx))
+    worst = int(np.argmax(np.where(np.isfinite(dist), dist, np.inf)))
+    return float(dist[worst]), float(tol.max()), int(len(idx)), int(idx[worst])
 
 
 def _close_gaps(mask, k):

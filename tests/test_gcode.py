@@ -231,11 +231,12 @@ def test_parse_speed_40000_moves(tmp_path):
 
 def test_atomic_write_failure_leaves_nothing(tmp_path, monkeypatch):
     """A write that fails after the text is written (here: the disk refuses to sync) raises
-    GcodeError, leaves the previous file byte for byte and no temporary file behind."""
+    OutputError, leaves the previous file byte for byte and no temporary file behind."""
     import deltaslice.pipeline as pipeline
+    from deltaslice.errors import OutputError
 
     tp = Toolpath.empty()
-    with pytest.raises(GcodeError):
+    with pytest.raises(OutputError, match="does not exist"):
         write_gcode(tp, tmp_path / "no_dir" / "x.gcode")
     out = tmp_path / "x.gcode"
     out.write_text("old contents\n")
@@ -244,7 +245,7 @@ def test_atomic_write_failure_leaves_nothing(tmp_path, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(pipeline.os, "fsync", full_disk)
-    with pytest.raises(GcodeError, match="No space left"):
+    with pytest.raises(OutputError, match="No space left"):
         write_gcode(tp, out)
     assert out.read_text() == "old contents\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["x.gcode"]

@@ -165,7 +165,7 @@ def test_cli_exit_status(good, tmp_path):
     r = runner.invoke(main, ["verify", str(ok), "--printer", printer_file])
     assert r.exit_code == 0 and "OK" in r.output
     r = runner.invoke(main, ["verify", str(bad), "--printer", printer_file])
-    assert r.exit_code == 1 and "FAIL" in r.output and "acceleration q3" in r.output
+    assert r.exit_code == 3 and "FAIL" in r.output and "acceleration q3" in r.output
     r = runner.invoke(main, ["verify", str(tmp_path / "missing.csv"), "--printer", printer_file])
     assert r.exit_code == 1 and "error:" in r.output
 

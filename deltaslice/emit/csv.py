@@ -134,7 +134,7 @@ def read_csv(f, path: str = "<csv>") -> tuple[dict[str, str], Samples]:
     ncol = len(names)
     body = text[end + 1 :] if end >= 0 else ""
     try:
-        table = np.loadtxt(io.StringIO(body), delimiter=",", dtype=float, ndmin=2)
+        table = np.loadtxt(io.StringIO(body), delimiter=",", dtype=float, ndmin=2) if body.strip() else np.zeros((0, ncol))
     except ValueError as exc:
         raise StreamError(f"{path}: malformed setpoint row: {exc}") from None
     if table.size == 0:

@@ -117,7 +117,16 @@ class StreamHeader:
 
 
 def parse_header(data: bytes, where: str = "stream") -> StreamHeader:
-    """Parse and check a complete header (``data`` holds at least header_len bytes)."""
+    """Parse and check a complete header (``data`` holds at least header_len bytes).
+    Raises StreamError on any inconsistency, including a length field shorter than the
+    fields it must hold."""
+    try:
+        return _parse_header(data, where)
+    except (struct.error, IndexError, ValueError) as exc:
+        raise StreamError(f"{where}: header fields run past the header length: {exc}") from None
+
+
+def _parse_header(data: bytes, where: str) -> StreamHeader:
     if len(data) < _FIXED.size:
         raise StreamError(f"{where}: truncated header: {len(data)} bytes, expected at least {_FIXED.size}")
     magic, version, hlen, fp, rate_mhz, nch, flags, max_record = _FIXED.unpack_from(data)
@@ -127,6 +136,9 @@ def parse_header(data: bytes, where: str = "stream") -> StreamHeader:
         raise StreamError(f"{where}: stream format version {version} is not supported (this reader knows {VERSION})")
     if len(data) < hlen:
         raise StreamError(f"{where}: truncated header: {len(data)} bytes, header length is {hlen}")
+    need = _FIXED.size + nch * _CHANNEL.size + 1 + 2 + 4
+    if hlen < need:
+        raise StreamError(f"{where}: header length {hlen} is smaller than its {nch} channels and fields ({need} bytes at least)")
     stored = struct.unpack_from("<I", data, hlen - 4)[0]
     if zlib.crc32(data[: hlen - 4]) != stored:
         raise StreamError(f"{where}: header CRC mismatch (bytes 0..{hlen - 1}): the header is corrupt")
@@ -143,7 +155,11 @@ def parse_header(data: bytes, where: str = "stream") -> StreamHeader:
     nlen = data[pos]
     name = data[pos + 1 : pos + 1 + nlen].decode("utf-8", "replace")
     pos += 1 + nlen
+    if pos + 2 > hlen - 4:
+        raise StreamError(f"{where}: header length {hlen}: the printer name runs past it")
     (mlen,) = struct.unpack_from("<H", data, pos)
+    if pos + 2 + mlen > hlen - 4:
+        raise StreamError(f"{where}: header length {hlen}: the metadata ({mlen} bytes) runs past it")
     meta_text = data[pos + 2 : pos + 2 + mlen].decode("utf-8", "replace")
     meta = dict(line.split("=", 1) for line in meta_text.splitlines() if "=" in line)
     return StreamHeader(fp, rate_mhz, tuple(chans), name, meta, max_record, flags)

@@ -11,13 +11,14 @@ key, the value and the bound it broke.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from pathlib import Path
 
 import numpy as np
 
-from ..config import Section
+from ..config import MISSING, Problems, Section, _Stop
 from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
 from .limits import Limits
@@ -31,6 +32,7 @@ ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
 def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     """Joint channels of the ``[joints]`` table as per-channel lists (radians inside)."""
     n = len(kinds)
+    sec._record("names", "list", False, [f"q{i + 1}" for i in range(n)])
     names = sec.get("names", [f"q{i + 1}" for i in range(n)])
     if not isinstance(names, list) or len(names) != n or not all(isinstance(s, str) for s in names):
         sec.fail("names", names, f"a list of {n} strings")
@@ -38,10 +40,14 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     hi = sec.getfloats("position_max", n)
     vel = sec.getfloats("velocity_max", n, above=0)
     acc = sec.getfloats("acceleration_max", n, above=0)
-    jerk = sec.getfloats("jerk_max", n, default=[0.0] * n, minval=0) if "jerk_max" in sec.data else (None,) * n
+    jerk = sec.getfloats("jerk_max", n, default=[0.0] * n, minval=0)
+    if "jerk_max" not in sec.data:
+        jerk = (None,) * n
     cpu = sec.getfloats("counts_per_unit", n, above=0)
     zero = sec.getfloats("zero_count", n, default=[0.0] * n)
-    rest = sec.getfloats("rest", n, default=[math.nan] * n) if "rest" in sec.data else (math.nan,) * n
+    rest = sec.getfloats("rest", n, default=[0.0] * n)
+    if "rest" not in sec.data:  # the default pose is found from the kinematics (_rest_pose)
+        rest = (math.nan,) * n
     for i in range(n):
         if not lo[i] < hi[i]:
             sec.fail(
@@ -133,7 +139,7 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
 
 def _read_planning(sec: Section) -> PlanningSettings:
     return PlanningSettings(
-        output_rate=sec.getfloat("output_rate", 1000.0, above=0, maxval=100000),
+        output_rate=sec.getfloat("output_rate", 1000.0, minval=50, maxval=100000),
         blend_tolerance=sec.getfloat("blend_tolerance", 0.02, above=0, maxval=5),
         limit_margin=sec.getfloat("limit_margin", 0.01, minval=0, maxval=0.5),
         travel_lift=sec.getfloat("travel_lift", 1.0, minval=0),
@@ -158,68 +164,128 @@ def _read_bed(sec: Section) -> Bed:
 SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "sources")
 
 
-def load_printer(path: str | Path) -> Printer:
+def resolve_printer(path) -> Path:
+    """The file a ``--printer`` value names: an existing path, else a shipped printer's name
+    (``delta_etitc``, see ``deltaslice printers``). Raises PrinterFileError for neither."""
+    from ..printers import shipped_names, shipped_path
+
+    if path is None or not isinstance(path, (str, Path)) or not str(path):
+        raise PrinterFileError(f"printer: expected a printer file path or a shipped printer's name, got {path!r}")
+    p = Path(path)
+    if p.exists() or p.suffix or len(p.parts) > 1:
+        return p
+    shipped = shipped_path(str(path))
+    if shipped is None:
+        close = difflib.get_close_matches(str(path), shipped_names(), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise PrinterFileError(
+            f"{path}: no such printer file or shipped printer{hint}: shipped are {', '.join(shipped_names())}"
+        )
+    return shipped
+
+
+def apply_overrides(data: dict, overrides, path: str) -> dict:
+    """A copy of a parsed printer file with ``{"section.key": value}`` set (``--set``); the
+    result is validated like the file itself. Raises PrinterFileError on a malformed key."""
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    for dotted, value in dict(overrides or {}).items():
+        section, _, key = str(dotted).partition(".")
+        if not section or not key or "." in key:
+            raise PrinterFileError(f"{path}: override {dotted!r}: expected section.key=value (e.g. slicing.layer_height=0.3)")
+        if section not in SECTIONS:
+            close = difflib.get_close_matches(section, SECTIONS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise PrinterFileError(f"{path}: override {dotted!r}: no section [{section}]{hint}: expected one of {', '.join(SECTIONS)}")
+        table = out.setdefault(section, {})
+        if not isinstance(table, dict):
+            raise PrinterFileError(f"{path}: [{section}] expected a table")
+        table[key] = value
+    return out
+
+
+def load_printer(path: str | Path, overrides: dict | None = None) -> Printer:
     """Read and validate a printer file.
 
-    path: a ``.toml`` printer file. Returns a frozen :class:`Printer`.
-    Raises :class:`PrinterFileError` naming the file, key, value and bound on any problem.
+    path: a ``.toml`` printer file or the name of a shipped printer. overrides:
+    ``{"section.key": value}`` applied before validation. Returns a frozen :class:`Printer`.
+    Raises :class:`PrinterFileError` naming the file, key, value and bound of every problem.
     """
-    path = Path(path)
+    path = resolve_printer(path)
     shown = str(path)
     try:
         text = path.read_bytes().decode("utf-8")
     except FileNotFoundError:
-        raise PrinterFileError(f"{shown}: no such printer file (the ones shipped are in printers/)") from None
+        raise PrinterFileError(f"{shown}: no such printer file (the shipped ones: deltaslice printers)") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise PrinterFileError(f"{shown}: cannot read printer file: {exc}") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise PrinterFileError(f"{shown}: not valid TOML: {exc}") from None
+    if overrides:
+        data = apply_overrides(data, overrides, shown)
     return printer_from_dict(data, shown)
 
 
 def printer_from_dict(data: dict, path: str = "<printer>") -> Printer:
-    """Validate an already-parsed printer description (same rules as :func:`load_printer`)."""
-    top = Section(path, "top level", data)
-    name = top.getstr("name")
+    """Validate an already-parsed printer description (same rules as :func:`load_printer`).
+
+    Every section is read even after a problem, and one PrinterFileError lists them all."""
+    if not isinstance(data, dict):
+        raise PrinterFileError(f"{path}: expected a table of sections, got {type(data).__name__}")
+    problems = Problems(str(path))
+
+    def section(name, default=MISSING):
+        raw = data.get(name, {} if default is not MISSING else None)
+        if raw is None:
+            problems.add("top level", name, f"[{name}] missing: expected a table (required section)", missing=True)
+            return None
+        try:
+            return Section(path, name, raw, problems)
+        except _Stop:
+            return None
+
+    def read(sec, fn, *args):
+        """fn(sec, *args) with sec's problems collected; None if the section could not be read."""
+        if sec is None:
+            return None
+        try:
+            value = fn(sec, *args)
+        except _Stop:
+            value = None
+        sec.check_unknown()
+        return value
+
+    top = Section(path, "top level", data, problems)
+    name = top._soft(lambda: top.getstr("name"), "")
     description = top.getstr("description", "", required=False) or ""
-    for key in SECTIONS:
-        top.used.add(key)
-        if key not in data and key not in ("planning", "sources"):
-            raise PrinterFileError(f"{path}: [{key}] missing: expected a table (required section)")
+    top.used.update(SECTIONS)
     top.check_unknown()
 
-    ksec = Section(path, "kinematics", data["kinematics"])
-    family_name = ksec.getstr("family", choices=FAMILIES)
-    module = family(family_name)
-    geometry = module.read_geometry(ksec)
-    ksec.check_unknown()
+    ksec, jsec, tsec = section("kinematics"), section("joints"), section("tool")
+    bsec, ssec, psec = section("bed"), section("slicing"), section("planning", default={})
 
-    jsec = Section(path, "joints", data["joints"])
-    actuator = jsec.getstr("actuator", choices=ACTUATOR_KINDS)
-    joints = _read_joints(jsec, module.KINEMATICS.joint_kinds)
-    jsec.check_unknown()
-
-    tsec = Section(path, "tool", data["tool"])
-    tool = _read_tool(tsec)
-    tsec.check_unknown()
-
-    bsec = Section(path, "bed", data["bed"])
-    bed = _read_bed(bsec)
-    bsec.check_unknown()
-
-    ssec = Section(path, "slicing", data["slicing"])
-    slicing = _read_slicing(ssec, tool)
-    ssec.check_unknown()
-
-    psec = Section(path, "planning", data.get("planning", {}))
-    planning = _read_planning(psec)
-    psec.check_unknown()
+    family_name = module = None
+    if ksec is not None:
+        family_name = ksec._soft(lambda: ksec.getstr("family", choices=FAMILIES), None)
+        if family_name is not None and not any(k == "family" for _s, k, _m, _x in problems.items):
+            module = family(family_name)
+    geometry = read(ksec, module.read_geometry) if module is not None else None
+    if module is None and ksec is not None:
+        ksec.used.update(ksec.data)  # the family decides which keys are valid
+    actuator = jsec._soft(lambda: jsec.getstr("actuator", choices=ACTUATOR_KINDS), None) if jsec is not None else None
+    joints = read(jsec, _read_joints, module.KINEMATICS.joint_kinds) if module is not None else None
+    if module is None and jsec is not None:
+        jsec.used.update(jsec.data)
+    tool = read(tsec, _read_tool)
+    bed = read(bsec, _read_bed)
+    slicing = read(ssec, _read_slicing, tool) if tool is not None else read(ssec, _read_slicing, Laser(1.0, 1.0, 0.0))
+    planning = read(psec, _read_planning)
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
-        raise PrinterFileError(f"{path}: [sources] expected a table of key = \"where the number comes from\"")
+        problems.add("sources", None, '[sources] expected a table of key = "where the number comes from"')
+    problems.raise_if_any()
 
     limits = _limits(joints, tool)
     J = limits.n_joints

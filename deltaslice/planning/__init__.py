@@ -112,10 +112,25 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     planner: "toppra" (time-optimal, joint space) or "trapezoid" (conventional, made safe).
     workers: processes for the runs (default: all cores). progress: callable(done, total) or None.
     """
+    from ..machine import Printer
+
+    if not isinstance(toolpath, Toolpath):
+        raise DeltasliceError(f"plan: toolpath: expected a Toolpath, got {type(toolpath).__name__}")
+    if not isinstance(printer, Printer):
+        raise DeltasliceError(
+            f"plan: printer: expected a loaded Printer (deltaslice.load_printer(path)), got {type(printer).__name__} {printer!r:.60}")
     if speed_limit not in ("feed", "machine"):
         raise DeltasliceError(f"speed_limit must be 'feed' or 'machine', not {speed_limit!r}")
+    if planner not in ("toppra", "trapezoid"):
+        raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise DeltasliceError(f"plan: workers = {workers!r}: expected an integer >= 1 or None")
+    if progress is not None and not callable(progress):
+        raise DeltasliceError(f"plan: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
     if len(toolpath) == 0:
         raise DeltasliceError("the toolpath has no moves: nothing to plan")
+    if not ((toolpath.lengths > 1e-9) | (toolpath.e != 0)).any():
+        raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     check_reachable(toolpath, printer)
     if planner not in ("toppra", "trapezoid"):
         raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")

@@ -1,0 +1,54 @@
+"""Ctrl-C handling that survives libraries which swallow ``KeyboardInterrupt``.
+
+Light on purpose (standard library only): the CLI installs the handler before any heavy
+import. The handler records the request and raises ``KeyboardInterrupt``; if an import or a
+library swallows the exception (trimesh's optional imports catch ``BaseException``), the
+recorded request still stops the work at the next :func:`check` (the pipeline checks
+between stages and before replacing an output), so a previous output is never overwritten
+after Ctrl-C. A second Ctrl-C exits at once with status 130.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+
+EXIT_INTERRUPTED = 130
+MESSAGE = "interrupted: no output written (any previous output is unchanged)"
+
+_state = {"requested": False, "installed": False}
+
+
+def _handler(signum, frame):
+    if _state["requested"]:
+        sys.stderr.write(MESSAGE + "\n")
+        sys.stderr.flush()
+        os._exit(EXIT_INTERRUPTED)
+    _state["requested"] = True
+    raise KeyboardInterrupt
+
+
+def install() -> None:
+    """Route SIGINT through the recording handler (main thread only; a no-op elsewhere)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    signal.signal(signal.SIGINT, _handler)
+    _state["installed"] = True
+
+
+def requested() -> bool:
+    """True once Ctrl-C was pressed, even if the KeyboardInterrupt was swallowed."""
+    return _state["requested"]
+
+
+def check() -> None:
+    """Raise KeyboardInterrupt if Ctrl-C was pressed since :func:`reset`."""
+    if _state["requested"]:
+        raise KeyboardInterrupt
+
+
+def reset() -> None:
+    """Forget a recorded Ctrl-C (each CLI run starts clean)."""
+    _state["requested"] = False

@@ -1,0 +1,177 @@
+"""The command line a newcomer meets (issue 15): shipped printers by name (also from a built
+wheel), the default PART.dsl beside the part, --json, --set, preview pictures, progress that
+behaves in a pipe, click's "No such command", documented exit codes."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+
+import pytest
+from click.testing import CliRunner
+
+from deltaslice.cli import main
+from deltaslice.printers import shipped_names, shipped_path
+from deltaslice.progress import stderr_progress
+
+from conftest import PRINTER_NAMES, ROOT
+
+CUBE = ROOT / "examples" / "parts" / "calibration_cube.stl"
+SQUARE = (
+    "G21\nG90\nM82\nG92 E0\n;LAYER:0\nG1 Z0.4 F600\nG1 X-5 Y-5 F3000\n"
+    "G1 X5 Y-5 E0.5 F1200\nG1 X5 Y5 E1.0\nG1 X-5 Y5 E1.5\nG1 X-5 Y-5 E2.0\n"
+)
+
+
+def _run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_printers_lists_the_shipped_printers_and_they_are_package_data():
+    assert shipped_names() == PRINTER_NAMES and len(PRINTER_NAMES) == 6
+    assert all(shipped_path(n).is_file() for n in PRINTER_NAMES)
+    r = _run("printers")
+    assert r.exit_code == 0 and all(n in r.output for n in PRINTER_NAMES)
+    rows = json.loads(_run("printers", "--json").output)
+    assert {row["name"] for row in rows} == set(PRINTER_NAMES) and all(row["family"] for row in rows)
+
+
+def test_a_printer_by_name_and_a_misspelt_name(tmp_path):
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "-o", tmp_path / "c.gcode", "--quiet")
+    assert r.exit_code == 0, r.output
+    r = _run("slice", CUBE, "--printer", "delta_etitcc", "-o", tmp_path / "c.gcode", "--quiet")
+    assert r.exit_code == 1 and "did you mean 'delta_etitc'" in r.stderr
+
+
+def test_the_wheel_carries_the_printers_and_names_work_installed(tmp_path):
+    """Build the wheel, install it (no dependencies) into a folder, and run from there."""
+    pytest.importorskip("wheel")
+    pytest.importorskip("setuptools")
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", ".git", "build", "*.egg-info", "__pycache__",
+                                                            ".hypothesis", ".pytest_cache", "tests", "examples"),
+                    symlinks=True)
+    wheels = tmp_path / "wheels"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "--no-build-isolation", "-q", "-w",
+                    str(wheels)], check=True, capture_output=True)
+    whl = next(wheels.glob("deltaslice-*.whl"))
+    names = zipfile.ZipFile(whl).namelist()
+    assert {f"deltaslice/printers/{n}.toml" for n in PRINTER_NAMES} <= set(names)
+    site = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(site), str(whl)],
+                   check=True, capture_output=True)
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    shutil.copy(CUBE, work / "cube.stl")
+    (work / "sq.gcode").write_text(SQUARE)
+    where = subprocess.run([sys.executable, "-c", "import deltaslice; print(deltaslice.__file__)"], env=env, cwd=work,
+                           capture_output=True, text=True)
+    assert where.stdout.startswith(str(site)), where.stdout
+    r = subprocess.run([sys.executable, "-m", "deltaslice", "printers"], env=env, cwd=work, capture_output=True, text=True)
+    assert r.returncode == 0 and "delta_etitc" in r.stdout, r.stderr
+    r = subprocess.run([sys.executable, "-m", "deltaslice", "sq.gcode", "--printer", "delta_etitc", "--quiet", "--json",
+                        "--workers", "1"], env=env, cwd=work, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["fmt"] == "stream" and (work / "sq.dsl").stat().st_size > 0
+
+
+def test_default_output_is_part_dsl_beside_the_part(tmp_path, monkeypatch):
+    parts = tmp_path / "parts"
+    parts.mkdir()
+    (parts / "sq.gcode").write_text(SQUARE)
+    elsewhere = tmp_path / "cwd"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    r = _run(parts / "sq.gcode", "--printer", "delta_etitc", "--quiet", "--workers", "1")
+    assert r.exit_code == 0, r.output
+    assert (parts / "sq.dsl").read_bytes()[:4] == b"\x89DSL"
+    assert list(elsewhere.iterdir()) == []
+
+
+def test_json_on_compile_verify_and_workspace(tmp_path):
+    part = tmp_path / "sq.gcode"
+    part.write_text(SQUARE)
+    r = _run(part, "--printer", "delta_etitc", "-o", tmp_path / "sq.dsl", "--quiet", "--json", "--workers", "1")
+    data = json.loads(r.output)
+    assert r.exit_code == 0 and data["printer"] == "delta_etitc" and data["size_bytes"] > 0 and data["duration_s"] > 0
+    r = _run("verify", tmp_path / "sq.dsl", "--printer", "delta_etitc", "--json")
+    data = json.loads(r.output)
+    assert r.exit_code == 0 and data["ok"] is True and data["n_samples"] > 0
+    assert {row["check"] for row in data["rows"]} >= {"velocity", "acceleration", "non-finite values"}
+    r = _run("workspace", "--printer", "delta_etitc", "--plot", tmp_path / "ws.png", "--json")
+    data = json.loads(r.output)
+    assert r.exit_code == 0 and 6.0 < data["reachable_litres"] < 8.0 and data["plot"].endswith("ws.png")
+
+
+def test_set_overrides_are_validated_like_the_file(tmp_path):
+    out = tmp_path / "c.gcode"
+    import re
+
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "-o", out, "--quiet")
+    default_layers = int(re.search(r"(\d+) layers", r.output).group(1))
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicing.layer_height=0.3", "-o", out, "--quiet")
+    assert r.exit_code == 0, r.output
+    assert int(re.search(r"(\d+) layers", r.output).group(1)) > default_layers * 1.25
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicing.layer_height=-1", "-o", out, "--quiet")
+    assert r.exit_code == 1 and "[slicing] layer_height = -1" in r.stderr
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicing.layer_hieght=0.3", "-o", out, "--quiet")
+    assert r.exit_code == 1 and "did you mean 'layer_height'" in r.stderr
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicin.layer_height=0.3", "-o", out, "--quiet")
+    assert r.exit_code == 1 and "did you mean 'slicing'" in r.stderr
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "layer_height", "-o", out, "--quiet")
+    assert r.exit_code == 2
+
+
+def test_preview_draws_a_layer_and_a_trajectory(tmp_path):
+    png = tmp_path / "layer.png"
+    r = _run("preview", CUBE, "--printer", "delta_etitc", "-o", png)
+    assert r.exit_code == 0, r.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    part = tmp_path / "sq.gcode"
+    part.write_text(SQUARE)
+    assert _run(part, "--printer", "delta_etitc", "-o", tmp_path / "sq.dsl", "--quiet", "--workers", "1").exit_code == 0
+    png2 = tmp_path / "joints.png"
+    r = _run("preview", tmp_path / "sq.dsl", "--printer", "delta_etitc", "-o", png2)
+    assert r.exit_code == 0 and png2.stat().st_size > 20_000, r.output
+    r = _run("preview", CUBE, "--printer", "delta_etitc", "-o", tmp_path / "x.jpg")
+    assert r.exit_code == 1 and ".png" in r.stderr
+
+
+def test_progress_in_a_pipe_is_plain_lines_with_an_eta():
+    out = io.StringIO()
+    bar = stderr_progress(True, "planning runs", stream=out)
+    for i in range(1, 501):
+        bar(i, 500)
+    text = out.getvalue()
+    assert "\r" not in text
+    lines = text.splitlines()
+    assert 2 <= len(lines) <= 11 and lines[-1].startswith("planning runs: 500/500 (100%)")
+    assert any("ETA" in line for line in lines[:-1])
+    assert stderr_progress(False, "x") is None
+
+
+def test_a_mistyped_command_is_no_such_command():
+    r = _run("slic", "part.stl")
+    assert r.exit_code == 2 and "No such command 'slic'" in r.output and "--printer" not in r.output
+    r = _run("cube.stl", "--printer", "no_such_printer")  # a path goes to compile
+    assert r.exit_code == 1 and "no such printer" in r.stderr
+
+
+def test_exit_codes_are_documented():
+    r = _run("--help")
+    assert r.exit_code == 0
+    for code in ("0 done", "1 error", "2 usage", "3 verify", "130 interrupted"):
+        assert code in r.output, r.output
+
+
+def test_workspace_plot_path_is_checked_before_the_work(tmp_path):
+    r = _run("workspace", "--printer", "delta_etitc", "--plot", tmp_path / "missing" / "ws.png")
+    assert r.exit_code == 1 and "does not exist" in r.stderr and r.stderr.count("\n") == 1
+    r = _run("workspace", "--printer", "delta_etitc", "--plot", tmp_path / "ws.pdf")
+    assert r.exit_code == 1 and ".png" in r.stderr
