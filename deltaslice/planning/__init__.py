@@ -47,8 +47,15 @@ def check_reachable(toolpath: Toolpath, printer) -> None:
                 why = f"too close to a singularity (Jacobian condition {kin.condition(q[None])[0]:.0f})"
             else:
                 why = "beyond a mechanical limit (ball-joint tilt)"
+        from ..toolpath import fits_centred
+
+        hint = (
+            "; the part would fit centred on the bed: use --center (center=True)"
+            if fits_centred(toolpath, printer)
+            else "; it would not fit centred on the bed either"
+        )
         raise UnreachableError(
-            f"layer {layer}: x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm is out of reach of {printer.name} ({why})"
+            f"layer {layer}: x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm is out of reach of {printer.name} ({why}){hint}"
         )
 
 
