@@ -102,7 +102,16 @@ def write_gcode(toolpath: Toolpath, path, printer=None) -> None:
         last_type = None
         roles = tp.role
         lines = out
+        ev_at = _event_lines(tp)
+        laser_s = None
+        if (tp.events["kind"] == EventKind.LASER_MODE).any():
+            # GRBL power words on working moves, so M3/M4 jobs read back with their power
+            s_max = getattr(getattr(printer, "tool", None), "s_max", 1000.0)
+            max_power = getattr(getattr(printer, "tool", None), "max_power", 1.0)
+            laser_s = np.char.mod("%.4f", tp.tool / max_power * s_max)
         for i in range(n):
+            if i in ev_at:
+                lines.extend(ev_at[i])
             if i in pending:
                 for li in pending[i]:
                     lines.append(f";LAYER:{li}")
@@ -121,6 +130,8 @@ def write_gcode(toolpath: Toolpath, path, printer=None) -> None:
                 words.append("Z" + xyz_s[i, 2])
             if has_e[i]:
                 words.append("E" + e_s[i])
+            if laser_s is not None and work[i]:
+                words.append("S" + laser_s[i])
             if f_s[i] != last_f:
                 words.append("F" + f_s[i])
                 last_f = f_s[i]
@@ -131,9 +142,12 @@ def write_gcode(toolpath: Toolpath, path, printer=None) -> None:
         for li in tail:
             lines.append(f";LAYER:{li}")
             lines.append(f";Z:{tp.layer_z[li]:.6f}")
+        lines.extend(ev_at.get(n, []))
     else:
         for li in range(tp.n_layers):
             out += [f";LAYER:{li}", f";Z:{tp.layer_z[li]:.6f}"]
+        for group in _event_lines(tp).values():
+            out += group
     out.append("; end")
     text = "\n".join(out) + "\n"
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -147,6 +161,26 @@ def write_gcode(toolpath: Toolpath, path, printer=None) -> None:
         except OSError:
             pass
         raise GcodeError(f"{path}: cannot write G-code: {exc}") from None
+
+
+_EVENT_CODES = {
+    EventKind.HOTEND_SET: "M104", EventKind.HOTEND_WAIT: "M109", EventKind.BED_SET: "M140", EventKind.BED_WAIT: "M190",
+}
+
+
+def _event_lines(tp: Toolpath) -> dict[int, list[str]]:
+    """G-code lines of the toolpath's events, grouped by the move they precede."""
+    out: dict[int, list[str]] = {}
+    for i, kind, value in tp.events.tolist():
+        kind = EventKind(kind)
+        if kind in _EVENT_CODES:
+            line = f"{_EVENT_CODES[kind]} S{value:g}"
+        elif kind == EventKind.FAN:
+            line = "M107" if value == 0 else f"M106 S{value:g}"
+        else:
+            line = {0: "M5", 3: "M3", 4: "M4"}.get(int(value), "M5")
+        out.setdefault(int(i), []).append(line)
+    return out
 
 
 # --------------------------------------------------------------------------- reading

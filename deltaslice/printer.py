@@ -145,6 +145,9 @@ class Extruder:
     z_hop: float
     retract_min_travel: float
     counts_per_mm: float
+    #: Temperatures deltaslice's slicer sets and waits for at the start, degrees C (bed 0: unheated).
+    hotend_temperature: float = 200.0
+    bed_temperature: float = 0.0
 
     @property
     def filament_area(self) -> float:
@@ -163,6 +166,8 @@ class Laser:
     max_power: float
     power_counts: float
     travel_height: float
+    #: G-code S value of full power (GRBL's $30, default 1000).
+    s_max: float = 1000.0
 
 
 Tool = Extruder | Laser
@@ -461,6 +466,7 @@ def _read_tool(sec: _Section) -> Tool:
             max_power=sec.getfloat("max_power", above=0),
             power_counts=sec.getfloat("power_counts", above=0),
             travel_height=sec.getfloat("travel_height", 0.0, minval=0),
+            s_max=sec.getfloat("s_max", 1000.0, above=0),
         )
     nozzle = sec.getfloat("nozzle_diameter", above=0, maxval=5)
     return Extruder(
@@ -473,6 +479,8 @@ def _read_tool(sec: _Section) -> Tool:
         z_hop=sec.getfloat("z_hop", 0.0, minval=0),
         retract_min_travel=sec.getfloat("retract_min_travel", 2.0, minval=0),
         counts_per_mm=sec.getfloat("counts_per_mm", above=0),
+        hotend_temperature=sec.getfloat("hotend_temperature", 200.0, minval=0, maxval=500),
+        bed_temperature=sec.getfloat("bed_temperature", 0.0, minval=0, maxval=200),
     )
 
 
