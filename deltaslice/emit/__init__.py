@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from ..errors import DeltasliceError, StreamError
@@ -39,18 +40,20 @@ def format_for(path) -> str:
         ) from None
 
 
-def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
+def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None, events=()) -> int:
     """Write consecutive Samples blocks to ``output`` as ``fmt`` ("csv" or "stream").
 
+    events: ``(sample_index, kind, value)`` in order (kind a :class:`~deltaslice.toolpath.EventKind`;
+    value in degrees C, fan 0..255 or laser mode): each takes effect before sample ``sample_index``.
     The file appears only when complete (temp file + rename). Returns bytes written."""
     if fmt == "csv":
         from .csv import write_csv
 
-        return write_csv(blocks, printer, output, rate=rate, metadata=metadata)
+        return write_csv(blocks, printer, output, rate=rate, metadata=metadata, events=events)
     if fmt == "stream":
         from .stream import write_stream
 
-        return write_stream(blocks, printer, output, rate=rate, metadata=metadata)
+        return write_stream(blocks, printer, output, rate=rate, metadata=metadata, events=events)
     raise DeltasliceError(f"cannot write samples as {fmt!r}: expected 'csv' or 'stream'")
 
 
@@ -66,11 +69,23 @@ def write_trajectory(trajectory, printer, output, fmt: str | None = None, watch=
     blocks = trajectory.iter_samples(rate)
     if watch is not None:
         blocks = watch(blocks)
-    return write_samples(blocks, printer, output, fmt=fmt, rate=rate, metadata=metadata)
+    return write_samples(blocks, printer, output, fmt=fmt, rate=rate, metadata=metadata,
+                         events=event_samples(getattr(trajectory, "events", ()), trajectory.duration, rate))
+
+
+def event_samples(events, duration: float, rate: float) -> list[tuple[int, int, float]]:
+    """Trajectory events ``(time_s, kind, value)`` -> ``(sample_index, kind, value)``: the first
+    sample at or after the event's time (``iter_samples`` gives ``ceil(duration * rate) + 1`` samples)."""
+    n_total = int(math.ceil(duration * rate - 1e-9)) + 1
+    return [(min(max(int(math.ceil(t * rate - 1e-6)), 0), n_total), int(k), float(v)) for t, k, v in events]
 
 
 def read_output(path):
-    """(metadata dict, Samples) of a setpoints CSV or a binary stream (sniffed by content)."""
+    """(metadata dict, Samples) of a setpoints CSV or a binary stream (sniffed by content).
+
+    The metadata's ``"events"`` entry (absent when there are none) is a tuple of
+    ``(sample_index, kind, value)``: heater, fan and laser events, value in degrees C,
+    fan 0..255 or laser mode 0/3/4."""
     try:
         with open(path, "rb") as f:
             head = f.read(len(STREAM_MAGIC))

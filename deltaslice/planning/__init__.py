@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
-from ..toolpath import Toolpath
+from ..toolpath import WAIT_KINDS, Toolpath
 from .topp import RunSpec, plan_run
 from .trajectory import Trajectory
 from .travel import plan_travel
@@ -60,11 +60,13 @@ def check_reachable(toolpath: Toolpath, printer) -> None:
 
 
 def split_runs(toolpath: Toolpath):
-    """[(i, j)] half-open ranges of working moves with one tool value each."""
+    """[(i, j)] half-open ranges of working moves with one tool value each; a run also ends
+    at a wait event (M109/M190), where the machine must stand still while the heater comes up."""
     out = []
+    waits = toolpath.events["index"][np.isin(toolpath.events["kind"], [int(k) for k in WAIT_KINDS])]
     for i, j in toolpath.runs():
         tool = toolpath.tool[i:j]
-        cuts = np.flatnonzero(np.diff(tool) != 0) + 1
+        cuts = np.union1d(np.flatnonzero(np.diff(tool) != 0) + 1, waits[(waits > i) & (waits < j)] - i).astype(int)
         edges = np.concatenate([[0], cuts, [j - i]]) + i
         out.extend(zip(edges[:-1].tolist(), edges[1:].tolist()))
     return out
@@ -104,9 +106,13 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError("the toolpath has no moves: nothing to plan")
     check_reachable(toolpath, printer)
     if planner == "trapezoid":
-        from .trapezoid import plan_safe
+        from .trapezoid import _moves, plan_safe
 
-        return plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress)
+        traj = plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress)
+        # one trapezoid per kept move: move m starts at t0[number of kept moves before m]
+        kept_before = np.concatenate([[0], np.cumsum(_moves(toolpath, printer)[-1])])
+        traj.events = _event_times(toolpath, traj.pieces[0].t0[kept_before[toolpath.events["index"]]])
+        return traj
     if planner != "toppra":
         raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
 
@@ -136,15 +142,34 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     printed_top = 0.0
     prev_end = 0
     e_start = 0.0
+    first_piece = []  # (first move, index of its first piece) per move range, for the events' times
     for (i, j), run in zip(ranges, run_pieces):
+        first_piece.append((prev_end, len(pieces)))
         pieces.extend(_travel(kin, printer, toolpath, prev_end, i, pos, printed_top, speed_limit))
+        first_piece.append((i, len(pieces)))
         pieces.extend(run)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
+    first_piece.append((prev_end, len(pieces)))
     if prev_end < len(toolpath):
         pieces.extend(_travel(kin, printer, toolpath, prev_end, len(toolpath), pos, printed_top, speed_limit))
-    return Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit, e_start=e_start)
+    if not pieces:
+        raise DeltasliceError("the toolpath never moves the tool or the filament: nothing to plan")
+    traj = Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit, e_start=e_start)
+    moves, piece_at = np.array(first_piece).T
+    ev = toolpath.events["index"]
+    k = piece_at[np.searchsorted(moves, ev, side="right") - 1]
+    times = np.where(ev >= len(toolpath), traj.duration, traj.starts[np.minimum(k, len(pieces))])
+    traj.events = _event_times(toolpath, times)
+    return traj
+
+
+def _event_times(toolpath: Toolpath, times) -> tuple:
+    """((time_s, kind, value), ...) of the toolpath's events at the given times (s), in order.
+    An event inside a move range (a travel, or a run not cut by a wait) fires at the range's start."""
+    ev = toolpath.events
+    return tuple((float(t), int(k), float(v)) for t, k, v in zip(np.asarray(times, float).tolist(), ev["kind"], ev["value"]))
 
 
 def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit):
