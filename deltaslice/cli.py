@@ -73,9 +73,10 @@ def main():
 @click.option("--planner", type=click.Choice(["toppra", "trapezoid"]), default="toppra", show_default=True,
               help="toppra: time-optimal in joint space; trapezoid: the conventional Cartesian planner (made safe).")
 @_placement_options
+@click.option("--center", is_flag=True, help="G-code: move the part's footprint to the bed centre (a file sliced for another machine).")
 @click.option("--workers", type=int, default=None, help="Planning processes (default: all cores).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers, quiet):
+def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, center, workers, quiet):
     """Compile PART (mesh or G-code) into a trajectory for the printer."""
     from .pipeline import compile_part
 
@@ -90,6 +91,7 @@ def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, ro
         scale=scale,
         rotate=rotate,
         keep_position=keep_position,
+        center=center,
         workers=workers,
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),

@@ -23,18 +23,19 @@ def _printer(printer) -> Printer:
     return printer if isinstance(printer, Printer) else load_printer(printer)
 
 
-def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None):
+def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, center=False):
     """A Toolpath from a mesh (sliced here) or a G-code file (read), in the bed frame.
 
     part: path to .stl/.obj/.3mf or .gcode; printer: Printer or path.
     progress: callable(done, total) or None; echo: callable(str) for notes (repairs, skipped commands).
+    center: move a G-code part's footprint to the bed centre (meshes are centred unless keep_position).
     """
     printer = _printer(printer)
     suffix = Path(part).suffix.lower()
     if suffix in GCODE_SUFFIXES:
         from .gcode import read_gcode
 
-        toolpath = read_gcode(part, printer=printer, echo=echo)
+        toolpath = read_gcode(part, printer=printer, echo=echo, center=center)
     elif suffix in MESH_SUFFIXES:
         from .mesh import check_fits, load_mesh
         from .slicing import slice_mesh
