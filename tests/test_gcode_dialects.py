@@ -350,3 +350,19 @@ def test_fuzz_arcs_only_raise_gcode_error(moves):
     except GcodeError:
         return
     assert np.all(np.isfinite(tp.xyz)) and math.isfinite(tp.e.sum())
+
+
+def test_cli_center_option(tmp_path):
+    from click.testing import CliRunner
+
+    from deltaslice.cli import main
+
+    job = tmp_path / "corner.gcode"
+    job.write_text("M83\nG1 X100 Y100 Z0.3 F1200\nG1 X110 Y100 E0.3\nG1 X110 Y108 E0.3\n")
+    out = tmp_path / "c.csv"
+    args = [str(job), "--printer", "printers/delta_etitc.toml", "-o", str(out), "--quiet", "--workers", "1"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 1 and "use --center" in res.output and "Traceback" not in res.output
+    res = CliRunner().invoke(main, args + ["--center"])
+    assert res.exit_code == 0, res.output
+    assert "moved the part by (-105.00, -104.00)" in res.output and out.exists()
