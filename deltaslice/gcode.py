@@ -207,7 +207,7 @@ _MOTION_LETTERS = set("XYZEFIJRS")
 ARC_END_TOLERANCE = 0.01
 #: Most chords one arc may become (a longer arc is refused, not a memory blow-up).
 ARC_MAX_CHORDS = 1_000_000
-#: The no-extrusion dialect's E register is a position, not an amount (see _apply_dialects).
+#: How notes name Slic3r 1.3's no-extrusion G-code (the E register written without its letter).
 _SLIC3R_NO_EXTRUSION = "Slic3r no-extrusion flavour"
 
 
