@@ -252,13 +252,14 @@ def main():
 @click.option("--planner", type=click.Choice(["toppra", "trapezoid"]), default="toppra", show_default=True,
               help="toppra: time-optimal in joint space; trapezoid: the conventional Cartesian planner (made safe).")
 @placement_options
+@click.option("--center", is_flag=True, help="G-code: move the part's footprint to the bed centre (a file sliced for another machine).")
 @_engrave_options
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Planning processes (default: all cores).")
 @bound_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
 @json_option
-def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers,
-                max_time, max_size, quiet, as_json, **engrave):
+def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner, scale, rotate, keep_position, center,
+                workers, max_time, max_size, quiet, as_json, **engrave):
     """Compile PART (mesh, G-code, or an image or SVG for a laser) into a trajectory for the printer."""
     from .pipeline import compile_part
     from .report import compile_summary
@@ -277,6 +278,7 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
         max_duration_s=max_time * 3600.0 or None,
         max_bytes=int(max_size * 1024**2) or None,
         engrave=_engrave_dict(**engrave),
+        center=center,
         **_placement(scale, rotate, keep_position),
     )
     if as_json:

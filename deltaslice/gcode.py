@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import GcodeError
-from .toolpath import Role, Toolpath
+from .toolpath import EventKind, Role, Toolpath, centred, make_events
 
 #: Largest distance between an arc and its chords, mm.
 ARC_TOLERANCE = 0.01
@@ -101,8 +101,20 @@ def gcode_text(toolpath: Toolpath, printer=None) -> str:
         last_type = None
         roles = tp.role
         lines = out
-        laser = _laser_states(tp, printer)
+        # A laser job read from G-code carries its own M3/M4/M5 as events, written back where they
+        # were; a laser toolpath without them (an engraving) gets M3/M4 ... M5 around each run.
+        mode_events = bool((tp.events["kind"] == EventKind.LASER_MODE).any())
+        laser = None if mode_events else _laser_states(tp, printer)
+        ev_at = _event_lines(tp)
+        laser_s = None
+        if mode_events:
+            # GRBL power words on working moves, so M3/M4 jobs read back with their power
+            s_max = getattr(getattr(printer, "tool", None), "s_max", 1000.0)
+            max_power = getattr(getattr(printer, "tool", None), "max_power", 1.0)
+            laser_s = np.char.mod("%.4f", tp.tool / max_power * s_max)
         for i in range(n):
+            if i in ev_at:
+                lines.extend(ev_at[i])
             if i in pending:
                 for li in pending[i]:
                     lines.append(f";LAYER:{li}")
@@ -123,6 +135,8 @@ def gcode_text(toolpath: Toolpath, printer=None) -> str:
                 words.append("Z" + xyz_s[i, 2])
             if has_e[i]:
                 words.append("E" + e_s[i])
+            if laser_s is not None and work[i]:
+                words.append("S" + laser_s[i])
             if f_s[i] != last_f:
                 words.append("F" + f_s[i])
                 last_f = f_s[i]
@@ -138,9 +152,12 @@ def gcode_text(toolpath: Toolpath, printer=None) -> str:
         for li in tail:
             lines.append(f";LAYER:{li}")
             lines.append(f";Z:{tp.layer_z[li]:.6f}")
+        lines.extend(ev_at.get(n, []))
     else:
         for li in range(tp.n_layers):
             out += [f";LAYER:{li}", f";Z:{tp.layer_z[li]:.6f}"]
+        for group in _event_lines(tp).values():
+            out += group
     out.append("; end")
     return "\n".join(out) + "\n"
 
@@ -151,14 +168,14 @@ def _laser_states(tp: Toolpath, printer):
     Returns (lines before each move (n lists), S word of each move or None, whether the
     last move is in a run). A run (working moves and the power-0 laser moves inside it)
     starts with ``M4 S0`` (dynamic power: GRBL scales S by speed / feed) or ``M3 S0``
-    (``Role.LASER``, constant power), carries ``S`` = power x [tool] power_counts on
+    (``Role.LASER``, constant power), carries ``S`` = power x [tool] s_max on
     every move, and ends with ``M5``."""
     if printer is None or printer.tool.channel_kind != "laser":
         return None
     laser_roles = np.isin(tp.role, (int(Role.LASER), int(Role.LASER_DYNAMIC)))
     in_run = tp.working | laser_roles
     mode = np.where(tp.role == int(Role.LASER), "M3", "M4")
-    counts = np.rint(tp.tool * printer.tool.power_counts).astype(int)
+    counts = np.rint(tp.tool * printer.tool.s_max).astype(int)  # S at full power is GRBL's $30 = s_max
     before: list[list[str]] = [[] for _ in range(len(tp))]
     words: list[str | None] = [None] * len(tp)
     prev_in, prev_mode = False, None
@@ -174,63 +191,132 @@ def _laser_states(tp: Toolpath, printer):
     return before, words, bool(in_run[-1]) if len(tp) else False
 
 
-# --------------------------------------------------------------------------- reading
-
-_WORD = re.compile(r"([A-Z])([^A-Z\s]*)")
-_IGNORED = {
-    "G4", "G21", "G28", "G29", "G17", "G80", "G10", "G11",
-    "M104", "M109", "M140", "M190", "M106", "M107", "M84", "M105", "M117", "M73", "M115", "M201",
-    "M203", "M204", "M205", "M220", "M221", "M900", "M83", "M82", "M18", "M17", "M400", "M862.3", "M862.1",
-    "M107", "M141", "M191",
+_EVENT_CODES = {
+    EventKind.HOTEND_SET: "M104", EventKind.HOTEND_WAIT: "M109", EventKind.BED_SET: "M140", EventKind.BED_WAIT: "M190",
 }
 
 
-def _arc_points(p0, p1, ij, r_word, clockwise: bool, line_no: int, shown: str):
-    """Points along a G2/G3 arc in the XY plane after p0, ending at p1 ((k, 3))."""
+def _event_lines(tp: Toolpath) -> dict[int, list[str]]:
+    """G-code lines of the toolpath's events, grouped by the move they precede."""
+    out: dict[int, list[str]] = {}
+    for i, kind, value in tp.events.tolist():
+        kind = EventKind(kind)
+        if kind in _EVENT_CODES:
+            line = f"{_EVENT_CODES[kind]} S{value:g}"
+        elif kind == EventKind.FAN:
+            line = "M107" if value == 0 else f"M106 S{value:g}"
+        else:
+            line = {0: "M5", 3: "M3", 4: "M4"}.get(int(value), "M5")
+        out.setdefault(int(i), []).append(line)
+    return out
+
+
+# --------------------------------------------------------------------------- reading
+
+_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:e[-+]?\d+)?"
+# A word: a letter and its number; a bare number (Slic3r's no-extrusion E); anything else is an error.
+# Only a lower-case ``e`` right after digits is an exponent (``Y1e-05``): an upper-case E is the extruder word.
+_TOKEN = re.compile(rf"([A-Za-z])[ \t]*({_NUM})?|({_NUM})|(\S)")
+_COMMAND = re.compile(r"([GgMmTt])[ \t]*0*(\d+(?:\.\d+)?)")
+_LINE_NUMBER = re.compile(r"^[Nn]\d+\s*")
+_SETTING = re.compile(r"^;\s*([A-Za-z_][\w]*)\s*=\s*(.*?)\s*$")
+
+_MOTION = {"G0": 0, "G1": 1, "G2": 2, "G3": 3}
+# Modal G codes that only change state we do not model, or that move the machine in ways a
+# file cannot express in the bed frame (homing, probing, dwell, firmware retraction).
+_G_SKIPPED = {"G4", "G10", "G11", "G28", "G29", "G53", "G54", "G80", "G93", "G94", "G61", "G64", "G40", "G49"}
+_EVENT_M = {
+    "M104": EventKind.HOTEND_SET, "M109": EventKind.HOTEND_WAIT, "M140": EventKind.BED_SET,
+    "M190": EventKind.BED_WAIT, "M106": EventKind.FAN, "M107": EventKind.FAN,
+}
+_LASER_M = {"M3": 3, "M4": 4, "M5": 0}
+_MOTION_LETTERS = set("XYZEFIJRS")
+#: An I/J arc's end may be this far off its circle (mm, plus 0.1 % of the radius): slicers round to 3 decimals.
+ARC_END_TOLERANCE = 0.01
+#: Most chords one arc may become (a longer arc is refused, not a memory blow-up).
+ARC_MAX_CHORDS = 1_000_000
+#: How notes name Slic3r 1.3's no-extrusion G-code (the E register written without its letter).
+_SLIC3R_NO_EXTRUSION = "Slic3r no-extrusion flavour"
+
+
+def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str):
+    """Points along a G2/G3 arc in the XY plane after p0, ending at p1 ((k, 3) mm).
+
+    I/J arcs whose end is off the circle by more than :data:`ARC_END_TOLERANCE` are refused;
+    an I/J arc whose end is its start is a full circle; an arc whose sagitta is within
+    :data:`ARC_TOLERANCE` (a huge radius) is its chord."""
     x0, y0 = p0[0], p0[1]
     x1, y1 = p1[0], p1[1]
+    dx, dy = x1 - x0, y1 - y0
+    d = math.hypot(dx, dy)
+    full = False
     if ij is not None:
         cx, cy = x0 + ij[0], y0 + ij[1]
+        r0 = math.hypot(x0 - cx, y0 - cy)
+        r1 = math.hypot(x1 - cx, y1 - cy)
+        if not r0 > 1e-9:
+            raise GcodeError(f"{where}: arc with zero radius (I and J are 0)")
+        if abs(r1 - r0) > ARC_END_TOLERANCE + 1e-3 * r0:
+            raise GcodeError(
+                f"{where}: arc end ({x1:g}, {y1:g}) is {abs(r1 - r0):.4f} mm off the circle of radius {r0:.4f} "
+                f"about ({cx:g}, {cy:g}) (tolerance {ARC_END_TOLERANCE + 1e-3 * r0:.4f} mm)"
+            )
+        full = d <= 1e-9
     elif r_word is not None:
-        dx, dy = x1 - x0, y1 - y0
-        d = math.hypot(dx, dy)
         r = abs(r_word)
-        if d == 0 or d > 2 * r + 1e-6:
-            raise GcodeError(f"{shown}:{line_no}: arc radius R{r_word:g} cannot join its end points {d:.4f} mm apart")
-        h = math.sqrt(max(r * r - d * d / 4, 0.0))
+        if d <= 1e-9:
+            raise GcodeError(f"{where}: an R arc cannot end where it starts (use I/J for a full circle)")
+        if d > 2 * r * (1 + 1e-9) + 1e-6:
+            raise GcodeError(f"{where}: arc radius R{r_word:g} cannot join its end points {d:.4f} mm apart")
+        half = d / (2 * r)
+        # the short arc (R > 0) bulges by the sagitta; a nearly straight one is its chord
+        if r_word > 0 and r * (1 - math.sqrt(max(1 - half * half, 0.0))) <= ARC_TOLERANCE:
+            return np.asarray([p1], float)
+        h = r * math.sqrt(max(1 - half * half, 0.0))
         # centre to the left of the chord for CCW with R > 0
         sgn = (1 if not clockwise else -1) * (1 if r_word > 0 else -1)
         cx = (x0 + x1) / 2 - sgn * h * dy / d
         cy = (y0 + y1) / 2 + sgn * h * dx / d
+        r0 = r1 = math.hypot(x0 - cx, y0 - cy)
     else:
-        raise GcodeError(f"{shown}:{line_no}: arc without I/J or R")
-    r0 = math.hypot(x0 - cx, y0 - cy)
-    if r0 < 1e-9:
-        raise GcodeError(f"{shown}:{line_no}: arc with zero radius")
+        raise GcodeError(f"{where}: arc without I/J or R")
     a0 = math.atan2(y0 - cy, x0 - cx)
-    a1 = math.atan2(y1 - cy, x1 - cx)
-    sweep = a1 - a0
-    if clockwise:
-        if sweep >= -1e-12:
-            sweep -= 2 * math.pi
+    if full:
+        sweep = -2 * math.pi if clockwise else 2 * math.pi
     else:
-        if sweep <= 1e-12:
-            sweep += 2 * math.pi
-    step = 2 * math.acos(max(-1.0, 1 - ARC_TOLERANCE / r0)) if r0 > ARC_TOLERANCE else math.pi / 2
-    k = max(1, math.ceil(abs(sweep) / step))
+        sweep = math.atan2(y1 - cy, x1 - cx) - a0
+        if clockwise:
+            if sweep >= -1e-12:
+                sweep -= 2 * math.pi
+        else:
+            if sweep <= 1e-12:
+                sweep += 2 * math.pi
+        if abs(sweep) < math.pi and r0 * (1 - math.cos(sweep / 2)) <= ARC_TOLERANCE:
+            return np.asarray([p1], float)
+    # chord angle whose sagitta is ARC_TOLERANCE, in a form that does not round to 0 for a huge radius
+    step = 4 * math.asin(math.sqrt(min(ARC_TOLERANCE / (2 * r0), 0.5)))
+    k = math.ceil(abs(sweep) / step) if step > 0 else ARC_MAX_CHORDS + 1
+    if k > ARC_MAX_CHORDS:
+        raise GcodeError(f"{where}: arc of radius {r0:.6g} mm would need {k} chords (at most {ARC_MAX_CHORDS})")
+    k = max(1, k)
     t = np.arange(1, k + 1) / k
     ang = a0 + sweep * t
-    pts = np.column_stack([cx + r0 * np.cos(ang), cy + r0 * np.sin(ang), p0[2] + (p1[2] - p0[2]) * t])
+    rad = r0 + (r1 - r0) * t  # ends exactly at p1 when the end is slightly off the circle
+    pts = np.column_stack([cx + rad * np.cos(ang), cy + rad * np.sin(ang), p0[2] + (p1[2] - p0[2]) * t])
     pts[-1] = p1
+    if not np.all(np.isfinite(pts)):
+        raise GcodeError(f"{where}: arc has no finite points (radius {r0:.6g} mm)")
     return pts
 
 
-def read_gcode(path, *, printer=None, echo=None) -> Toolpath:
+def read_gcode(path, *, printer=None, echo=None, center=False) -> Toolpath:
     """Read a G-code file into a Toolpath (bed frame = the file's frame, mm).
 
-    printer: optional, gives the feed used before the file sets one; echo:
-    ``callable(str)`` receiving a note on skipped commands. Raises
-    :class:`GcodeError` with the line number on malformed input.
+    printer: optional; gives the feed used before the file sets one, the flow model for
+    files without extrusion amounts, the laser's S scale, and the machine the file's own
+    settings are compared with. echo: ``callable(str)`` receiving notes (skipped commands,
+    dialect, settings that differ). center: move the part's footprint (its working
+    moves) to the bed centre. Raises :class:`GcodeError` naming the line on bad input.
     """
     path = Path(path)
     shown = str(path)
@@ -245,25 +331,78 @@ def read_gcode(path, *, printer=None, echo=None) -> Toolpath:
     except UnicodeDecodeError as exc:
         line_no = raw[: exc.start].count(b"\n") + 1
         raise GcodeError(f"{shown}:{line_no}: not text (byte {exc.start}): expected G-code") from None
-    return parse_gcode(text, name=shown, printer=printer, echo=echo)
+    return parse_gcode(text, name=shown, printer=printer, echo=echo, center=center)
 
 
-def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None) -> Toolpath:
+def _words(s: str, where: str, line: str) -> list[tuple[str, str | None]]:
+    """(LETTER, number text or None) per word; a bare number is ("", text)."""
+    out = []
+    for m in _TOKEN.finditer(s):
+        letter, num, bare, bad = m.groups()
+        if bad is not None:
+            raise GcodeError(f"{where}: malformed line {line!r}: unexpected {bad!r} (expected words like G1 X10.5)")
+        if bare is not None and m.start() > 0 and not s[m.start() - 1].isspace():
+            # "X1.2.3": a number glued to the previous word is a malformed number, not a bare E
+            prev = f"{out[-1][0]}{out[-1][1] or ''}" if out else ""
+            raise GcodeError(f"{where}: {prev[:1]}{(prev[1:] + bare)!r} is not a number in {line!r}")
+        out.append((letter.upper(), num) if letter is not None else ("", bare))
+    return out
+
+
+def _number(letter: str, text: str | None, where: str) -> float:
+    shown = letter or "a bare number"
+    if text is None:
+        raise GcodeError(f"{where}: {shown} has no value")
+    try:
+        v = float(text)
+    except ValueError:
+        raise GcodeError(f"{where}: {letter}{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise GcodeError(f"{where}: {letter}{text} is not finite")
+    return v
+
+
+def _params(words, where: str, allowed: str | None) -> dict[str, float]:
+    """Parameter words as LETTER -> value (a bare number is "E", flagged as "bare")."""
+    out: dict[str, float] = {}
+    for letter, num in words:
+        key = letter or "E"
+        if allowed is not None and letter and letter not in allowed:
+            raise GcodeError(f"{where}: unexpected word {letter}{num or ''} (expected {', '.join(allowed)})")
+        if key in out:
+            raise GcodeError(f"{where}: {key} given twice")
+        out[key] = _number(letter, num, where)
+        if not letter:
+            out["bare"] = 1.0
+    return out
+
+
+def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, center=False) -> Toolpath:
     """Parse G-code text (see :func:`read_gcode`)."""
     shown = name
     default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") else DEFAULT_FEED
     prusa_layers = ";LAYER_CHANGE" in text
     start = np.zeros(3)
-    pos = [0.0, 0.0, 0.0]
+    pos = [0.0, 0.0, 0.0]  # bed frame
+    offset = [0.0, 0.0, 0.0]  # bed = file + offset (G92 after the first move)
     e_reg = 0.0
     abs_xyz = True
     abs_e = True
     unit = 1.0
     feed = None
+    motion_mode = None
+    plane = "G17"
+    laser_mode = 0
+    s_value = 0.0
+    laser_seen = False
+    e_words = False
+    bare_words = False
     role_comment = None
     layer_idx = -1  # from comments
     layer_z_comment: dict[int, float] = {}
     have_layer_comments = False
+    settings: dict[str, str] = {}
+    cura_settings: list[str] = []
 
     xs: list[float] = []
     ys: list[float] = []
@@ -272,11 +411,14 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None) ->
     fs: list[float] = []
     roles: list[int] = []  # role from comment or -1
     layers: list[int] = []
+    kinds: list[int] = []  # per move: 0 G0, 1 G1..G3 without an E word, 2 with E, 3 with a bare-number E
+    powers: list[float] = []  # laser power S / s_max while M3/M4 is on, else 0
+    lmodes: list[int] = []  # the laser mode of each move: 0 off, 3 constant (M3), 4 dynamic (M4)
+    events: list[tuple[int, int, float]] = []
     skipped: Counter = Counter()
     started = False
 
-    lines = text.split("\n")
-    for line_no, line in enumerate(lines, 1):
+    for line_no, line in enumerate(text.split("\n"), 1):
         s = line.strip()
         if not s:
             continue
@@ -290,7 +432,9 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None) ->
                 layer_idx += 1
             elif c.startswith("Z:") and layer_idx >= 0 and layer_idx not in layer_z_comment:
                 try:
-                    layer_z_comment[layer_idx] = float(c[2:]) * unit
+                    z = float(c[2:]) * unit
+                    if math.isfinite(z):
+                        layer_z_comment[layer_idx] = z
                 except ValueError:
                     pass
             elif c.startswith("TYPE:"):
@@ -303,122 +447,192 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None) ->
                 except ValueError:
                     raise GcodeError(f"{shown}:{line_no}: malformed start comment {s!r}") from None
                 pos = list(start)
+            elif c.startswith("SETTING_3 "):
+                cura_settings.append(c[10:])
+            elif "=" in c:
+                m = _SETTING.match(s)
+                if m:
+                    settings[m.group(1)] = m.group(2)
             continue
-        # strip comments
+        where = f"{shown}:{line_no}"
+        shown_line = line.strip()
         cut = s.find(";")
         if cut >= 0:
             s = s[:cut]
         if "(" in s:
             s = re.sub(r"\([^)]*\)", "", s)
-        s = s.strip().upper()
-        if not s:
+        s = s.strip()
+        if not s or s == "%":
             continue
-        if s[0] == "N":  # line numbers and checksums
-            s = re.sub(r"^N\d+\s*", "", s)
-            s = s.split("*")[0].strip()
+        if s[0] in "Nn":  # line numbers and checksums
+            s = _LINE_NUMBER.sub("", s).split("*")[0].strip()
             if not s:
                 continue
-        words = _WORD.findall(s)
-        if not words or "".join(a + b for a, b in words) != s.replace(" ", "").replace("\t", ""):
-            raise GcodeError(f"{shown}:{line_no}: malformed line {line.strip()!r}: expected words like G1 X10.5")
-        letter, num = words[0]
-        cmd = letter + num
-        if letter not in "GMT":
-            raise GcodeError(f"{shown}:{line_no}: {line.strip()!r} does not start with a G, M or T command")
-        if cmd in ("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03"):
-            params = {}
-            for a, b in words[1:]:
-                try:
-                    params[a] = float(b)
-                except ValueError:
-                    raise GcodeError(f"{shown}:{line_no}: {a}{b!r} is not a number in {line.strip()!r}") from None
-                if not math.isfinite(params[a]):
-                    raise GcodeError(f"{shown}:{line_no}: {a}{b} is not finite")
-            if "F" in params:
-                if params["F"] <= 0:
-                    raise GcodeError(f"{shown}:{line_no}: feed F{params['F']:g} must be > 0")
-                feed = params["F"] * unit / 60.0
-            target = list(pos)
-            for k, ax in enumerate("XYZ"):
-                if ax in params:
-                    v = params[ax] * unit
-                    target[k] = v if abs_xyz else pos[k] + v
-            de = 0.0
-            if "E" in params:
-                v = params["E"] * unit
-                if abs_e:
-                    de = v - e_reg
-                    e_reg = v
+        head = _COMMAND.match(s)
+        if head is not None:
+            cmd = head.group(1).upper() + head.group(2)
+            if cmd[0] in "MT" and cmd not in _EVENT_M and cmd not in _LASER_M and cmd not in ("M82", "M83"):
+                skipped[cmd] += 1  # parameters may be free text (M117 Hello): not parsed
+                continue
+            words = _words(s, where, shown_line)
+        elif s[0].upper() in _MOTION_LETTERS:
+            words = _words(s, where, shown_line)
+            if motion_mode is None:
+                if {w[0] for w in words} <= {"F", "S"}:  # GRBL sets power and feed on their own lines
+                    state = _params(words, where, "FS")
+                    s_value = state.get("S", s_value)
+                    if state.get("F", 1.0) <= 0:
+                        raise GcodeError(f"{where}: feed F{state['F']:g} must be > 0")
+                    feed = state["F"] * unit / 60.0 if "F" in state else feed
+                    continue
+                raise GcodeError(f"{where}: {shown_line!r} has no command and no motion mode is active (expected G0/G1 first)")
+        else:
+            raise GcodeError(f"{where}: {shown_line!r} does not start with a G, M or T command")
+        # commands on this line: several modal G codes (G90 G21) may share it; a motion,
+        # G92 or M command must stand alone, or what its numbers mean would be ambiguous
+        cmds, params_w = ([] if head is not None else [motion_mode]), []
+        for letter, num in words:
+            if letter in ("G", "M", "T"):
+                v = _number(letter, num, where)
+                cmds.append(letter + (str(int(v)) if v.is_integer() else num))
+            else:
+                params_w.append((letter, num))
+        if len(cmds) > 1:
+            acting = [c for c in cmds if c in _MOTION or c == "G92" or c[0] != "G"]
+            if acting or len(set(cmds)) != len(cmds):
+                raise GcodeError(f"{where}: conflicting commands {' '.join(cmds)} on one line: give each its own line")
+            if params_w:
+                raise GcodeError(f"{where}: parameters {params_w[0][0]}{params_w[0][1]} with several commands {' '.join(cmds)}")
+        for cmd in cmds:
+            if cmd in _MOTION:
+                motion_mode = cmd
+                params = _params(params_w, where, "XYZEFIJRSK")
+                if "F" in params:
+                    if params["F"] <= 0:
+                        raise GcodeError(f"{where}: feed F{params['F']:g} must be > 0")
+                    feed = params["F"] * unit / 60.0
+                if "S" in params:
+                    if params["S"] < 0:
+                        raise GcodeError(f"{where}: power S{params['S']:g} must be >= 0")
+                    s_value = params["S"]
+                target = list(pos)
+                for k, ax in enumerate("XYZ"):
+                    if ax in params:
+                        v = params[ax] * unit
+                        target[k] = v + offset[k] if abs_xyz else pos[k] + v
+                if not all(math.isfinite(v) and abs(v) < 1e12 for v in target):
+                    raise GcodeError(f"{where}: position {target} is not a finite coordinate")
+                de = 0.0
+                bare = "bare" in params
+                if "E" in params:
+                    e_words = e_words or not bare
+                    bare_words = bare_words or bare
+                    v = params["E"] * unit
+                    if abs_e:
+                        de = v - e_reg
+                        e_reg = v
+                    else:
+                        de = v
+                        e_reg += v
+                    if not math.isfinite(de) or abs(de) > 1e12:
+                        raise GcodeError(f"{where}: extrusion {de:g} mm is not a finite amount")
+                moved = target != pos
+                arc = cmd in ("G2", "G3")
+                if not moved and de == 0.0 and not (arc and ("I" in params or "J" in params)):
+                    if not any(a in params for a in "XYZ"):
+                        continue  # a feed or power change only
+                f_now = feed if feed is not None else default_feed
+                li = max(layer_idx, 0)
+                rc = role_comment if role_comment is not None else -1
+                kind = 0 if cmd == "G0" else (3 if bare else (2 if "E" in params else 1))
+                power = s_value if laser_mode else 0.0
+                if arc:
+                    if plane != "G17":
+                        raise GcodeError(f"{where}: arcs are read in the XY plane only (G17), not {plane}")
+                    ij = None
+                    if "I" in params or "J" in params:
+                        ij = (params.get("I", 0.0) * unit, params.get("J", 0.0) * unit)
+                    r_word = params.get("R")
+                    pts = _arc_points(pos, target, ij, None if r_word is None else r_word * unit, cmd == "G2", where)
+                    seg = np.linalg.norm(np.diff(np.vstack([pos, pts]), axis=0), axis=1)
+                    share = seg / seg.sum() if seg.sum() > 0 else np.full(len(pts), 1 / len(pts))
+                    xs.extend(pts[:, 0].tolist())
+                    ys.extend(pts[:, 1].tolist())
+                    zs.extend(pts[:, 2].tolist())
+                    es.extend((de * share).tolist())
+                    k = len(pts)
                 else:
-                    de = v
-                    e_reg += v
-            moved = target != pos
-            if not moved and de == 0.0 and not any(a in params for a in "XYZ"):
-                continue  # a feed change only
-            f_now = feed if feed is not None else default_feed
-            li = max(layer_idx, 0)
-            rc = role_comment if role_comment is not None else -1
-            if cmd in ("G2", "G3", "G02", "G03") and moved:
-                ij = None
-                if "I" in params or "J" in params:
-                    ij = (params.get("I", 0.0) * unit, params.get("J", 0.0) * unit)
-                r_word = params.get("R")
-                pts = _arc_points(pos, target, ij, None if r_word is None else r_word * unit,
-                                  cmd in ("G2", "G02"), line_no, shown)
-                seg = np.linalg.norm(np.diff(np.vstack([pos, pts]), axis=0), axis=1)
-                share = seg / seg.sum() if seg.sum() > 0 else np.full(len(pts), 1 / len(pts))
-                xs.extend(pts[:, 0].tolist())
-                ys.extend(pts[:, 1].tolist())
-                zs.extend(pts[:, 2].tolist())
-                es.extend((de * share).tolist())
-                k = len(pts)
+                    xs.append(target[0])
+                    ys.append(target[1])
+                    zs.append(target[2])
+                    es.append(de)
+                    k = 1
                 fs.extend([f_now] * k)
                 roles.extend([rc] * k)
                 layers.extend([li] * k)
-            else:
-                xs.append(target[0])
-                ys.append(target[1])
-                zs.append(target[2])
-                es.append(de)
-                fs.append(f_now)
-                roles.append(rc)
-                layers.append(li)
-            pos = target
-            started = True
-        elif cmd == "G90":
-            abs_xyz = abs_e = True
-        elif cmd == "G91":
-            abs_xyz = abs_e = False
-        elif cmd == "M82":
-            abs_e = True
-        elif cmd == "M83":
-            abs_e = False
-        elif cmd == "G20":
-            unit = 25.4
-        elif cmd == "G21":
-            unit = 1.0
-        elif cmd == "G92":
-            params = {}
-            for a, b in words[1:]:
-                try:
-                    params[a] = float(b) * unit
-                except ValueError:
-                    raise GcodeError(f"{shown}:{line_no}: {a}{b!r} is not a number in {line.strip()!r}") from None
-            if len(words) == 1:
-                params = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
-            if "E" in params:
-                e_reg = params["E"]
-            if any(a in params for a in "XYZ"):
-                # a coordinate reset: the following moves are in the new frame
+                kinds.extend([kind] * k)
+                powers.extend([power] * k)
+                lmodes.extend([laser_mode] * k)
+                pos = target
+                started = True
+            elif cmd in ("G90", "G91", "G20", "G21", "G17", "G18", "G19", "M82", "M83"):
+                if params_w:
+                    _params(params_w, where, "")  # refuses any parameter
+                if cmd == "G90":
+                    abs_xyz = abs_e = True
+                elif cmd == "G91":
+                    abs_xyz = abs_e = False
+                elif cmd == "M82":
+                    abs_e = True
+                elif cmd == "M83":
+                    abs_e = False
+                elif cmd == "G20":
+                    unit = 25.4
+                elif cmd == "G21":
+                    unit = 1.0
+                else:
+                    plane = cmd
+            elif cmd == "G92":
+                params = _params(params_w, where, "XYZE")
+                if not params:
+                    params = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
+                if "E" in params:
+                    e_reg = params["E"] * unit
                 for k, ax in enumerate("XYZ"):
                     if ax in params:
-                        pos[k] = params[ax]
+                        if started:
+                            # the file's coordinates move; the tool does not
+                            offset[k] = pos[k] - params[ax] * unit
+                        else:
+                            pos[k] = params[ax] * unit
                 if not started:
                     start = np.array(pos, float)
+            elif cmd in _EVENT_M:
+                params = _params(params_w, where, None)
+                kind = _EVENT_M[cmd]
+                if cmd == "M107":
+                    value = 0.0
+                elif cmd == "M106":
+                    value = min(max(params.get("S", 255.0), 0.0), 255.0)
                 else:
-                    skipped["G92 X/Y/Z (coordinate reset mid-file)"] += 1
-        else:
-            skipped[cmd] += 1
+                    value = params.get("S", params.get("R"))
+                    if value is None:
+                        skipped[f"{cmd} without S"] += 1
+                        continue
+                    if not 0 <= value <= 1000:
+                        raise GcodeError(f"{where}: temperature {value:g} C outside 0..1000")
+                events.append((len(xs), int(kind), float(value)))
+            elif cmd in _LASER_M:
+                params = _params(params_w, where, "S")
+                if "S" in params:
+                    if params["S"] < 0:
+                        raise GcodeError(f"{where}: power S{params['S']:g} must be >= 0")
+                    s_value = params["S"]
+                laser_mode = _LASER_M[cmd]
+                laser_seen = True
+                events.append((len(xs), int(EventKind.LASER_MODE), float(laser_mode)))
+            else:
+                skipped[cmd] += 1
 
     if skipped and echo is not None:
         total = sum(skipped.values())
@@ -432,16 +646,29 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None) ->
     e = np.asarray(es)
     feed_a = np.asarray(fs)
     rc = np.asarray(roles, dtype=np.int16)
+    kind = np.asarray(kinds, dtype=np.int8)
     starts = np.vstack([start[None], xyz[:-1]])
     moved = np.any(np.abs(xyz - starts) > 0, axis=1)
-    working = moved & (e > 0)
-    tool = working.astype(float)
-    role = np.where(working, np.where(rc >= 0, rc, int(Role.OTHER)), int(Role.TRAVEL))
-    role = np.where(~moved & (e != 0), int(Role.RETRACT), role).astype(np.uint8)
+    moved_xy = np.any(np.abs(xyz[:, :2] - starts[:, :2]) > 0, axis=1)
 
     if have_layer_comments:
         layer = np.asarray(layers, dtype=np.int32)
         n_layers = layer_idx + 1
+    else:
+        layer, n_layers = None, 0
+    source = _source_machine(settings, cura_settings)
+    e, tool, working, note = _apply_dialects(
+        printer, xyz, e, kind, np.asarray(powers), moved, moved_xy, layer, e_words, bare_words, laser_seen, source
+    )
+    if note and echo is not None:
+        echo(f"{shown}: {note}")
+    role = np.where(working, np.where(rc >= 0, rc, int(Role.LASER if printer is not None and printer.tool.channel_kind == "laser" else Role.OTHER)),
+                    int(Role.TRAVEL))
+    role = np.where(~moved & (e != 0), int(Role.RETRACT), role).astype(np.uint8)
+    if lmodes:  # GRBL M4: power follows the tool's speed (Role.LASER_DYNAMIC), M3 constant
+        role = np.where(working & (np.asarray(lmodes) == 4), int(Role.LASER_DYNAMIC), role).astype(np.uint8)
+
+    if have_layer_comments:
         layer_z = np.zeros(n_layers)
         for li in range(n_layers):
             if li in layer_z_comment:
@@ -452,7 +679,139 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None) ->
                 layer_z[li] = wz.max() if len(wz) else (xyz[sel, 2][-1] if sel.any() else (layer_z[li - 1] if li else 0.0))
     else:
         layer, layer_z = _layers_from_z(xyz[:, 2], working)
-    return Toolpath(start, xyz, feed_a, e, tool, role, layer, layer_z)
+    if not e_words and printer is not None and printer.tool.channel_kind != "laser":
+        e = _flow_model_e(printer, xyz, starts, working, layer, layer_z, e)
+    e = _compare_source(source, printer, e, kind, shown, echo, center)
+    tp = Toolpath(start, xyz, feed_a, e, tool, role, layer, layer_z, make_events(events))
+    if center:
+        tp, shift = centred(tp)
+        if echo is not None:
+            echo(f"{shown}: moved the part by ({shift[0]:.2f}, {shift[1]:.2f}) mm so its footprint is centred on the bed")
+    return tp
+
+
+def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_words, bare_words, laser_seen, source):
+    """(e, tool, working, note): which moves work and how, as the file's author meant.
+
+    * E words (the common case): a move that goes somewhere and pushes filament works.
+    * Slic3r's no-extrusion flavour writes the E register without its letter; its amounts do
+      not change along working moves, so a move carrying the bare number works and is given the
+      printer's flow model (:func:`_flow_model_e`); standing bare numbers stay retracts.
+    * No E at all (hand-written paths, CNC-style files): G1/G2/G3 moves in x-y work, G0 travel.
+    * A laser printer: with M3/M4 the power is S / s_max while G1/G2/G3 move; without them the
+      E or G1 rules above switch the laser on at full power.
+    """
+    laser = printer is not None and printer.tool.channel_kind == "laser"
+    note = ""
+    if laser and laser_seen:
+        s_max = getattr(printer.tool, "s_max", 1000.0)
+        frac = np.clip(power / s_max, 0.0, 1.0) * printer.tool.max_power
+        working = moved & (kind >= 1) & (frac > 0)
+        return np.zeros(len(e)), np.where(working, frac, 0.0), working, ""
+    if bare_words and not e_words:
+        working = moved_xy & (kind == 3)
+        note = (f"{_SLIC3R_NO_EXTRUSION}: E values without their letter; moves carrying one are work moves"
+                + (" extruded with the printer's own flow model" if not laser else " with the laser on"))
+    elif not e_words and not bare_words:
+        working = moved_xy & (kind >= 1)
+        note = ("no E words: G1/G2/G3 moves are work moves "
+                + ("with the laser on" if laser else ("extruded with the printer's own flow model" if printer is not None
+                                                       else "(no printer given: no filament amounts)"))
+                + ", G0 moves are travels")
+    else:
+        working = moved & (e > 0)
+    tool = working.astype(float) * (printer.tool.max_power if laser else 1.0)
+    if laser:
+        e = np.zeros(len(e))
+    elif bare_words and not e_words:
+        e = np.where(working, 0.0, e)  # replaced by the flow model
+    return e, tool, working, note
+
+
+def _flow_model_e(printer, xyz, starts, sel, layer, layer_z, e):
+    """Filament for the moves ``sel`` from the printer's flow model: the perimeter width (first
+    layer width on layer 0) and the file's own layer thickness, as deltaslice's slicer extrudes."""
+    from .slicing.extrusion import filament_per_mm
+
+    s = printer.slicing
+    out = np.array(e, float)
+    if not sel.any():
+        return out
+    thick = np.diff(np.concatenate([[0.0], layer_z]))
+    thick = np.where(thick > 0, thick, s.layer_height)
+    idx = np.flatnonzero(sel)
+    h = thick[layer[idx]]
+    w = np.where(layer[idx] == 0, s.first_layer_width, s.perimeter_width)
+    keys, inverse = np.unique(np.column_stack([w, h]), axis=0, return_inverse=True)
+    rate = np.array([filament_per_mm(wi, hi, printer.tool.filament_area, s.extrusion_multiplier) for wi, hi in keys])
+    out[idx] = np.linalg.norm(xyz[idx] - starts[idx], axis=1) * rate[inverse.reshape(-1)]
+    return out
+
+
+def _first_number(v) -> float | None:
+    try:
+        x = float(str(v).split(",")[0].strip().strip('"'))
+    except ValueError:
+        return None
+    return x if math.isfinite(x) and x > 0 else None
+
+
+def _source_machine(settings: dict, cura: list[str]) -> dict:
+    """The machine a file was sliced for, from its settings block: filament and nozzle
+    diameters (mm), bed size and centre (mm, in the file's frame) where given."""
+    out: dict = {}
+    if cura:
+        body = "".join(cura).replace("\\\\n", "\n").replace("\\n", "\n")
+        for m in re.finditer(r"^\s*(\w+)\s*=\s*([^\n\"]*)", body, re.M):
+            settings.setdefault("cura:" + m.group(1), m.group(2).strip())
+    fd = _first_number(settings.get("filament_diameter", settings.get("cura:material_diameter")))
+    nz = _first_number(settings.get("nozzle_diameter", settings.get("cura:machine_nozzle_size")))
+    if fd:
+        out["filament_diameter"] = fd
+    if nz:
+        out["nozzle_diameter"] = nz
+    shape = settings.get("bed_shape")
+    if shape:
+        try:
+            pts = np.array([[float(v) for v in p.split("x")] for p in shape.split(",")])
+            if pts.ndim == 2 and pts.shape[1] == 2 and np.all(np.isfinite(pts)):
+                lo, hi = pts.min(axis=0), pts.max(axis=0)
+                out["bed"] = ((hi - lo).tolist(), ((hi + lo) / 2).tolist())
+        except ValueError:
+            pass
+    cw, cd = _first_number(settings.get("cura:machine_width")), _first_number(settings.get("cura:machine_depth"))
+    if cw and cd:
+        centred_zero = settings.get("cura:machine_center_is_zero", "").lower() == "true"
+        out["bed"] = ([cw, cd], [0.0, 0.0] if centred_zero else [cw / 2, cd / 2])
+    return out
+
+
+def _compare_source(source, printer, e, kind, shown, echo, center) -> np.ndarray:
+    """Warn where the file's machine differs from ``printer``; rescale E (written with E words)
+    for another filament diameter so the same volume of plastic is extruded."""
+    if printer is None or printer.tool.channel_kind == "laser" or not source:
+        return e
+    tool = printer.tool
+    say = echo or (lambda _s: None)
+    fd = source.get("filament_diameter")
+    if fd and abs(fd - tool.filament_diameter) > 0.01 * tool.filament_diameter:
+        ratio = (fd / tool.filament_diameter) ** 2
+        e = np.where(kind == 2, e * ratio, e)
+        say(f"{shown}: sliced for {fd:g} mm filament, {printer.name} uses {tool.filament_diameter:g} mm: "
+            f"E values rescaled by the area ratio {ratio:.4f} so the same volume of plastic is extruded")
+    nz = source.get("nozzle_diameter")
+    if nz and abs(nz - tool.nozzle_diameter) > 1e-6:
+        say(f"{shown}: sliced for a {nz:g} mm nozzle, {printer.name} has {tool.nozzle_diameter:g} mm: "
+            "line widths are the file's own")
+    bed = source.get("bed")
+    if bed:
+        (sx, sy), (cx, cy) = bed
+        b = printer.bed
+        mine = f"a circle of radius {b.radius:g} mm" if b.shape == "circle" else f"{b.size_x:g} x {b.size_y:g} mm"
+        if math.hypot(cx, cy) > 1.0:
+            say(f"{shown}: sliced for a {sx:g} x {sy:g} mm bed centred at ({cx:g}, {cy:g}); {printer.name}'s bed is "
+                f"{mine} centred at (0, 0)" + ("" if center else ": --center moves the part to this bed's centre"))
+    return e
 
 
 def _layers_from_z(z: np.ndarray, working: np.ndarray):

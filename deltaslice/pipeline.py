@@ -147,20 +147,22 @@ def check_job(duration_s: float, n_samples_per_s: float, bytes_per_sample: float
         )
 
 
-def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None):
+def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None,
+                  center=False):
     """A Toolpath from a mesh (sliced here), a G-code file (read) or, for a laser, an
     image or SVG (engraved: :mod:`deltaslice.engrave`), in the bed frame.
 
     part: path to a mesh, G-code, image or SVG file; printer: Printer or path.
     engrave: :class:`~deltaslice.engrave.EngraveOptions` or a dict of its fields (images only).
     progress: callable(done, total) or None; echo: callable(str) for notes (repairs, skipped commands).
+    center: move a G-code part's footprint to the bed centre (meshes are centred unless keep_position).
     """
     printer = _printer(printer)
     kind = part_kind(part)
     if kind == "gcode":
         from .gcode import read_gcode
 
-        return read_gcode(part, printer=printer, echo=echo)
+        return read_gcode(part, printer=printer, echo=echo, center=center)
     if kind == "image":
         from .engrave import engrave as engrave_image
 
@@ -271,13 +273,14 @@ def write_output(trajectory, output, fmt: str | None = None, watch=None, *, max_
 
 
 def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None,
-                  max_bytes=MAX_BYTES) -> int:
-    """Write Samples blocks for ``printer`` to ``output`` as ``fmt``, atomically. Returns bytes written."""
+                  max_bytes=MAX_BYTES, events=()) -> int:
+    """Write Samples blocks for ``printer`` to ``output`` as ``fmt``, atomically. Returns bytes written.
+    events: ``(sample_index, kind, value)`` (see ``emit.write_samples``)."""
     from .emit import write_samples as encode
 
     printer = _printer(printer)
     with atomic_output(output, "wb", max_bytes=max_bytes) as f:
-        return encode(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata)
+        return encode(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata, events=events)
 
 
 def read_counts(path):

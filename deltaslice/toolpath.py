@@ -16,7 +16,11 @@ role       (n,)         u1     :class:`Role` of the move
 layer      (n,)         i4     layer index (0 = first layer), non-decreasing
 =========  ===========  =====  ===================================================
 
-plus ``start`` (3,) f8, mm, and ``layer_z`` (L,) f8, mm: the top of each layer.
+plus ``start`` (3,) f8, mm, ``layer_z`` (L,) f8, mm: the top of each layer, and
+``events``: a structured array (m,) of :data:`EVENT_DTYPE` (``index`` i8: the move
+before which the event applies, ``len(xyz)`` for the end; ``kind`` u1: an
+:class:`EventKind`; ``value`` f8: degrees C, fan 0..255 or laser mode 0/3/4), sorted
+by index, several at one index in their order: heaters, fans and laser mode changes.
 A move with ``tool > 0`` is a working move; consecutive working moves form a
 *run*, and everything between runs (travels, retracts, lifts) is a *travel*.
 A zero-length move with ``e != 0`` is a retract or an unretract.
@@ -35,6 +39,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import DeltasliceError
+
+
+class EventKind(enum.IntEnum):
+    """Timed machine events (codes as in the stream's event record, docs/stream-format.md)."""
+
+    HOTEND_SET = 1  # M104, degrees C
+    HOTEND_WAIT = 2  # M109, degrees C
+    BED_SET = 3  # M140, degrees C
+    BED_WAIT = 4  # M190, degrees C
+    FAN = 5  # M106/M107, 0..255
+    LASER_MODE = 6  # M5 = 0, M3 = 3 (constant power), M4 = 4 (dynamic power)
+
+
+#: Lower-case names used in text outputs (CSV comments, decode).
+EVENT_NAMES = {k: k.name.lower() for k in EventKind}
+EVENT_DTYPE = np.dtype([("index", np.int64), ("kind", np.uint8), ("value", np.float64)])
+WAIT_KINDS = (EventKind.HOTEND_WAIT, EventKind.BED_WAIT)
+
+
+def make_events(rows=()) -> np.ndarray:
+    """A read-only events array from ``(index, kind, value)`` rows, stably sorted by index."""
+    ev = np.array([tuple(r) for r in rows], dtype=EVENT_DTYPE) if len(rows) else np.zeros(0, EVENT_DTYPE)
+    ev = ev[np.argsort(ev["index"], kind="stable")]
+    ev.setflags(write=False)
+    return ev
 
 
 class Role(enum.IntEnum):
@@ -90,6 +119,7 @@ class Toolpath:
     role: np.ndarray
     layer: np.ndarray
     layer_z: np.ndarray
+    events: np.ndarray | None = None
 
     def __post_init__(self):
         xyz = _column("Toolpath.xyz", self.xyz, np.float64)
@@ -116,6 +146,17 @@ class Toolpath:
             raise DeltasliceError("Toolpath.layer_z: non-finite layer height")
         lz.setflags(write=False)
         object.__setattr__(self, "layer_z", lz)
+        ev = make_events() if self.events is None else np.asarray(self.events)
+        if ev.dtype != EVENT_DTYPE:
+            ev = make_events([tuple(r) for r in ev])
+        if len(ev):
+            if np.any(ev["index"] < 0) or np.any(ev["index"] > n) or np.any(np.diff(ev["index"]) < 0):
+                raise DeltasliceError(f"Toolpath.events: indices must be sorted within 0..{n}")
+            if not np.all(np.isin(ev["kind"], [int(k) for k in EventKind])) or not np.all(np.isfinite(ev["value"])):
+                raise DeltasliceError("Toolpath.events: unknown kind or non-finite value")
+        ev = ev.copy()
+        ev.setflags(write=False)
+        object.__setattr__(self, "events", ev)
         if n:
             if not np.all(np.isfinite(self.xyz)) or not np.all(np.isfinite(self.e)):
                 raise DeltasliceError("Toolpath: non-finite coordinate or extrusion")
@@ -144,10 +185,14 @@ class Toolpath:
         parts = [p for p in parts]
         if not parts:
             return cls.empty()
-        offset, layers = 0, []
+        offset, layers, events, moves = 0, [], [], 0
         for p in parts:
             layers.append(p.layer + offset)
             offset += len(p.layer_z)
+            ev = p.events.copy()
+            ev["index"] += moves
+            events.append(ev)
+            moves += len(p)
         cat = np.concatenate
         return cls(
             parts[0].start,
@@ -158,6 +203,7 @@ class Toolpath:
             cat([p.role for p in parts]),
             cat(layers),
             cat([p.layer_z for p in parts]),
+            cat(events),
         )
 
     # -- views -------------------------------------------------------------------
@@ -196,10 +242,12 @@ class Toolpath:
 
     def subset(self, sl: slice) -> "Toolpath":
         """Moves ``sl`` as a toolpath of their own (start = the point before them)."""
-        i0 = sl.start or 0
+        i0, i1, _ = sl.indices(len(self))
         start = self.start if i0 == 0 else self.xyz[i0 - 1]
+        ev = self.events[(self.events["index"] >= i0) & (self.events["index"] <= i1)].copy()
+        ev["index"] -= i0
         return Toolpath(
-            start, self.xyz[sl], self.feed[sl], self.e[sl], self.tool[sl], self.role[sl], self.layer[sl], self.layer_z
+            start, self.xyz[sl], self.feed[sl], self.e[sl], self.tool[sl], self.role[sl], self.layer[sl], self.layer_z, ev
         )
 
     # -- totals ------------------------------------------------------------------
@@ -234,7 +282,15 @@ class Toolpath:
             and close(self.tool, other.tool)
             and np.array_equal(self.layer, other.layer)
             and close(self.layer_z, other.layer_z)
+            and np.array_equal(self.events["index"], other.events["index"])
+            and np.array_equal(self.events["kind"], other.events["kind"])
+            and close(self.events["value"], other.events["value"])
         )
+
+    def with_events(self, events) -> "Toolpath":
+        """The same moves with ``events`` (rows or an :data:`EVENT_DTYPE` array)."""
+        ev = events if isinstance(events, np.ndarray) and events.dtype == EVENT_DTYPE else make_events(events)
+        return Toolpath(self.start, self.xyz, self.feed, self.e, self.tool, self.role, self.layer, self.layer_z, ev)
 
 
 class ToolpathBuilder:
@@ -247,6 +303,8 @@ class ToolpathBuilder:
         self.start = np.asarray(start, dtype=float)
         self.pos = self.start.copy()
         self._chunks: list[tuple] = []
+        self._events: list[tuple] = []
+        self._n = 0
         self.layer_z: list[float] = []
 
     @property
@@ -284,10 +342,51 @@ class ToolpathBuilder:
             (xyz, b(feed, float), b(e, float), b(tool, float), b(role, np.uint8), np.full(k, max(self.layer, 0), np.int32))
         )
         self.pos = xyz[-1].copy()
+        self._n += k
+
+    def event(self, kind, value) -> None:
+        """A timed event (:class:`EventKind`) before the next move added (or at the end)."""
+        self._events.append((self._n, int(EventKind(kind)), float(value)))
 
     def build(self) -> Toolpath:
         if not self._chunks:
             t = Toolpath.empty(self.start)
-            return Toolpath(t.start, t.xyz, t.feed, t.e, t.tool, t.role, t.layer, np.asarray(self.layer_z, float))
+            return Toolpath(t.start, t.xyz, t.feed, t.e, t.tool, t.role, t.layer, np.asarray(self.layer_z, float),
+                            make_events(self._events))
         cols = list(zip(*self._chunks))
-        return Toolpath(self.start, *(np.concatenate(c) for c in cols), np.asarray(self.layer_z, float))
+        return Toolpath(self.start, *(np.concatenate(c) for c in cols), np.asarray(self.layer_z, float),
+                        make_events(self._events))
+
+
+def centred(toolpath: Toolpath) -> tuple[Toolpath, np.ndarray]:
+    """The toolpath moved in x-y so its footprint (the bounding box of its working moves, or of
+    all moves when none works) is centred on the bed origin, and the shift (2,) mm.
+
+    The source machine's own positioning before the first and after the last working move
+    (homing corners, parking) keeps its heights but not its x-y: those moves stay above the
+    part's first and last points, so centring never sends the tool to another machine's corner.
+    The start point (where the tool is before the job) is unchanged."""
+    tp = toolpath
+    if len(tp) == 0:
+        return tp, np.zeros(2)
+    work = tp.working
+    starts = tp.starts
+    pts = np.concatenate([starts[work], tp.xyz[work]]) if work.any() else np.concatenate([tp.start[None], tp.xyz])
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    shift = -(lo + hi) / 2
+    xyz = tp.xyz.copy()
+    xyz[:, :2] += shift
+    if work.any():
+        first, last = int(np.argmax(work)), len(tp) - 1 - int(np.argmax(work[::-1]))
+        xyz[:first, :2] = starts[first, :2] + shift
+        xyz[last + 1 :, :2] = xyz[last, :2]
+    moved = Toolpath(tp.start, xyz, tp.feed, tp.e, tp.tool, tp.role, tp.layer, tp.layer_z, tp.events)
+    return moved, shift
+
+
+def fits_centred(toolpath: Toolpath, printer) -> bool:
+    """True when every point of the toolpath, centred by :func:`centred`, is within the
+    printer's reach (what ``--center`` would give)."""
+    tp, _ = centred(toolpath)
+    pts = np.concatenate([tp.start[None], tp.xyz])
+    return bool(printer.kinematics().reachable(pts).all())

@@ -80,6 +80,9 @@ DOCS = {
     ("tool", "power_counts"): ("counts", "Counts of full laser power in the stream (e.g. 255 for 8-bit PWM).", None),
     ("tool", "travel_height"): ("mm", "Lift of the laser head during travels.", None),
     ("tool", "spot_size"): ("mm", "Focused laser spot diameter: the default raster line pitch.", None),
+    ("tool", "s_max"): ("", "G-code S value of full laser power (GRBL's $30): S / s_max is the power fraction.", None),
+    ("tool", "hotend_temperature"): ("deg C", "Hot-end temperature a sliced part is printed at (set and waited for at the start).", None),
+    ("tool", "bed_temperature"): ("deg C", "Bed temperature a sliced part is printed at; 0: an unheated bed (no bed events).", None),
     # bed
     ("bed", "shape"): ("", "`circle` (deltas) or `rectangle`.", None),
     ("bed", "radius"): ("mm", "Printable radius of a circular bed; every printing move must lie within it.", None),

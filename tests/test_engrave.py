@@ -298,7 +298,8 @@ def test_cli_compiles_both_modes_and_gcode_uses_grbl_laser_words(tmp_path):
     assert lines.count("M4 S0") == lines.count("M5") > 0
     burns = [ln for ln in lines if ln.startswith("G1") and " S" in ln and not ln.endswith(" S0")]
     powers = [int(ln.rsplit(" S", 1)[1]) for ln in burns]
-    assert burns and max(powers) == 255 and min(powers) > 0  # black shapes: full power (grey only at the disc's edge)
+    # S is the power fraction times [tool] s_max (GRBL $30), the scale the G-code reader divides by
+    assert burns and max(powers) == 1000 and min(powers) > 0  # black shapes: full power (grey only at the disc's edge)
     assert not any(ln.startswith("G0") and " S" in ln for ln in lines)
 
 

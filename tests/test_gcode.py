@@ -8,7 +8,7 @@ from deltaslice.gcode import ARC_TOLERANCE, read_gcode
 from deltaslice.pipeline import write_gcode
 from deltaslice.machine import load_printer
 from deltaslice.slicing import slice_mesh
-from deltaslice.toolpath import Role, Toolpath, ToolpathBuilder
+from deltaslice.toolpath import EventKind, Role, Toolpath, ToolpathBuilder
 
 from . import meshes
 
@@ -92,7 +92,8 @@ def test_read_prusaslicer_dialect(tmp_path):
     notes = []
     tp = read_gcode(write(tmp_path, PRUSA), echo=notes.append)
     assert tp.n_layers == 2 and np.allclose(tp.layer_z, [0.2, 0.4])
-    assert notes and "M104" in notes[0] and "M140" in notes[0] and "3 commands" in notes[0]
+    assert not notes  # heaters and fans are events now, nothing is skipped
+    assert tp.events.tolist() == [(0, EventKind.FAN, 0.0), (0, EventKind.HOTEND_SET, 215.0), (len(tp), EventKind.BED_SET, 0.0)]
     # relative E: filament per working move adds up
     work = tp.working
     assert tp.e[work].sum() == pytest.approx(0.5 + 0.8 + 0.8 + 0.25 + 0.25)

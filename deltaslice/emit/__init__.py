@@ -12,6 +12,8 @@ Output formats by file extension are in :mod:`deltaslice.formats`.
 
 from __future__ import annotations
 
+import math
+
 from ..errors import DeltasliceError
 from . import csv as csvfmt
 from . import stream
@@ -22,14 +24,17 @@ STREAM_MAGIC = stream.MAGIC
 _WRITERS = {"csv": csvfmt.write_csv, "stream": stream.write_stream}
 
 
-def write_samples(blocks, printer, f, *, fmt: str, rate: float, metadata: dict | None = None) -> int:
+def write_samples(blocks, printer, f, *, fmt: str, rate: float, metadata: dict | None = None, events=()) -> int:
     """Write consecutive Samples blocks for ``printer`` to the binary file ``f`` as ``fmt``
-    ("csv" or "stream"). Returns bytes written."""
+    ("csv" or "stream"). Returns bytes written.
+
+    events: ``(sample_index, kind, value)`` in order (kind a :class:`~deltaslice.toolpath.EventKind`;
+    value in degrees C, fan 0..255 or laser mode): each takes effect before sample ``sample_index``."""
     try:
         writer = _WRITERS[fmt]
     except KeyError:
         raise DeltasliceError(f"cannot write samples as {fmt!r}: expected 'csv' or 'stream'") from None
-    return writer(blocks, printer, f, rate=rate, metadata=metadata)
+    return writer(blocks, printer, f, rate=rate, metadata=metadata, events=events)
 
 
 def write_trajectory(trajectory, f, fmt: str, watch=None) -> int:
@@ -44,11 +49,23 @@ def write_trajectory(trajectory, f, fmt: str, watch=None) -> int:
     blocks = trajectory.iter_samples(rate)
     if watch is not None:
         blocks = watch(blocks)
-    return write_samples(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata)
+    return write_samples(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata,
+                         events=event_samples(getattr(trajectory, "events", ()), trajectory.duration, rate))
+
+
+def event_samples(events, duration: float, rate: float) -> list[tuple[int, int, float]]:
+    """Trajectory events ``(time_s, kind, value)`` -> ``(sample_index, kind, value)``: the first
+    sample at or after the event's time (``iter_samples`` gives ``ceil(duration * rate) + 1`` samples)."""
+    n_total = int(math.ceil(duration * rate - 1e-9)) + 1
+    return [(min(max(int(math.ceil(t * rate - 1e-6)), 0), n_total), int(k), float(v)) for t, k, v in events]
 
 
 def read_output(data: bytes, name: str = "<output>"):
-    """(metadata dict, Samples) of a setpoints CSV or a binary stream (told apart by content)."""
+    """(metadata dict, Samples) of a setpoints CSV or a binary stream (told apart by content).
+
+    The metadata's ``"events"`` entry (absent when there are none) is a tuple of
+    ``(sample_index, kind, value)``: heater, fan and laser events, value in degrees C,
+    fan 0..255 or laser mode 0/3/4."""
     import io
 
     reader = stream.read_stream if data[: len(STREAM_MAGIC)] == STREAM_MAGIC else csvfmt.read_csv

@@ -19,11 +19,13 @@ power 0..1) with 9 decimals.
 from __future__ import annotations
 
 import io
+import re
 
 import numpy as np
 
 from ..errors import StreamError
 from ..samples import Samples
+from ..toolpath import EVENT_NAMES, EventKind
 
 TITLE = "deltaslice setpoints v1"
 RESERVED = ("printer", "fingerprint", "rate_hz", "columns")
@@ -83,12 +85,40 @@ def check_finite(samples: Samples, first_index: int) -> None:
             raise StreamError(f"sample {first_index + i}: non-finite {name} value: the trajectory cannot be written")
 
 
-def write_csv(blocks, printer, f, *, rate: float, metadata: dict | None = None) -> int:
-    """Write Samples blocks as setpoints CSV to the binary file ``f``. Returns bytes written."""
+_EVENT_LINE = re.compile(r"^# event t=(\S+) kind=(\w+) value=(\S+)\s*$", re.M)
+_EVENT_KINDS = {name: int(k) for k, name in EVENT_NAMES.items()}
+
+
+def event_line(index: int, kind: int, value: float, rate: float) -> str:
+    """The comment line of one event before sample ``index``."""
+    return f"# event t={index / rate:.9f} kind={EVENT_NAMES[EventKind(kind)]} value={value:.10g}\n"
+
+
+def _rows_with_events(samples: Samples, first: int, events: list, rate: float) -> str:
+    """Rows of one block with the comment lines of the events whose index falls in it."""
+    n = len(samples)
+    cut = 0
+    parts = []
+    while events and events[0][0] < first + n:
+        i, kind, value = events.pop(0)
+        at = max(i - first, 0)
+        if at > cut:
+            parts.append(format_rows(samples.t[cut:at], samples.q[cut:at], samples.e[cut:at], samples.tool[cut:at]))
+            cut = at
+        parts.append(event_line(i, kind, value, rate))
+    parts.append(format_rows(samples.t[cut:], samples.q[cut:], samples.e[cut:], samples.tool[cut:]))
+    return "".join(parts)
+
+
+def write_csv(blocks, printer, f, *, rate: float, metadata: dict | None = None, events=()) -> int:
+    """Write Samples blocks as setpoints CSV to the binary file ``f``. Returns bytes written.
+
+    events: ``(sample_index, kind, value)``, in order; written as ``# event`` lines."""
     units = list(printer.limits.units[:-1])
     header = comment_lines(printer.name, printer.fingerprint(), rate, units, metadata or {})
     size = 0
     index = 0
+    pending = sorted(((int(i), int(k), float(v)) for i, k, v in events), key=lambda ev: ev[0])
     data = header.encode()
     f.write(data)
     size += len(data)
@@ -96,10 +126,13 @@ def write_csv(blocks, printer, f, *, rate: float, metadata: dict | None = None) 
         if samples.n_joints != printer.n_joints:
             raise StreamError(f"samples have {samples.n_joints} joints, printer {printer.name} has {printer.n_joints}")
         check_finite(samples, index)
-        data = format_rows(samples.t, samples.q, samples.e, samples.tool).encode()
+        data = _rows_with_events(samples, index, pending, rate).encode()
         f.write(data)
         size += len(data)
         index += len(samples)
+    data = "".join(event_line(i, k, v, rate) for i, k, v in pending).encode()  # at or after the end
+    f.write(data)
+    size += len(data)
     return size
 
 
@@ -143,4 +176,15 @@ def read_csv(f, path: str = "<csv>") -> tuple[dict[str, str], Samples]:
         raise StreamError(f"{path}: rows have {table.shape[1]} columns, the header names {ncol}")
     meta = parse_comments(comments)
     meta["format"] = "csv"
+    events = []
+    for m in _EVENT_LINE.finditer(body):
+        try:
+            rate = float(meta.get("rate_hz", "nan"))
+            i, value = int(round(float(m.group(1)) * rate)), float(m.group(3))
+            kind = _EVENT_KINDS[m.group(2)]
+        except (ValueError, KeyError, OverflowError):
+            raise StreamError(f"{path}: malformed event line {m.group(0)!r}") from None
+        events.append((i, kind, value))
+    if events:
+        meta["events"] = tuple(events)
     return meta, Samples(table[:, 0], table[:, 1:-2], table[:, -2], table[:, -1])

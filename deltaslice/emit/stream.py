@@ -6,8 +6,9 @@ In short: a header (magic, version, printer fingerprint, rate, channels with
 kind and scale, printer name, metadata, CRC-32), then self-contained blocks of
 integer actuator counts (per block and channel: first value, optional first
 difference, then bit-packed zig-zag residuals of first or second differences at
-one bit width, CRC-32 per block, at most 512 bytes per block record), then an
-end record with the sample count and a CRC-32 of everything before it.
+one bit width, CRC-32 per block, at most 512 bytes per block record), event
+records (heaters, fan, laser mode; version 2) between blocks, then an end record
+with the sample count and a CRC-32 of everything before it.
 
 Encoding and decoding are vectorised per block with numpy.
 """
@@ -22,10 +23,12 @@ import numpy as np
 
 from ..errors import StreamError
 from ..samples import Samples, to_counts
+from ..toolpath import EVENT_NAMES, EventKind
 from . import csv as csvfmt
 
 MAGIC = b"\x89DSL\r\n\x1a\n"
-VERSION = 1
+VERSION = 1  # a stream without events
+VERSION_EVENTS = 2  # a stream with event records (a version-2 reader plays version 1 too)
 MAX_RECORD = 512  # bytes: the player's block buffer (DSL_MAX_RECORD in dsl_player.h)
 MAX_CHANNELS = 8
 BLOCK_SAMPLES = 512  # nominal samples per block; halved until the record fits MAX_RECORD
@@ -34,6 +37,10 @@ COUNT_LIMIT = 1 << 29  # |counts| must stay below this (int32 arithmetic in the 
 REC_BLOCK = 0x42  # 'B'
 REC_END = 0x45  # 'E'
 END_LEN = 15
+REC_EVENT = 0x56  # 'V'
+EVENT_LEN = 16
+_EVENT = struct.Struct("<BHIBi")  # type, length, sample index, kind, value; then CRC-32
+_TENTHS = (1, 2, 3, 4)  # temperature kinds: value in tenths of a degree C
 
 KIND_REVOLUTE, KIND_PRISMATIC, KIND_EXTRUDER, KIND_LASER = 1, 2, 3, 4
 KIND_NAMES = {KIND_REVOLUTE: "revolute", KIND_PRISMATIC: "prismatic", KIND_EXTRUDER: "extruder", KIND_LASER: "laser"}
@@ -67,6 +74,7 @@ class StreamHeader:
     metadata: dict = field(default_factory=dict)
     max_record: int = MAX_RECORD
     flags: int = 0
+    version: int = VERSION
 
     @property
     def rate(self) -> float:
@@ -96,13 +104,13 @@ class StreamHeader:
         total = _FIXED.size + len(body) + 4
         if total > 0xFFFF:
             raise StreamError(f"stream header too long ({total} bytes)")
-        fixed = _FIXED.pack(MAGIC, VERSION, total, self.fingerprint & 0xFFFFFFFF, self.rate_mhz,
+        fixed = _FIXED.pack(MAGIC, self.version, total, self.fingerprint & 0xFFFFFFFF, self.rate_mhz,
                             len(self.channels), self.flags, self.max_record)
         data = fixed + body
         return data + struct.pack("<I", zlib.crc32(data))
 
     @classmethod
-    def for_printer(cls, printer, rate: float, metadata: dict | None = None) -> "StreamHeader":
+    def for_printer(cls, printer, rate: float, metadata: dict | None = None, version: int = VERSION) -> "StreamHeader":
         rate_mhz = int(round(rate * 1000.0))
         if not 1 <= rate_mhz <= 0xFFFFFFFF:
             raise StreamError(f"sample rate {rate:g} Hz cannot be stored (0.001 Hz .. 4.29 MHz)")
@@ -113,7 +121,7 @@ class StreamHeader:
         ]
         if len(chans) > MAX_CHANNELS:
             raise StreamError(f"{len(chans)} channels: the stream holds at most {MAX_CHANNELS}")
-        return cls(printer.fingerprint(), rate_mhz, tuple(chans), printer.name, dict(metadata or {}))
+        return cls(printer.fingerprint(), rate_mhz, tuple(chans), printer.name, dict(metadata or {}), version=version)
 
 
 def parse_header(data: bytes, where: str = "stream") -> StreamHeader:
@@ -132,8 +140,8 @@ def _parse_header(data: bytes, where: str) -> StreamHeader:
     magic, version, hlen, fp, rate_mhz, nch, flags, max_record = _FIXED.unpack_from(data)
     if magic != MAGIC:
         raise StreamError(f"{where}: not a deltaslice stream (bad magic {magic!r} at byte offset 0)")
-    if version != VERSION:
-        raise StreamError(f"{where}: stream format version {version} is not supported (this reader knows {VERSION})")
+    if version not in (VERSION, VERSION_EVENTS):
+        raise StreamError(f"{where}: stream format version {version} is not supported (this reader knows 1 and 2)")
     if len(data) < hlen:
         raise StreamError(f"{where}: truncated header: {len(data)} bytes, header length is {hlen}")
     need = _FIXED.size + nch * _CHANNEL.size + 1 + 2 + 4
@@ -162,7 +170,7 @@ def _parse_header(data: bytes, where: str) -> StreamHeader:
         raise StreamError(f"{where}: header length {hlen}: the metadata ({mlen} bytes) runs past it")
     meta_text = data[pos + 2 : pos + 2 + mlen].decode("utf-8", "replace")
     meta = dict(line.split("=", 1) for line in meta_text.splitlines() if "=" in line)
-    return StreamHeader(fp, rate_mhz, tuple(chans), name, meta, max_record, flags)
+    return StreamHeader(fp, rate_mhz, tuple(chans), name, meta, max_record, flags, version)
 
 
 # --------------------------------------------------------------------------- block codec
@@ -361,16 +369,41 @@ def decode_block(rec: bytes, n_channels: int) -> np.ndarray:
     return out
 
 
+# --------------------------------------------------------------------------- events
+
+
+def encode_event(index: int, kind: int, value: float) -> bytes:
+    """One 16-byte event record: before sample ``index``; value in degrees C (stored in
+    tenths), fan 0..255 or laser mode 0/3/4."""
+    if kind not in (1, 2, 3, 4, 5, 6):
+        raise StreamError(f"event kind {kind} is not one of 1..6")
+    stored = int(round(value * 10 if kind in _TENTHS else value))
+    if not 0 <= index <= 0xFFFFFFFF or not -(2**31) <= stored < 2**31:
+        raise StreamError(f"event at sample {index} with value {value!r} cannot be stored")
+    rec = _EVENT.pack(REC_EVENT, EVENT_LEN, index, kind, stored)
+    return rec + struct.pack("<I", zlib.crc32(rec))
+
+
+def event_value(kind: int, stored: int) -> float:
+    """The natural value (degrees C, fan 0..255, laser mode) of a stored event value."""
+    return stored / 10.0 if kind in _TENTHS else float(stored)
+
+
 # --------------------------------------------------------------------------- writer
 
 
 class StreamWriter:
     """Encodes Samples blocks to an open binary file; :meth:`close` writes the end record."""
 
-    def __init__(self, f, printer, rate: float, metadata: dict | None = None, block_samples: int = BLOCK_SAMPLES):
+    def __init__(self, f, printer, rate: float, metadata: dict | None = None, block_samples: int = BLOCK_SAMPLES,
+                 events=()):
         self.f = f
         self.printer = printer
-        self.header = StreamHeader.for_printer(printer, rate, metadata)
+        # (sample index, kind, value) in order; a block ends at every event's index
+        self.events = sorted(((int(i), int(k), float(v)) for i, k, v in events), key=lambda ev: ev[0])
+        for ev in self.events:
+            encode_event(*ev)  # refuse an unstorable event before anything is written
+        self.header = StreamHeader.for_printer(printer, rate, metadata, VERSION_EVENTS if self.events else VERSION)
         self.rate = self.header.rate
         self.block_samples = block_samples
         self.crc = 0
@@ -406,9 +439,23 @@ class StreamWriter:
             raise StreamError(f"sample {self.n_samples + i}: actuator count {counts[i].tolist()} beyond +-2^29")
         self.n_samples += len(samples)
         pending = np.concatenate([self.pending, counts]) if len(self.pending) else counts
+        pending = self._emit_events(pending)
         full = len(pending) // self.block_samples * self.block_samples
         self._emit(pending[:full])
         self.pending = pending[full:]
+
+    def _emit_events(self, pending):
+        """Write the pending samples before each event whose index they reach, then the event;
+        return the samples left after the last such event."""
+        while self.events and self.events[0][0] <= self.n_written + len(pending):
+            i = self.events[0][0]
+            cut = i - self.n_written
+            if cut > 0:
+                self._emit(pending[:cut])
+                pending = pending[cut:]
+            while self.events and self.events[0][0] == i:
+                self._put(encode_event(*self.events.pop(0)))
+        return pending
 
     def _emit(self, counts):
         if len(counts):
@@ -417,17 +464,22 @@ class StreamWriter:
             self.n_written += len(counts)
 
     def close(self) -> int:
-        self._emit(self.pending)
+        self._emit(self._emit_events(self.pending))
         self.pending = self.pending[:0]
+        for ev in self.events:  # events at or past the last sample stand before the end record
+            self._put(encode_event(self.n_written, ev[1], ev[2]))
+        self.events = []
         body = bytes([REC_END]) + struct.pack("<HII", END_LEN, self.n_written, self.crc)
         self._put(body + struct.pack("<I", zlib.crc32(body)))
         return self.size
 
 
 def write_stream(blocks, printer, f, *, rate: float, metadata: dict | None = None,
-                 block_samples: int = BLOCK_SAMPLES) -> int:
-    """Write Samples blocks as a binary stream to the binary file ``f``. Returns bytes written."""
-    w = StreamWriter(f, printer, rate, metadata, block_samples)
+                 block_samples: int = BLOCK_SAMPLES, events=()) -> int:
+    """Write Samples blocks as a binary stream to the binary file ``f``. Returns bytes written.
+
+    events: ``(sample_index, kind, value)`` in order; the stream is version 2 when there are any."""
+    w = StreamWriter(f, printer, rate, metadata, block_samples, events)
     for samples in blocks:
         w.write(samples)
     return w.close()
@@ -440,7 +492,8 @@ class StreamReader:
     """Reads a stream from a binary file object. ``header`` after construction;
     :meth:`blocks` yields ``(block_index, first_sample_index, counts (n, C) int64)``
     and raises :class:`StreamError` at the first bad record, before yielding any
-    sample of it."""
+    sample of it. Event records met on the way are appended to :attr:`events` as
+    ``(sample_index, kind, value)`` (value in degrees C, fan 0..255, laser mode)."""
 
     def __init__(self, f, name: str = "stream"):
         self.f = f
@@ -456,6 +509,7 @@ class StreamReader:
         self.header = parse_header(data, name)
         self.offset = len(data)
         self.crc = zlib.crc32(data)
+        self.events: list[tuple[int, int, float]] = []
 
     def _fail(self, block: int, offset: int, what: str):
         raise StreamError(f"{self.name}: block {block} at byte offset {offset}: {what}")
@@ -483,6 +537,21 @@ class StreamReader:
                 if self.f.read(1):
                     self._fail(index, at + END_LEN, "unexpected bytes after the end record")
                 return
+            if head[0] == REC_EVENT:
+                rec = head + self.f.read(EVENT_LEN - len(head))
+                if len(rec) < EVENT_LEN:
+                    self._fail(index, at, "stream truncated inside an event record")
+                _t, length, i, kind, stored = _EVENT.unpack_from(rec)
+                if length != EVENT_LEN or zlib.crc32(rec[:12]) != struct.unpack_from("<I", rec, 12)[0]:
+                    self._fail(index, at, "event record corrupt (CRC mismatch or length)")
+                if self.header.version < VERSION_EVENTS:
+                    self._fail(index, at, f"event record in a version {self.header.version} stream")
+                if kind not in (1, 2, 3, 4, 5, 6) or i != sample:
+                    self._fail(index, at, f"event kind {kind} at sample {i}: expected kind 1..6 before sample {sample}")
+                self.events.append((i, kind, event_value(kind, stored)))
+                self.crc = zlib.crc32(rec, self.crc)
+                self.offset += EVENT_LEN
+                continue
             if head[0] != REC_BLOCK:
                 self._fail(index, at, f"unknown record type 0x{head[0]:02x} (corrupt or out of sync)")
             if len(head) < 3:
@@ -546,12 +615,18 @@ class UnitConverter:
         return Samples(t, q, e, tool)
 
 
-def read_stream(f, name: str = "stream") -> tuple[dict[str, str], Samples]:
-    """(metadata, Samples in joint units) of a stream read from the binary file ``f``."""
-    header, counts = read_counts(f, name)
-    conv = UnitConverter(header)
+def read_stream(f, name: str = "stream") -> tuple[dict, Samples]:
+    """(metadata, Samples in joint units) of a stream read from the binary file ``f``. The
+    metadata's ``"events"`` entry (only when the stream has event records) is a tuple of
+    ``(sample_index, kind, value)``, value in degrees C, fan 0..255 or laser mode 0/3/4."""
+    reader = StreamReader(f, name)
+    parts = [c for _i, _s, c in reader.blocks()]
+    header = reader.header
+    counts = np.concatenate(parts) if parts else np.zeros((0, header.n_channels), dtype=np.int64)
     meta = stream_metadata(header)
-    return meta, conv(counts, 0)
+    if reader.events:
+        meta["events"] = tuple(reader.events)
+    return meta, UnitConverter(header)(counts, 0)
 
 
 def stream_metadata(header: StreamHeader) -> dict[str, str]:
@@ -561,6 +636,7 @@ def stream_metadata(header: StreamHeader) -> dict[str, str]:
         "fingerprint": f"0x{header.fingerprint:08x}",
         "rate_hz": f"{header.rate:.10g}",
         "channels": ", ".join(c.kind_name for c in header.channels),
+        "version": str(header.version),
     }
     meta.update(header.metadata)
     return meta
@@ -581,7 +657,8 @@ def decode_to_text(f, out, units: bool = False, printer=None, name: str = "strea
     """Print the samples of the stream read from binary file ``f`` to the text file ``out``;
     returns the sample count.
 
-    Without ``units``: one line per sample, ``index c1 ... cC`` (integer counts).
+    Without ``units``: one line per sample, ``index c1 ... cC`` (integer counts), and a line
+    ``# event i=... kind=... value=...`` before the sample an event applies to.
     With ``units``: exactly the setpoints CSV format (see :mod:`deltaslice.emit.csv`).
     printer: a loaded Printer the stream must have been compiled for (fingerprint), or None.
     Samples of blocks before a bad one are printed before the StreamError is raised.
@@ -598,12 +675,25 @@ def decode_to_text(f, out, units: bool = False, printer=None, name: str = "strea
         joint_units = [KIND_UNITS[c.kind] for c in h.channels[:-1]]
         out.write(csvfmt.comment_lines(h.printer_name, h.fingerprint, h.rate, joint_units, h.metadata))
     total = 0
+    shown = 0
+
+    def events_before(limit):
+        nonlocal shown
+        for i, kind, value in reader.events[shown:]:
+            if i > limit:
+                break
+            out.write(csvfmt.event_line(i, kind, value, h.rate) if units else
+                      f"# event i={i} kind={EVENT_NAMES[EventKind(kind)]} value={value:.10g}\n")
+            shown += 1
+
     for _i, first, counts in reader.blocks():
+        events_before(first)
         if units:
             s = conv(counts, first)
             out.write(csvfmt.format_rows(s.t, s.q, s.e, s.tool))
         else:
             out.write(format_count_lines(first, counts))
         total += len(counts)
+    events_before(total)
     out.flush()
     return total

@@ -91,6 +91,7 @@ def _read_tool(sec: Section) -> Tool:
             power_counts=sec.getfloat("power_counts", above=0),
             travel_height=sec.getfloat("travel_height", 0.0, minval=0),
             spot_size=sec.getfloat("spot_size", 0.1, above=0, maxval=10),
+            s_max=sec.getfloat("s_max", 1000.0, above=0),
         )
     nozzle = sec.getfloat("nozzle_diameter", above=0, maxval=5)
     return Extruder(
@@ -103,6 +104,8 @@ def _read_tool(sec: Section) -> Tool:
         z_hop=sec.getfloat("z_hop", 0.0, minval=0),
         retract_min_travel=sec.getfloat("retract_min_travel", 2.0, minval=0),
         counts_per_mm=sec.getfloat("counts_per_mm", above=0),
+        hotend_temperature=sec.getfloat("hotend_temperature", 200.0, minval=0, maxval=500),
+        bed_temperature=sec.getfloat("bed_temperature", 0.0, minval=0, maxval=200),
     )
 
 

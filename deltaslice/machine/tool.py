@@ -26,6 +26,9 @@ class Extruder:
     z_hop: float
     retract_min_travel: float
     counts_per_mm: float
+    #: Temperatures deltaslice's slicer sets and waits for at the start, degrees C (bed 0: unheated).
+    hotend_temperature: float = 200.0
+    bed_temperature: float = 0.0
 
     channel_kind = "extruder"
     channel_name = "filament"
@@ -80,6 +83,8 @@ class Laser:
     power_counts: float
     travel_height: float
     spot_size: float = 0.1  # mm: focused spot diameter, the default raster line pitch
+    #: G-code S value of full power (GRBL's $30, default 1000).
+    s_max: float = 1000.0
 
     channel_kind = "laser"
     channel_name = "laser"

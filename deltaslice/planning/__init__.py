@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
-from ..toolpath import Role, Toolpath
+from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .pieces import Piece
 from .topp import RunSpec, plan_run
 from .trajectory import Trajectory
@@ -48,8 +48,15 @@ def check_reachable(toolpath: Toolpath, printer) -> None:
                 why = f"too close to a singularity (Jacobian condition {kin.condition(q[None])[0]:.0f})"
             else:
                 why = "beyond a mechanical limit (ball-joint tilt)"
+        from ..toolpath import fits_centred
+
+        hint = (
+            "; the part would fit centred on the bed: use --center (center=True)"
+            if fits_centred(toolpath, printer)
+            else "; it would not fit centred on the bed either"
+        )
         raise UnreachableError(
-            f"layer {layer}: x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm is out of reach of {printer.name} ({why})"
+            f"layer {layer}: x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm is out of reach of {printer.name} ({why}){hint}"
         )
 
 
@@ -57,10 +64,12 @@ LASER_ROLES = (int(Role.LASER), int(Role.LASER_DYNAMIC))
 
 
 def split_runs(toolpath: Toolpath):
-    """[(i, j)] half-open ranges of working moves with one tool value each.
+    """[(i, j)] half-open ranges of working moves with one tool value each; a run also ends
+    at a wait event (M109/M190), where the machine must stand still while the heater comes up.
 
     Laser moves instead form runs with a power per move (zero in overscans and short gaps,
     which the tool crosses without stopping), cut only where the power mode (M3/M4) changes."""
+    waits = toolpath.events["index"][np.isin(toolpath.events["kind"], [int(k) for k in WAIT_KINDS])]
     laser = np.isin(toolpath.role, LASER_ROLES)
     if laser.any():
         member = np.concatenate([[False], toolpath.working | laser, [False]]).astype(np.int8)
@@ -68,14 +77,15 @@ def split_runs(toolpath: Toolpath):
         dynamic = toolpath.role == int(Role.LASER_DYNAMIC)
         out = []
         for i, j in zip(edges[0::2].tolist(), edges[1::2].tolist()):
-            cuts = np.flatnonzero(np.diff(dynamic[i:j])) + 1 + i
+            cuts = np.union1d(np.flatnonzero(np.diff(dynamic[i:j])) + 1 + i, waits[(waits > i) & (waits < j)]).astype(int)
             bounds = [i, *cuts.tolist(), j]
             out.extend(zip(bounds[:-1], bounds[1:]))
         return out
     out = []
+    waits = toolpath.events["index"][np.isin(toolpath.events["kind"], [int(k) for k in WAIT_KINDS])]
     for i, j in toolpath.runs():
         tool = toolpath.tool[i:j]
-        cuts = np.flatnonzero(np.diff(tool) != 0) + 1
+        cuts = np.union1d(np.flatnonzero(np.diff(tool) != 0) + 1, waits[(waits > i) & (waits < j)] - i).astype(int)
         edges = np.concatenate([[0], cuts, [j - i]]) + i
         out.extend(zip(edges[:-1].tolist(), edges[1:].tolist()))
     return out
@@ -132,23 +142,40 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     if not ((toolpath.lengths > 1e-9) | (toolpath.e != 0)).any():
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     check_reachable(toolpath, printer)
-    if planner not in ("toppra", "trapezoid"):
-        raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
     # Every trajectory starts at the machine's rest pose and parks there at the end.
     kin = printer.kinematics()
     head = from_rest(kin, printer, toolpath.start, speed_limit)
     tail = to_rest(kin, printer, toolpath.xyz[-1], speed_limit)
     if planner == "trapezoid":
-        from .trapezoid import plan_safe
+        from .trapezoid import _moves, plan_safe
 
-        return plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress, head=head, tail=tail)
+        traj = plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress, head=head, tail=tail)
+        # one trapezoid per kept move: move m starts at t0[number of kept moves before m]
+        kept_before = np.concatenate([[0], np.cumsum(_moves(toolpath, printer)[-1])])
+        times = traj.pieces[len(head)].t0[np.minimum(kept_before[toolpath.events["index"]], len(traj.pieces[len(head)].t0) - 1)]
+        traj.events = _at_rest(toolpath, _event_times(toolpath, times), head, traj.duration)
+        return traj
     traj = _plan_toppra(toolpath, printer, speed_limit, workers, progress)
-    return Trajectory(printer, head + traj.pieces + tail, planner=traj.planner, speed_limit=speed_limit,
-                      e_start=traj.e_start, info=traj.info)
+    whole = Trajectory(printer, head + traj.pieces + tail, planner=traj.planner, speed_limit=speed_limit,
+                       e_start=traj.e_start, info=traj.info)
+    whole.events = _at_rest(toolpath, traj.events, head, whole.duration)
+    return whole
+
+
+def _at_rest(toolpath: Toolpath, events: tuple, head: list, duration: float) -> tuple:
+    """Events timed within the toolpath's own motion, moved onto the whole trajectory: those
+    before the first move happen at t = 0, at the rest pose (a heater warms up and a wait holds
+    there, not over the bed); those after the last move at the end, parked; the rest shift by
+    the move from rest."""
+    offset = sum(p.duration for p in head)
+    index = toolpath.events["index"]
+    return tuple(
+        (0.0 if i == 0 else duration if i >= len(toolpath) else t + offset, k, v)
+        for (t, k, v), i in zip(events, index.tolist())
+    )
 
 
 def _plan_toppra(toolpath, printer, speed_limit, workers, progress) -> Trajectory:
-
     kin = printer.kinematics()
     ranges = split_runs(toolpath)
     specs = [_run_spec(toolpath, i, j) for i, j in ranges]
@@ -175,15 +202,34 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress) -> Trajector
     printed_top = 0.0
     prev_end = 0
     e_start = 0.0
+    first_piece = []  # (first move, index of its first piece) per move range, for the events' times
     for (i, j), run in zip(ranges, run_pieces):
+        first_piece.append((prev_end, len(pieces)))
         pieces.extend(_travel(kin, printer, toolpath, prev_end, i, pos, printed_top, speed_limit))
+        first_piece.append((i, len(pieces)))
         pieces.extend(run)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
+    first_piece.append((prev_end, len(pieces)))
     if prev_end < len(toolpath):
         pieces.extend(_travel(kin, printer, toolpath, prev_end, len(toolpath), pos, printed_top, speed_limit))
-    return Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit, e_start=e_start)
+    if not pieces:
+        raise DeltasliceError("the toolpath never moves the tool or the filament: nothing to plan")
+    traj = Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit, e_start=e_start)
+    moves, piece_at = np.array(first_piece).T
+    ev = toolpath.events["index"]
+    k = piece_at[np.searchsorted(moves, ev, side="right") - 1]
+    times = np.where(ev >= len(toolpath), traj.duration, traj.starts[np.minimum(k, len(pieces))])
+    traj.events = _event_times(toolpath, times)
+    return traj
+
+
+def _event_times(toolpath: Toolpath, times) -> tuple:
+    """((time_s, kind, value), ...) of the toolpath's events at the given times (s), in order.
+    An event inside a move range (a travel, or a run not cut by a wait) fires at the range's start."""
+    ev = toolpath.events
+    return tuple((float(t), int(k), float(v)) for t, k, v in zip(np.asarray(times, float).tolist(), ev["kind"], ev["value"]))
 
 
 def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit):

@@ -28,6 +28,9 @@ class Trajectory:
     speed_limit: str = "feed"
     e_start: float = 0.0
     info: dict = field(default_factory=dict)
+    #: ((time_s, kind, value), ...): heater, fan and laser events (toolpath.EventKind), in order;
+    #: a wait event holds the time base (the player resumes after the heater is ready).
+    events: tuple = ()
 
     def __post_init__(self):
         self.kin = self.printer.kinematics()

@@ -70,7 +70,10 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     if retract < 0:
         pieces.append(FilamentPiece(q_a, retract, tool.retract_speed, float(printer.limits.acceleration[-1]), layer))
     dist = float(np.linalg.norm(b - a))
-    if dist > 1e-9:
+    own = np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
+    # The travel's own length, not the distance between its ends: a travel that leaves and
+    # comes back to where it started (a job ending at its start point) still moves.
+    if np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9:
         lift = tool.travel_lift(printer.planning)
         short = dist < tool.retract_min_travel and retract == 0
         top = max(a[2], b[2], printed_top)
@@ -79,7 +82,6 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
         b_up = np.array([b[0], b[1], max(b[2], z_travel)])
         z_clear = top + (0.5 * lift if lift > 0 else 0.0) if not short else min(a[2], b[2])
         # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
-        own = np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
         cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed)
         best = cartesian
         # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.

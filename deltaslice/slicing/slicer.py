@@ -10,6 +10,7 @@ from manifold3d import CrossSection
 from ..errors import DeltasliceError, MeshError
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .extrusion import bead_spacing, feed_for
+from .heaters import start_heating
 from .infill import clean, rectilinear, solid_masks
 from .layers import layer_heights
 from .ordering import MoveWriter, Path, nearest_order
@@ -41,6 +42,7 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     n = len(sections)
 
     builder = ToolpathBuilder(start=(0.0, 0.0, 0.0))
+    start_heating(builder, tool)
     writer = MoveWriter(builder, s, tool, tool.filament_area)
     P = int(s.perimeters)
     for li in range(n):
