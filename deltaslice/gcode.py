@@ -37,6 +37,9 @@ _ROLE_NAMES = {
     Role.SKIRT: "Skirt/Brim",
     Role.LASER: "Laser",
     Role.OTHER: "Custom",
+    Role.OVERHANG_PERIMETER: "Overhang perimeter",
+    Role.BRIDGE_INFILL: "Bridge infill",
+    Role.GAP_FILL: "Gap fill",
 }
 _TYPE_TO_ROLE = {name.upper(): role for role, name in _ROLE_NAMES.items()}
 _TYPE_TO_ROLE.update(

@@ -46,6 +46,9 @@ class Role(enum.IntEnum):
     RETRACT = 7
     LASER = 8
     OTHER = 9
+    OVERHANG_PERIMETER = 10  # a perimeter over air (slower)
+    BRIDGE_INFILL = 11  # solid lines across air or over sparse infill, round bead of nozzle diameter
+    GAP_FILL = 12  # variable-width lines along the medial axis of regions too narrow for a loop
 
 
 @dataclass(frozen=True)
