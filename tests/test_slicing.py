@@ -12,7 +12,7 @@ from deltaslice.toolpath import Role
 
 from . import meshes
 
-SOLID = (Role.SOLID_INFILL, Role.TOP_SOLID_INFILL)
+SOLID = (Role.SOLID_INFILL, Role.TOP_SOLID_INFILL, Role.BRIDGE_INFILL)
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +216,9 @@ def test_extrusion_multiplier_and_settings_override(etitc):
 def test_z_hop_on_long_travels(etitc):
     tool = dataclasses.replace(etitc.tool, z_hop=0.6)
     printer = dataclasses.replace(etitc, tool=tool)
-    tp = slice_mesh(meshes.box(10, 10, 3), printer)
+    # two towers: the travel from one to the other crosses perimeters (travels inside
+    # one island do not lift)
+    tp = slice_mesh(meshes.towers_with_deck(), printer)
     trav = (tp.role == Role.TRAVEL) & (tp.layer > 0)
     lifted = tp.xyz[trav, 2] > tp.layer_z[tp.layer[trav]] + 0.5
     assert lifted.any()
