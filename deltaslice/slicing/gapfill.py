@@ -30,7 +30,7 @@ def to_shapely(region: CrossSection):
 
 
 def medial_lines(region, min_width: float, max_width: float, step: float, tolerance: float = 0.0125,
-                 min_length: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
+                 min_length: float = 0.0, min_blob_area: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
     """Skeleton of a narrow shapely ``region`` as polylines with a width per segment.
 
     region: shapely (Multi)Polygon, mm; step: outline densification, mm (about a
@@ -38,6 +38,8 @@ def medial_lines(region, min_width: float, max_width: float, step: float, tolera
     widths (k-1,) f8 mm)], widths = twice the distance to the outline, clipped to
     ``max_width``; segments thinner than ``min_width`` are dropped, lines are
     simplified within ``tolerance`` and those shorter than ``min_length`` dropped.
+    A part without a skeleton line (a blob) of at least ``min_blob_area`` mm^2 gets
+    one short line along its long axis.
     """
     if region.is_empty or region.area <= 0:
         return []
@@ -49,7 +51,8 @@ def medial_lines(region, min_width: float, max_width: float, step: float, tolera
         hit = shapely.intersects(parts[:, None], np.array([shapely.LineString(p) for p, _ in lines])[None, :]).any(axis=1)
         parts = parts[~hit]
     for part in parts:
-        lines += _blob_line(part, min_width, max_width)
+        if part.area >= min_blob_area:
+            lines += _blob_line(part, min_width, max_width)
     return lines
 
 

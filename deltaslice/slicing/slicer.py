@@ -18,6 +18,7 @@ from .ordering import MoveWriter, Path, nearest_order
 from .perimeters import infill_boundary, overhang_segments, perimeter_loops
 from .skirt import skirt_loops
 
+INFILL_ANCHOR = 6.0  # infill lines are joined along the outline when their ends are this many widths apart (PrusaSlicer's infill_anchor 600 %)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
 
 
@@ -155,14 +156,34 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
                 paths.append(Path(p, role, w_p, closed=True))
             _emit(writer, nearest_order(paths, writer.b.pos, s.seam), h, s, first)
 
-        # infill region; small regions are filled solid (PrusaSlicer's solid_infill_below_area)
+        # gap fill: what neither the perimeter beads nor the infill reach (narrow walls, thin
+        # features, tiny islands), one variable-width line down its middle
+        # (printed right after the perimeters, as PrusaSlicer does)
         fill = infill_boundary(island, w_p, P, s.infill_overlap * w_p - sp_i / 2, sp_p)
+        covered = _coverage(loops, sp_p)
+        if not fill.is_empty():
+            covered = covered + fill.offset(sp_i / 2, JoinType.Miter, 3.0)
+        gap = island - covered if not covered.is_empty() else island
+        min_w = GAP_MIN_WIDTH * w_p
+        gap = clean(gap, min_w / 2)
+        paths = []
+        if not gap.is_empty():
+            # a whole island too small for a loop is always printed; inside an island, a blob
+            # smaller than a bead is not worth a travel
+            blob = 0.0 if not loops else w_p**2
+            for pts, widths in medial_lines(to_shapely(gap), min_w, 2.0 * w_p, min_w / 2, max(res, 1e-4), w_p, blob):
+                # the gap is measured between bead spacings: fill its rectangle, width x height
+                flow = widths * h / writer.area * s.extrusion_multiplier
+                paths.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
+        _emit(writer, nearest_order(paths, writer.b.pos), h, s, first)
+
+        # infill region; small regions are filled solid (PrusaSlicer's solid_infill_below_area)
         solid_here = need_solid
         if not fill.is_empty() and s.solid_infill_below_area > 0:
             small = [c for c in fill.decompose() if c.area() < s.solid_infill_below_area]
             if small:
                 solid_here = solid_here + CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else solid_here + small[0]
-        paths = []
+        groups: list[list[Path]] = []  # printed group after group: bridges, solid, sparse
         if not fill.is_empty():
             solid = clean(fill ^ solid_here, w_i / 4) if not solid_here.is_empty() else CrossSection()
             bridge = CrossSection()
@@ -175,35 +196,23 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
                     shapely.prepare(support_sh)
                 if not bridge.is_empty():
                     b_angle = bridge_angle(bridge, support_sh, nozzle, angle)
-                    paths += [Path(p, Role.BRIDGE_INFILL, nozzle, flow=bridge_fpm)
-                              for p in rectilinear(bridge, b_angle, nozzle, nozzle)]
+                    groups.append([Path(p, Role.BRIDGE_INFILL, nozzle, flow=bridge_fpm)
+                                   for p in rectilinear(bridge, b_angle, nozzle, nozzle)])
                     solid = solid - bridge
             top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
             internal = solid - top_region if not top_region.is_empty() else solid
             sparse = fill - solid - bridge if not solid.is_empty() or not bridge.is_empty() else fill
-            for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL)):
-                paths += [Path(p, role, w_i) for p in rectilinear(region, angle, sp_i, w_i)]
+            groups.append([Path(p, role, w_i) for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL))
+                           for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR * w_i)])
             if s.fill_density > 0 and not sparse.is_empty():
                 dens = min(float(s.fill_density), 1.0)
                 role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
-                paths += [Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i)]
+                groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR * w_i / dens)])
                 if dens < 0.999:
                     sparse_all.append(sparse)
 
-        # gap fill: what neither the perimeter beads nor the infill reach (narrow walls, thin
-        # features, tiny islands), one variable-width line down its middle
-        covered = _coverage(loops, sp_p)
-        if not fill.is_empty():
-            covered = covered + fill.offset(sp_i / 2, JoinType.Miter, 3.0)
-        gap = island - covered if not covered.is_empty() else island
-        min_w = GAP_MIN_WIDTH * w_p
-        gap = clean(gap, min_w / 2)
-        if not gap.is_empty():
-            for pts, widths in medial_lines(to_shapely(gap), min_w, 2.0 * w_p, min_w / 2, max(res, 1e-4), w_p / 2):
-                # the gap is measured between bead spacings: fill its rectangle, width x height
-                flow = widths * h / writer.area * s.extrusion_multiplier
-                paths.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
-        _emit(writer, nearest_order(paths, writer.b.pos), h, s, first)
+        for group in groups:
+            _emit(writer, nearest_order(group, writer.b.pos), h, s, first)
     writer.inside = None
     if not sparse_all:
         return CrossSection()
