@@ -17,12 +17,17 @@ import numpy as np
 from manifold3d import CrossSection, JoinType, OpType
 
 
-def solid_masks(sections: list[CrossSection], layer: int, top: int, bottom: int) -> tuple[CrossSection, CrossSection]:
+def solid_masks(sections: list[CrossSection], layer: int, top: int, bottom: int,
+                covers: list[CrossSection] | None = None) -> tuple[CrossSection, CrossSection]:
     """(exposed_or_near_top, near_bottom): regions of ``sections[layer]`` that need solid
     fill because a layer within ``top`` above (``bottom`` below) does not cover them.
-    Layers beyond the part count as empty."""
+    Layers beyond the part count as empty. ``covers``: what each layer counts as
+    covering, default its section; the slicer passes the sections shrunk by the
+    perimeter band, so the infill next to a neighbour's wall is solid too (PrusaSlicer's
+    ensure_vertical_shell_thickness: a hole starting two layers up gets a solid shell)."""
     n = len(sections)
     here = sections[layer]
+    sections = sections if covers is None else covers
 
     def uncovered(idx: list[int]) -> CrossSection:
         if not idx:

@@ -54,13 +54,18 @@ def slice_mesh(mesh, printer, *, settings=None, progress=None) -> Toolpath:
     builder = ToolpathBuilder(start=(0.0, 0.0, 0.0))
     writer = MoveWriter(builder, s, tool, tool.filament_area)
     P = int(s.perimeters)
+    # each layer's section less its perimeter band: what counts as covering the layers
+    # around it (vertical shells)
+    band = s.perimeter_width / 2 + (P - 0.5) * bead_spacing(s.perimeter_width, s.layer_height) if P else 0.0
+    shells = [c.offset(-band, JoinType.Miter, 3.0) for c in sections] if band > 0 else sections
     prev_sparse = CrossSection()
     for li in range(n):
         first = li == 0
         writer.new_layer(float(top[li]), first)
         here = sections[li]
         if not here.is_empty():
-            prev_sparse = _slice_layer(writer, sections, li, float(thick[li]), s, P, first, tool.nozzle_diameter, prev_sparse)
+            prev_sparse = _slice_layer(writer, sections, li, float(thick[li]), s, P, first, tool.nozzle_diameter, prev_sparse,
+                                       shells)
         else:
             prev_sparse = CrossSection()
         if progress is not None:
@@ -90,7 +95,7 @@ def _coverage(loops: list[tuple[int, np.ndarray]], spacing: float) -> CrossSecti
 
 
 def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: float, s, P: int, first: bool,
-                 nozzle: float, prev_sparse: CrossSection) -> CrossSection:
+                 nozzle: float, prev_sparse: CrossSection, shells: list[CrossSection]) -> CrossSection:
     """Emit layer ``li``; returns its sparse infill region (for internal bridges on the next layer)."""
     here = sections[li]
     w_p = s.first_layer_width if first else s.perimeter_width
@@ -103,7 +108,7 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
         loops = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(here, s.skirt_loops, s.skirt_distance, w_p)]
         _emit(writer, nearest_order(loops, writer.b.pos, "nearest"), h, s, first)
 
-    near_top, near_bottom = solid_masks(sections, li, s.top_solid_layers, s.bottom_solid_layers)
+    near_top, near_bottom = solid_masks(sections, li, s.top_solid_layers, s.bottom_solid_layers, shells)
     need_solid = near_top + near_bottom
     exposed = here - sections[li + 1] if li + 1 < len(sections) else here
     below = sections[li - 1] if li > 0 else CrossSection()
