@@ -207,6 +207,12 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
             top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
             internal = solid - top_region if not top_region.is_empty() else solid
             sparse = fill - solid - bridge if not solid.is_empty() or not bridge.is_empty() else fill
+            if s.solid_infill_below_area > 0 and not sparse.is_empty() and (not solid.is_empty() or not bridge.is_empty()):
+                # sparse scraps left between solid regions are small surfaces too: solid
+                small = [c for c in sparse.decompose() if c.area() < s.solid_infill_below_area]
+                if small:
+                    scraps = CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else small[0]
+                    internal, sparse = internal + scraps, sparse - scraps
             groups.append([Path(p, role, w_i) for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL))
                            for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR * w_i)])
             if s.fill_density > 0 and not sparse.is_empty():
