@@ -80,3 +80,19 @@ def post_on_block(post=0.9, block=10.0, post_height=1.0, height=4.0) -> Mesh:
     b = trimesh.creation.box((block, block, height - post_height))
     b.apply_translation((0, 0, post_height + (height - post_height) / 2))
     return _mesh(trimesh.boolean.union([p, b], engine="manifold"), "post on block")
+
+
+def ring(outer=20.0, inner=16.0, height=4.0, sections=128) -> Mesh:
+    """A flat annulus: a narrow band of infill all the way round."""
+    a = trimesh.creation.cylinder(radius=outer, height=height, sections=sections)
+    b = trimesh.creation.cylinder(radius=inner, height=height * 2, sections=sections)
+    return _mesh(trimesh.boolean.difference([a, b], engine="manifold"), "ring")
+
+
+def blind_hole(size=20.0, height=10.0, radius=4.0, depth=5.0) -> Mesh:
+    """A block with a hole ``depth`` mm deep from its top: walls start mid-height."""
+    a = trimesh.creation.box((size, size, height))
+    a.apply_translation((0, 0, height / 2))
+    b = trimesh.creation.cylinder(radius=radius, height=depth * 2, sections=64)
+    b.apply_translation((0, 0, height))
+    return _mesh(trimesh.boolean.difference([a, b], engine="manifold"), "blind hole")

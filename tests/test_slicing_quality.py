@@ -160,3 +160,44 @@ def test_gcode_type_comments(etitc, tmp_path):
     text = out.read_text()
     for name in ("Bridge infill", "Overhang perimeter", "External perimeter"):
         assert f";TYPE:{name}\n" in text
+
+
+def test_infill_anchored_along_the_outline(etitc):
+    """A narrow ring: sparse lines across it are joined along its outline into a few
+    paths, not a dash (and a travel) per line."""
+    from deltaslice.slicing import slicer
+
+    tp = slice_mesh(meshes.ring(20, 16, 4), etitc)
+    mid = tp.n_layers // 2
+    sl = tp.layer_slices()[mid]
+    w = tp.working[sl] & (tp.role[sl] == Role.INFILL)
+    runs = int(np.sum(w[1:] & ~w[:-1]) + w[0])
+    assert 0 < runs <= 3
+    # and without anchors the same ring needs many
+    old = slicer.INFILL_ANCHOR_MAX
+    try:
+        slicer.INFILL_ANCHOR_MAX = 0.0
+        tp0 = slice_mesh(meshes.ring(20, 16, 4), etitc)
+    finally:
+        slicer.INFILL_ANCHOR_MAX = old
+    sl0 = tp0.layer_slices()[mid]
+    w0 = tp0.working[sl0] & (tp0.role[sl0] == Role.INFILL)
+    assert int(np.sum(w0[1:] & ~w0[:-1]) + w0[0]) > 5 * runs
+
+
+def test_vertical_shell_around_a_hole_starting_above(etitc):
+    """A hole opens at z = 5: the layers just under it are solid under the hole and under
+    the perimeter band around it (PrusaSlicer's vertical shell); further out, sparse."""
+    s = etitc.slicing
+    tp = slice_mesh(meshes.blind_hole(20, 10, 4, 5), etitc)
+    band = s.perimeter_width / 2 + (s.perimeters - 0.5) * (s.perimeter_width - s.layer_height * (1 - np.pi / 4))
+    mids = tp.layer_z - s.layer_height / 2
+    below = [l for l in range(tp.n_layers) if 5 - s.top_solid_layers * s.layer_height < mids[l] < 5]
+    assert below
+    for l in below:
+        sl = tp.layer_slices()[l]
+        r = np.hypot(tp.xyz[sl, 0], tp.xyz[sl, 1])
+        solid = tp.working[sl] & np.isin(tp.role[sl], (Role.SOLID_INFILL, Role.TOP_SOLID_INFILL, Role.BRIDGE_INFILL))
+        sparse = tp.working[sl] & (tp.role[sl] == Role.INFILL)
+        assert r[solid].max() > 4 + band - 0.6
+        assert sparse.any() and r[sparse].min() > 4 + band - 0.6

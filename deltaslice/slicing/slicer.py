@@ -18,7 +18,7 @@ from .ordering import MoveWriter, Path, nearest_order
 from .perimeters import infill_boundary, overhang_segments, perimeter_loops
 from .skirt import skirt_loops
 
-INFILL_ANCHOR = 6.0  # infill lines are joined along the outline when their ends are this many widths apart (PrusaSlicer's infill_anchor 600 %)
+INFILL_ANCHOR_MAX = 50.0  # mm: infill lines are joined along the outline up to this far apart (PrusaSlicer's infill_anchor_max)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
 
 
@@ -214,11 +214,11 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
                     scraps = CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else small[0]
                     internal, sparse = internal + scraps, sparse - scraps
             groups.append([Path(p, role, w_i) for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL))
-                           for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR * w_i)])
+                           for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX)])
             if s.fill_density > 0 and not sparse.is_empty():
                 dens = min(float(s.fill_density), 1.0)
                 role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
-                groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR * w_i / dens)])
+                groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
                 if dens < 0.999:
                     sparse_all.append(sparse)
 
