@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 from manifold3d import CrossSection, JoinType
 
 from .infill import scanline_segments
@@ -25,8 +26,6 @@ def bridge_angle(bridge: CrossSection, support, spacing: float, fallback: float)
     """Angle (rad) of bridge lines over ``bridge`` (the grown region): most length anchored
     at both ends in ``support`` (a prepared shapely region or None), then the shortest
     mean line."""
-    import shapely
-
     best, best_key = fallback, (-math.inf, -math.inf)
     for a in ANGLES.tolist():
         k, xa, xb = scanline_segments(bridge, a, spacing)

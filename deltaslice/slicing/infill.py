@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 from manifold3d import CrossSection, JoinType, OpType
 
 
@@ -190,8 +191,6 @@ def link_along_boundary(lines: list[np.ndarray], region: CrossSection, max_link:
     infill anchors): a ring of short dashes becomes one path instead of a travel per
     dash. lines: (k, 2) polylines whose ends lie on the region's outline; returns
     fewer, longer polylines."""
-    import shapely
-
     m = len(lines)
     if m < 2 or max_link <= 0:
         return lines

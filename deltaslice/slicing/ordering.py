@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import shapely
 
 from ..toolpath import Role
 
@@ -115,8 +116,6 @@ class MoveWriter:
     def _stays_inside(self, a: np.ndarray, b: np.ndarray) -> bool:
         if self.inside is None:
             return False
-        import shapely
-
         return bool(self.inside.contains(shapely.LineString([a[:2], b[:2]])))
 
     def new_layer(self, z: float, first: bool) -> None:

@@ -10,6 +10,7 @@ the innermost perimeter.
 from __future__ import annotations
 
 import numpy as np
+import shapely
 from manifold3d import CrossSection, JoinType
 
 MIN_LOOP_LENGTH_FACTOR = 2.0  # drop loops shorter than this many widths
@@ -84,8 +85,6 @@ def overhang_segments(poly: np.ndarray, below, step: float) -> tuple[np.ndarray,
     width, so only a bead with nothing under it counts). Segments are cut every
     ``step`` mm to find where support ends, then merged back where the flag does not
     change, so a loop without overhang comes back unchanged."""
-    import shapely
-
     nxt = np.roll(poly, -1, axis=0)
     seg = np.linalg.norm(nxt - poly, axis=1)
     n = np.maximum(np.ceil(seg / step).astype(int), 1)

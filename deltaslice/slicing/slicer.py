@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 from manifold3d import CrossSection, JoinType, OpType
 
 from ..errors import DeltasliceError, MeshError
@@ -116,8 +117,6 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
     support = (below - prev_sparse) if not prev_sparse.is_empty() else below
     overhang_test = None
     if not below.is_empty():
-        import shapely
-
         overhang_test = to_shapely(below.offset(w_p / 2, JoinType.Miter, 3.0))
         shapely.prepare(overhang_test)
     bridge_fpm = bridge_flow(nozzle, writer.area, s.bridge_flow)
@@ -139,8 +138,6 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
         # surface: no retraction (PrusaSlicer's "retract only when crossing perimeters")
         inner = island.offset(-w_p / 4, JoinType.Miter, 3.0)
         if not inner.is_empty():
-            import shapely
-
             writer.inside = to_shapely(inner)
             shapely.prepare(writer.inside)
 
@@ -195,8 +192,6 @@ def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: f
             if li > 0 and not solid.is_empty():
                 bridge, _ = bridge_region(solid, support, 2 * w_i, w_i)
                 if not bridge.is_empty() and support_sh is None and not support.is_empty():
-                    import shapely
-
                     support_sh = to_shapely(support)
                     shapely.prepare(support_sh)
                 if not bridge.is_empty():
