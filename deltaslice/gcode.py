@@ -44,9 +44,6 @@ _ROLE_NAMES = {
 _TYPE_TO_ROLE = {name.upper(): role for role, name in _ROLE_NAMES.items()}
 _TYPE_TO_ROLE.update(
     {
-        "OVERHANG PERIMETER": Role.EXTERNAL_PERIMETER,
-        "BRIDGE INFILL": Role.SOLID_INFILL,
-        "GAP FILL": Role.SOLID_INFILL,
         "IRONING": Role.TOP_SOLID_INFILL,
         "SKIRT": Role.SKIRT,
         "BRIM": Role.SKIRT,

@@ -201,3 +201,29 @@ def test_vertical_shell_around_a_hole_starting_above(etitc):
         sparse = tp.working[sl] & (tp.role[sl] == Role.INFILL)
         assert r[solid].max() > 4 + band - 0.6
         assert sparse.any() and r[sparse].min() > 4 + band - 0.6
+
+
+def test_wavering_wall_gets_one_gap_line_not_specks(etitc):
+    """A 2.46 mm wall whose one side is a 0.15 mm sawtooth: the third perimeter barely fits
+    and would break into specks; they are left to the gap fill, which runs the whole
+    length in a few lines."""
+    import shapely
+    import trimesh
+
+    from deltaslice.mesh import mesh_from_arrays
+
+    x = np.linspace(0, 20, 41)
+    saw = np.where(np.arange(41) % 2 == 0, 0.0, 0.15)
+    outline = np.vstack([np.column_stack([x, saw]), [[20, 2.456], [0, 2.456]]])
+    tm = trimesh.creation.extrude_polygon(shapely.Polygon(outline), 3.0)
+    tp = slice_mesh(mesh_from_arrays(tm.vertices, tm.faces, name="sawtooth wall"), etitc,
+                    settings=dataclasses.replace(etitc.slicing, skirt_loops=0))
+    layer = tp.n_layers // 2
+    sl = tp.layer_slices()[layer]
+    w = tp.working[sl]
+    runs = tp.role[sl][w & ~np.concatenate([[False], w[:-1]])]
+    assert np.sum(runs == Role.PERIMETER) <= 2  # the second loop, not a speck per tooth
+    assert 1 <= np.sum(runs == Role.GAP_FILL) <= 3
+    m = layer_moves(tp, layer)
+    g = m[tp.role[m] == Role.GAP_FILL]
+    assert seg_lengths(tp, g).sum() > 15.0

@@ -13,7 +13,11 @@ import numpy as np
 import shapely
 from manifold3d import CrossSection, JoinType
 
-MIN_LOOP_LENGTH_FACTOR = 2.0  # drop loops shorter than this many widths
+MIN_LOOP_LENGTH_FACTOR = 2.0  # drop external loops shorter than this many widths
+# inner loops shorter than this many widths (beads of a ring that barely fits, broken into
+# specks where the wall thickness wavers) are left to the gap fill: one line instead of a
+# travel per speck
+MIN_INNER_LOOP_LENGTH_FACTOR = 8.0
 
 
 def perimeter_loops(island: CrossSection, width: float, count: int, spacing: float | None = None) -> list[tuple[int, np.ndarray]]:
@@ -34,7 +38,7 @@ def perimeter_loops(island: CrossSection, width: float, count: int, spacing: flo
             if len(poly) < 3:
                 continue
             per = np.linalg.norm(np.diff(np.vstack([poly, poly[:1]]), axis=0), axis=1).sum()
-            if per < MIN_LOOP_LENGTH_FACTOR * width:
+            if per < (MIN_LOOP_LENGTH_FACTOR if k == 0 else MIN_INNER_LOOP_LENGTH_FACTOR) * width:
                 continue
             loops.append((k, np.asarray(poly, float)))
     return loops
