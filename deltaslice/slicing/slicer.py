@@ -30,7 +30,8 @@ def slice_mesh(mesh, printer, *, settings=None, progress=None) -> Toolpath:
     ``printer.slicing``; progress: ``callable(done, total)`` called once per layer.
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
     the skirt (first layer), then island by island perimeters (innermost first,
-    external last) and infill (top solid, internal solid, sparse).
+    external last, overhang segments flagged), gap fill, then bridges, solid
+    (top and internal) and sparse infill.
     """
     from ..printer import Extruder
 
