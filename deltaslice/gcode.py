@@ -37,13 +37,13 @@ _ROLE_NAMES = {
     Role.LASER: "Laser",
     Role.LASER_DYNAMIC: "Laser dynamic",
     Role.OTHER: "Custom",
+    Role.OVERHANG_PERIMETER: "Overhang perimeter",
+    Role.BRIDGE_INFILL: "Bridge infill",
+    Role.GAP_FILL: "Gap fill",
 }
 _TYPE_TO_ROLE = {name.upper(): role for role, name in _ROLE_NAMES.items()}
 _TYPE_TO_ROLE.update(
     {
-        "OVERHANG PERIMETER": Role.EXTERNAL_PERIMETER,
-        "BRIDGE INFILL": Role.SOLID_INFILL,
-        "GAP FILL": Role.SOLID_INFILL,
         "IRONING": Role.TOP_SOLID_INFILL,
         "SKIRT": Role.SKIRT,
         "BRIM": Role.SKIRT,

@@ -78,6 +78,9 @@ class Role(enum.IntEnum):
     LASER = 8  # laser at the move's power (GRBL M3)
     OTHER = 9
     LASER_DYNAMIC = 10  # laser power scaled by the tool's actual speed over the move's feed (GRBL M4)
+    OVERHANG_PERIMETER = 11  # a perimeter over air (slower)
+    BRIDGE_INFILL = 12  # solid lines across air or over sparse infill, round bead of nozzle diameter
+    GAP_FILL = 13  # variable-width lines along the medial axis of regions too narrow for a loop
 
 
 MIN_FEED = 1e-3  # mm/s (0.06 mm/min): slower is a units mistake, and a print of years

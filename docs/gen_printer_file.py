@@ -111,6 +111,11 @@ DOCS = {
     ("slicing", "skirt_loops"): ("", "Skirt loops around the first layer (0: none).", None),
     ("slicing", "skirt_distance"): ("mm", "Gap between the part and the skirt; the skirt must be on the bed too.", None),
     ("slicing", "seam"): ("", "Where perimeter loops start: `aligned` (one seam line) or `nearest`.", None),
+    ("slicing", "gcode_resolution"): ("mm", "Paths are simplified within this deviation (PrusaSlicer's gcode_resolution); 0: not simplified.", None),
+    ("slicing", "solid_infill_below_area"): ("mm²", "Infill regions smaller than this are filled solid (PrusaSlicer's solid_infill_below_area).", "70 x (nozzle / 0.4)²"),
+    ("slicing", "bridge_speed"): ("mm/s", "Speed of bridge infill over air.", "perimeter_speed"),
+    ("slicing", "bridge_flow"): ("", "Multiplier on the round bead of nozzle diameter laid over air.", None),
+    ("slicing", "overhang_speed"): ("mm/s", "Speed of perimeters over air.", "half the external perimeter speed"),
     # planning
     ("planning", "output_rate"): ("Hz", "Setpoint rate of the outputs (the firmware's control loop rate).", None),
     ("planning", "blend_tolerance"): ("mm", "Largest distance a blended corner leaves the toolpath's corner point.", None),

@@ -56,3 +56,43 @@ def cube_trimesh(size=20.0) -> trimesh.Trimesh:
 def outward_volume(vertices, faces) -> float:
     t = np.asarray(vertices)[np.asarray(faces)]
     return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
+
+
+def towers_with_deck(gap=20.0, tower=6.0, depth=6.0, height=4.0, deck=1.6) -> Mesh:
+    """Two square towers ``gap`` mm apart (along x) joined at the top by a deck: the deck's
+    first layer is a bridge across the gap, its outline over the gap an overhang."""
+    parts = []
+    for sx in (-1, 1):
+        t = trimesh.creation.box((tower, depth, height))
+        t.apply_translation((sx * (gap + tower) / 2, 0, height / 2))
+        parts.append(t)
+    d = trimesh.creation.box((gap + 2 * tower, depth, deck))
+    d.apply_translation((0, 0, height + deck / 2))
+    parts.append(d)
+    return _mesh(trimesh.boolean.union(parts, engine="manifold"), "towers with deck")
+
+
+def post_on_block(post=0.9, block=10.0, post_height=1.0, height=4.0) -> Mesh:
+    """A block standing on a post ``post`` mm square: a bed contact of post**2 mm^2,
+    thinner than the first-layer bead."""
+    p = trimesh.creation.box((post, post, post_height))
+    p.apply_translation((0, 0, post_height / 2))
+    b = trimesh.creation.box((block, block, height - post_height))
+    b.apply_translation((0, 0, post_height + (height - post_height) / 2))
+    return _mesh(trimesh.boolean.union([p, b], engine="manifold"), "post on block")
+
+
+def ring(outer=20.0, inner=16.0, height=4.0, sections=128) -> Mesh:
+    """A flat annulus: a narrow band of infill all the way round."""
+    a = trimesh.creation.cylinder(radius=outer, height=height, sections=sections)
+    b = trimesh.creation.cylinder(radius=inner, height=height * 2, sections=sections)
+    return _mesh(trimesh.boolean.difference([a, b], engine="manifold"), "ring")
+
+
+def blind_hole(size=20.0, height=10.0, radius=4.0, depth=5.0) -> Mesh:
+    """A block with a hole ``depth`` mm deep from its top: walls start mid-height."""
+    a = trimesh.creation.box((size, size, height))
+    a.apply_translation((0, 0, height / 2))
+    b = trimesh.creation.cylinder(radius=radius, height=depth * 2, sections=64)
+    b.apply_translation((0, 0, height))
+    return _mesh(trimesh.boolean.difference([a, b], engine="manifold"), "blind hole")

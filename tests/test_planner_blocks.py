@@ -149,23 +149,27 @@ def test_nearest_order_visits_every_path_once_from_the_nearest():
     start = np.array([50.0, 50.0])
     out = nearest_order(paths, start, seam="nearest")
     assert len(out) == len(paths)
-    assert sorted(id(p) for _pts, p in out) == sorted(id(p) for p in paths)
-    for pts, p in out:
+
+    def key(points):
+        return frozenset(map(tuple, np.round(points, 9)))
+
+    source = {key(p.points): k for k, p in enumerate(paths)}
+    order = [source[key(pts)] for pts, _p in out]
+    assert sorted(order) == list(range(len(paths)))  # every path once
+    for (pts, _p), k in zip(out, order):
+        p = paths[k]
         if p.closed:  # the same loop, rotated to its seam
             assert len(pts) in (len(p.points), len(p.points) + 1)
-            assert {tuple(r) for r in np.round(pts, 9)} == {tuple(r) for r in np.round(p.points, 9)}
         else:
             assert np.array_equal(pts, p.points) or np.array_equal(pts, p.points[::-1])
-    # greedy: each path starts at the nearest entry point of those left
-    pos = start
-    left = list(range(len(paths)))
-    for pts, p in out:
-        i = next(k for k in left if paths[k] is p)
-        entries = []
-        for k in left:
-            q = paths[k]
-            entries += [np.linalg.norm(q.points - pos, axis=1).min()] if q.closed else [
-                np.linalg.norm(q.points[0] - pos), np.linalg.norm(q.points[-1] - pos)]
-        assert np.linalg.norm(pts[0] - pos) <= min(entries) + 1e-9
-        left.remove(i)
+    # greedy: each path is the nearest of those left, by its entry (the ends of an open path,
+    # the centre of a loop whose seam is chosen on arrival)
+    pos, left = start, set(range(len(paths)))
+    for (pts, _p), k in zip(out, order):
+        def entry(q):
+            if q.closed:
+                return np.linalg.norm(q.points.mean(axis=0) - pos)
+            return min(np.linalg.norm(q.points[0] - pos), np.linalg.norm(q.points[-1] - pos))
+        assert entry(paths[k]) <= min(entry(paths[m]) for m in left) + 1e-9
+        left.remove(k)
         pos = pts[-1]

@@ -134,6 +134,13 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
         skirt_loops=sec.getint("skirt_loops", 1, minval=0, maxval=20),
         skirt_distance=sec.getfloat("skirt_distance", 3.0, minval=0),
         seam=sec.getstr("seam", "aligned", choices=("aligned", "nearest"), required=False),
+        gcode_resolution=sec.getfloat("gcode_resolution", 0.0125, minval=0, maxval=1),
+        # PrusaSlicer's 70 mm^2 is for a 0.4 mm nozzle: scale with the bead area so a small nozzle keeps
+        # the same number of beads per solid patch
+        solid_infill_below_area=sec.getfloat("solid_infill_below_area", 70.0 * (nozzle / 0.4) ** 2, minval=0),
+        bridge_speed=sec.getfloat("bridge_speed", sec.data.get("perimeter_speed", 30.0), above=0),
+        bridge_flow=sec.getfloat("bridge_flow", 1.0, above=0, maxval=3),
+        overhang_speed=sec.getfloat("overhang_speed", 0.5 * float(sec.data.get("external_perimeter_speed", sec.data.get("perimeter_speed", 30.0))), above=0),
     )
     if s.first_layer_height > 0 and isinstance(tool, Extruder) and s.layer_height > tool.nozzle_diameter * 1.5:
         sec.fail("layer_height", layer, f"a layer height <= 1.5 x nozzle diameter ({1.5 * tool.nozzle_diameter:g} mm)")

@@ -50,6 +50,11 @@ class SlicingSettings:
     skirt_loops: int
     skirt_distance: float
     seam: str
+    gcode_resolution: float = 0.0125  # mm: paths simplified within this deviation (PrusaSlicer gcode_resolution)
+    solid_infill_below_area: float = 70.0  # mm^2: infill regions smaller than this are filled solid
+    bridge_speed: float = 30.0  # mm/s
+    bridge_flow: float = 1.0  # multiplier on a round bead of nozzle diameter over air
+    overhang_speed: float = 15.0  # mm/s: perimeters over air
 
 
 @dataclass(frozen=True)

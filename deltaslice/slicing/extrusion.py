@@ -9,18 +9,21 @@ import numpy as np
 from ..toolpath import Role
 
 
-def bead_spacing(width: float, height: float) -> float:
+def bead_spacing(width, height: float):
     """Distance between neighbouring beads of nominal ``width`` (Slic3r's flow model).
 
     A bead ``width`` wide (outer edge to outer edge) and ``height`` tall has a
     rounded-rectangle section of area ``(width - height) * height + pi * height**2 / 4``
     = ``height * spacing`` with ``spacing = width - height * (1 - pi / 4)``: beads laid
     ``spacing`` apart fill the layer exactly. Never less than half the width.
+    ``width`` may be an array (variable-width gap fill): the result has its shape.
     """
-    return max(width - height * (1.0 - math.pi / 4.0), 0.5 * width)
+    w = np.asarray(width, float)
+    out = np.maximum(w - height * (1.0 - math.pi / 4.0), 0.5 * w)
+    return float(out) if out.ndim == 0 else out
 
 
-def filament_per_mm(width: float, height: float, filament_area: float, multiplier: float) -> float:
+def filament_per_mm(width, height: float, filament_area: float, multiplier: float):
     """Filament length pushed per mm of path: spacing * height / filament_area * multiplier,
     with the bead spacing of :func:`bead_spacing` as the effective width (so that
     extruded volume = filled area * height, as in Slic3r/PrusaSlicer)."""
@@ -38,11 +41,23 @@ def feed_for(role: int, settings, first_layer: bool) -> float:
         Role.TOP_SOLID_INFILL: s.solid_infill_speed,
         Role.SKIRT: s.perimeter_speed,
         Role.TRAVEL: s.travel_speed,
+        Role.OVERHANG_PERIMETER: s.overhang_speed,
+        Role.BRIDGE_INFILL: s.bridge_speed,
+        Role.GAP_FILL: s.perimeter_speed,
     }
+    if np.ndim(role):
+        r = np.asarray(role, int)
+        return np.array([feed_for(int(x), s, first_layer) for x in range(int(r.max()) + 1)])[r]
     v = float(table.get(Role(role), s.perimeter_speed))
     if first_layer and role != Role.TRAVEL:
         v = float(s.first_layer_speed)
     return v
+
+
+def bridge_flow(nozzle: float, filament_area: float, ratio: float) -> float:
+    """Filament mm per mm of bridge: a round bead of the nozzle's diameter (PrusaSlicer's
+    bridge flow), whatever the layer height, times ``ratio``."""
+    return math.pi * nozzle**2 / 4.0 / filament_area * ratio
 
 
 def segment_lengths(points: np.ndarray) -> np.ndarray:

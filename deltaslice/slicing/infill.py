@@ -14,15 +14,21 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 from manifold3d import CrossSection, JoinType, OpType
 
 
-def solid_masks(sections: list[CrossSection], layer: int, top: int, bottom: int) -> tuple[CrossSection, CrossSection]:
+def solid_masks(sections: list[CrossSection], layer: int, top: int, bottom: int,
+                covers: list[CrossSection] | None = None) -> tuple[CrossSection, CrossSection]:
     """(exposed_or_near_top, near_bottom): regions of ``sections[layer]`` that need solid
     fill because a layer within ``top`` above (``bottom`` below) does not cover them.
-    Layers beyond the part count as empty."""
+    Layers beyond the part count as empty. ``covers``: what each layer counts as
+    covering, default its section; the slicer passes the sections shrunk by the
+    perimeter band, so the infill next to a neighbour's wall is solid too (PrusaSlicer's
+    ensure_vertical_shell_thickness: a hole starting two layers up gets a solid shell)."""
     n = len(sections)
     here = sections[layer]
+    sections = sections if covers is None else covers
 
     def uncovered(idx: list[int]) -> CrossSection:
         if not idx:
@@ -150,10 +156,100 @@ def chain_polylines(k, xa, xb, chains, spacing: float, angle: float) -> list[np.
     return lines
 
 
-def rectilinear(region: CrossSection, angle: float, spacing: float, width: float) -> list[np.ndarray]:
-    """Fill ``region`` with lines ``spacing`` apart at ``angle``; zig-zag where it saves travels."""
+def rectilinear(region: CrossSection, angle: float, spacing: float, width: float, anchor: float = 0.0) -> list[np.ndarray]:
+    """Fill ``region`` with lines ``spacing`` apart at ``angle``; zig-zag where it saves travels,
+    and join lines whose ends are less than ``anchor`` mm apart along the outline."""
     if region.is_empty():
         return []
     k, xa, xb = scanline_segments(region, angle, spacing, min_length=width * 0.5)
     chains = chain_segments(k, xa, xb, spacing, max_link=max(3 * spacing, 2 * width) if spacing < 3 * width else 2.0 * spacing)
-    return chain_polylines(k, xa, xb, chains, spacing, angle)
+    lines = chain_polylines(k, xa, xb, chains, spacing, angle)
+    if anchor > 0:
+        lines = link_along_boundary(lines, region, anchor)
+    return lines
+
+
+def _arc(ring: np.ndarray, cum: np.ndarray, u0: float, u1: float, forward: bool) -> np.ndarray:
+    """Points along a closed ``ring`` ((k+1, 2), first == last, arc lengths ``cum``) from
+    arc length ``u0`` to ``u1`` going forward (increasing) or backward, ends included."""
+    L = cum[-1]
+    if not forward:
+        return _arc(ring, cum, u1, u0, True)[::-1]
+    if u1 < u0:
+        u1 += L
+    s2 = np.concatenate([cum, cum[1:] + L])
+    p2 = np.vstack([ring, ring[1:]])
+    inner = (s2 > u0) & (s2 < u1)
+    start = np.array([np.interp(u0, s2, p2[:, 0]), np.interp(u0, s2, p2[:, 1])])
+    end = np.array([np.interp(u1, s2, p2[:, 0]), np.interp(u1, s2, p2[:, 1])])
+    return np.vstack([start, p2[inner], end])
+
+
+def link_along_boundary(lines: list[np.ndarray], region: CrossSection, max_link: float) -> list[np.ndarray]:
+    """Join infill polylines whose ends lie on one contour of ``region`` less than
+    ``max_link`` mm apart along it, by extruding along the contour (PrusaSlicer's
+    infill anchors): a ring of short dashes becomes one path instead of a travel per
+    dash. lines: (k, 2) polylines whose ends lie on the region's outline; returns
+    fewer, longer polylines."""
+    m = len(lines)
+    if m < 2 or max_link <= 0:
+        return lines
+    polys = [np.asarray(p, float) for p in region.to_polygons() if len(p) >= 3]
+    if not polys:
+        return lines
+    rings = [np.vstack([p, p[:1]]) for p in polys]
+    cums = [np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(r, axis=0), axis=1))]) for r in rings]
+    geoms = np.array([shapely.LineString(r) for r in rings])
+    ends = np.array([[ln[0], ln[-1]] for ln in lines]).reshape(-1, 2)  # (2m, 2): head, tail
+    pts = shapely.points(ends)
+    dist = shapely.distance(pts[:, None], geoms[None, :])
+    which = np.argmin(dist, axis=1)
+    which[dist[np.arange(len(pts)), which] > 1e-3] = -1
+    u = np.zeros(len(pts))
+    for c in np.unique(which[which >= 0]).tolist():
+        sel = which == c
+        u[sel] = shapely.line_locate_point(geoms[c], pts[sel])
+    which, u = which.reshape(m, 2), u.reshape(m, 2)
+    lengths = np.array([c[-1] for c in cums])
+
+    alive = np.ones(m, bool)
+    out = []
+    cur_i = 0
+    alive[0] = False
+    cur = [lines[0]]
+    c_end, u_end = which[0, 1], u[0, 1]
+    while True:
+        best = None
+        if c_end >= 0:
+            L = lengths[c_end]
+            idx = np.flatnonzero(alive)
+            for side in (0, 1):  # enter a line at its head (0) or its tail (1, reversed)
+                same = idx[which[idx, side] == c_end]
+                if len(same) == 0:
+                    continue
+                fwd = (u[same, side] - u_end) % L
+                d = np.minimum(fwd, L - fwd)
+                j = int(np.argmin(d))
+                if d[j] <= max_link and (best is None or d[j] < best[0]):
+                    best = (float(d[j]), int(same[j]), side, bool(fwd[j] <= L - fwd[j]))
+        if best is not None:
+            _, nxt, side, forward = best
+            conn = _arc(rings[c_end], cums[c_end], u_end, u[nxt, side], forward)
+            seg = lines[nxt] if side == 0 else lines[nxt][::-1]
+            cur.append(conn[1:-1])
+            cur.append(seg)
+            alive[nxt] = False
+            c_end, u_end = which[nxt, 1 - side], u[nxt, 1 - side]
+            continue
+        out.append(np.vstack(cur))
+        if not alive.any():
+            break
+        # nothing to anchor to: start a new path at the line nearest the last end
+        last = out[-1][-1]
+        idx = np.flatnonzero(alive)
+        heads = np.array([lines[i][0] for i in idx])
+        cur_i = int(idx[np.argmin(np.sum((heads - last) ** 2, axis=1))])
+        alive[cur_i] = False
+        cur = [lines[cur_i]]
+        c_end, u_end = which[cur_i, 1], u[cur_i, 1]
+    return out

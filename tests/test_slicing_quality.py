@@ -1,0 +1,229 @@
+"""What a print shows: simplification, solid small regions, tiny islands, gap fill,
+bridges, overhangs, travels without retraction inside the part, seams in corners."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from deltaslice.machine import load_printer
+from deltaslice.slicing import slice_mesh
+from deltaslice.slicing.perimeters import concave_corners, seam_index
+from deltaslice.toolpath import Role
+
+from . import meshes
+
+
+@pytest.fixture(scope="module")
+def etitc():
+    return load_printer("printers/delta_etitc.toml")
+
+
+def layer_moves(tp, layer):
+    sl = tp.layer_slices()[layer]
+    idx = np.arange(sl.start, sl.stop)
+    return idx[tp.working[sl]]
+
+
+def seg_lengths(tp, idx):
+    prev = np.concatenate([[tp.start], tp.xyz])[idx]
+    return np.linalg.norm(tp.xyz[idx, :2] - prev[:, :2], axis=1)
+
+
+def test_resolution_setting_read_with_default(etitc):
+    assert etitc.slicing.gcode_resolution == pytest.approx(0.0125)
+
+
+def test_simplification_drops_facet_noise(etitc):
+    """A 2000-facet cylinder: within 0.0125 mm most of its 0.03 mm edges merge; the
+    outline stays within the resolution of the true circle."""
+    mesh = meshes.cylinder(radius=10.0, height=2.0, sections=2000)
+    raw = slice_mesh(mesh, dataclasses.replace(etitc.slicing, gcode_resolution=0.0), etitc.tool)
+    simp = slice_mesh(mesh, etitc.slicing, etitc.tool)
+    assert simp.working.sum() < 0.5 * raw.working.sum()
+    ext = simp.working & (simp.role == Role.EXTERNAL_PERIMETER) & (simp.layer == 2)
+    r = np.hypot(simp.xyz[ext, 0], simp.xyz[ext, 1])
+    target = 10.0 - etitc.slicing.perimeter_width / 2
+    assert np.all(np.abs(r - target) < 0.0125 + 0.02)  # resolution + the 2000-gon's own sag
+
+
+def test_small_region_is_solid_large_is_sparse(etitc):
+    small = slice_mesh(meshes.box(8, 8, 8), etitc.slicing, etitc.tool)  # infill area ~36 mm^2 < 70 * (0.5/0.4)^2
+    large = slice_mesh(meshes.box(30, 30, 8), etitc.slicing, etitc.tool)
+    mid = small.n_layers // 2
+    assert Role.INFILL not in set(small.role[layer_moves(small, mid)].tolist())
+    assert Role.INFILL in set(large.role[layer_moves(large, mid)].tolist())
+    off = slice_mesh(meshes.box(8, 8, 8), dataclasses.replace(etitc.slicing, solid_infill_below_area=0.0), etitc.tool)
+    assert Role.INFILL in set(off.role[layer_moves(off, mid)].tolist())
+
+
+def test_tiny_bed_contact_printed_on_first_layer(etitc):
+    """A 0.9 mm post under a block: thinner than the 1.0 mm first-layer bead, yet printed."""
+    tp = slice_mesh(meshes.post_on_block(post=0.9), dataclasses.replace(etitc.slicing, skirt_loops=0), etitc.tool)
+    m = layer_moves(tp, 0)
+    assert len(m) > 0
+    assert np.all(np.abs(tp.xyz[m, :2]) < 0.45 + 1e-6)
+    vol = float(tp.e[m].sum()) * etitc.tool.filament_area
+    assert vol == pytest.approx(0.81 * etitc.slicing.first_layer_height, rel=0.35)
+
+
+@pytest.mark.parametrize("thickness", [2.0, 2.3, 2.7])
+def test_thick_wall_gap_filled(etitc, thickness):
+    """2-2.7 mm walls: perimeters leave a slot the gap fill closes; the plastic in a
+    middle layer matches the wall's section within 8 % (without gap fill: a void)."""
+    s = dataclasses.replace(etitc.slicing, skirt_loops=0)
+    tp = slice_mesh(meshes.thin_wall(thickness, 30, 6), s, etitc.tool)
+    layer = tp.n_layers // 2
+    m = layer_moves(tp, layer)
+    vol = float(tp.e[m].sum()) * etitc.tool.filament_area
+    assert vol == pytest.approx(30 * thickness * s.layer_height, rel=0.08)
+    gap = m[tp.role[m] == Role.GAP_FILL]
+    if len(gap):  # the slot is down the middle of the wall
+        assert np.all(np.abs(tp.xyz[gap, 1]) < 0.2 * thickness)
+
+
+def test_thin_wall_narrower_than_a_bead_printed(etitc):
+    s = dataclasses.replace(etitc.slicing, skirt_loops=0)
+    tp = slice_mesh(meshes.thin_wall(0.4, 20, 3), s, etitc.tool)
+    for layer in range(1, tp.n_layers):
+        m = layer_moves(tp, layer)
+        assert len(m) and set(tp.role[m].tolist()) == {Role.GAP_FILL}, layer
+        assert seg_lengths(tp, m).sum() > 15.0
+        # the bead is as wide as the wall: filament per mm for a 0.4 mm x 0.4 mm section
+        vol = float(tp.e[m].sum()) * etitc.tool.filament_area
+        assert vol == pytest.approx(20 * 0.4 * s.layer_height, rel=0.2)
+
+
+def test_bridge_between_towers(etitc):
+    s = dataclasses.replace(etitc.slicing, skirt_loops=0)
+    tp = slice_mesh(meshes.towers_with_deck(gap=20.0, height=4.0), s, etitc.tool)
+    deck0 = int(np.searchsorted(tp.layer_z - s.layer_height / 2, 4.0))  # first layer sliced above the towers
+    m = layer_moves(tp, deck0)
+    br = m[tp.role[m] == Role.BRIDGE_INFILL]
+    assert len(br) > 0
+    # lines run from tower to tower (along x) and cross the whole gap
+    d = tp.xyz[br, :2] - np.concatenate([[tp.start], tp.xyz])[br, :2]
+    long = np.linalg.norm(d, axis=1) > 5
+    assert long.any() and np.all(np.abs(d[long, 1]) < 1e-6 + 0.05 * np.abs(d[long, 0]))
+    assert np.linalg.norm(d[long], axis=1).max() > 20.0
+    # bridge speed and a round bead of nozzle diameter
+    assert np.allclose(tp.feed[br], s.bridge_speed)
+    fpm = tp.e[br] / np.linalg.norm(d, axis=1)
+    assert np.allclose(fpm, np.pi * etitc.tool.nozzle_diameter**2 / 4 / etitc.tool.filament_area * s.bridge_flow)
+    # the deck's outline over the gap is an overhang perimeter, slower; over the towers it is not
+    ov = m[tp.role[m] == Role.OVERHANG_PERIMETER]
+    assert len(ov) and np.allclose(tp.feed[ov], s.overhang_speed)
+    assert np.all(np.abs(tp.xyz[ov, 0]) < 10.0 + s.perimeter_width)
+    # the layers above and below have no bridges
+    assert not np.any(tp.role[layer_moves(tp, deck0 + 1)] == Role.BRIDGE_INFILL)
+    assert not np.any(tp.role[layer_moves(tp, deck0 - 1)] == Role.BRIDGE_INFILL)
+
+
+def test_internal_bridge_over_sparse_infill(etitc):
+    tp = slice_mesh(meshes.box(30, 30, 8), etitc.slicing, etitc.tool)
+    layers = sorted(set(tp.layer[tp.working & (tp.role == Role.BRIDGE_INFILL)].tolist()))
+    # the first solid layer over the sparse infill, and only that one
+    top_solid = tp.n_layers - etitc.slicing.top_solid_layers
+    assert layers == [top_solid]
+
+
+def test_travels_inside_the_part_do_not_retract(etitc):
+    """Perimeters and sparse infill around a hole: the travels between them stay inside
+    the outer loop and off the hole, so they do not retract."""
+    tp = slice_mesh(meshes.cube_with_hole(30, 6), dataclasses.replace(etitc.slicing, skirt_loops=0), etitc.tool)
+    mid = tp.n_layers // 2
+    sl = tp.layer_slices()[mid]
+    travels = np.sum(np.diff(tp.working[sl].astype(int)) == -1)
+    retracts = np.sum((~tp.working[sl]) & (tp.e[sl] < 0))
+    assert travels > 5 and retracts <= 1
+    # the rule is about crossing, not distance: a travel over the hole still retracts
+    hole = np.hypot(tp.xyz[:, 0], tp.xyz[:, 1]) < 6.0 - 0.3
+    crossing = (~tp.working) & hole
+    assert not np.any(crossing)
+
+
+def test_seam_prefers_concave_corner():
+    # an L (counter-clockwise): the inner corner at (5, 5) is its only concave vertex
+    L = np.array([[0, 0], [10, 0], [10, 5], [5, 5], [5, 10], [0, 10]], float)
+    assert concave_corners(L).tolist() == [False, False, False, True, False, False]
+    assert seam_index(L, "aligned", np.zeros(2)) == 3
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
+    assert seam_index(square, "aligned", np.zeros(2)) == 3  # no concave corner: rear, then left
+
+
+def test_gcode_type_comments(etitc, tmp_path):
+    from deltaslice.pipeline import write_gcode
+
+    tp = slice_mesh(meshes.towers_with_deck(), etitc.slicing, etitc.tool)
+    out = tmp_path / "deck.gcode"
+    write_gcode(tp, out)
+    text = out.read_text()
+    for name in ("Bridge infill", "Overhang perimeter", "External perimeter"):
+        assert f";TYPE:{name}\n" in text
+
+
+def test_infill_anchored_along_the_outline(etitc):
+    """A narrow ring: sparse lines across it are joined along its outline into a few
+    paths, not a dash (and a travel) per line."""
+    from deltaslice.slicing import slicer
+
+    tp = slice_mesh(meshes.ring(20, 16, 4), etitc.slicing, etitc.tool)
+    mid = tp.n_layers // 2
+    sl = tp.layer_slices()[mid]
+    w = tp.working[sl] & (tp.role[sl] == Role.INFILL)
+    runs = int(np.sum(w[1:] & ~w[:-1]) + w[0])
+    assert 0 < runs <= 3
+    # and without anchors the same ring needs many
+    old = slicer.INFILL_ANCHOR_MAX
+    try:
+        slicer.INFILL_ANCHOR_MAX = 0.0
+        tp0 = slice_mesh(meshes.ring(20, 16, 4), etitc.slicing, etitc.tool)
+    finally:
+        slicer.INFILL_ANCHOR_MAX = old
+    sl0 = tp0.layer_slices()[mid]
+    w0 = tp0.working[sl0] & (tp0.role[sl0] == Role.INFILL)
+    assert int(np.sum(w0[1:] & ~w0[:-1]) + w0[0]) > 5 * runs
+
+
+def test_vertical_shell_around_a_hole_starting_above(etitc):
+    """A hole opens at z = 5: the layers just under it are solid under the hole and under
+    the perimeter band around it (PrusaSlicer's vertical shell); further out, sparse."""
+    s = etitc.slicing
+    tp = slice_mesh(meshes.blind_hole(20, 10, 4, 5), etitc.slicing, etitc.tool)
+    band = s.perimeter_width / 2 + (s.perimeters - 0.5) * (s.perimeter_width - s.layer_height * (1 - np.pi / 4))
+    mids = tp.layer_z - s.layer_height / 2
+    below = [l for l in range(tp.n_layers) if 5 - s.top_solid_layers * s.layer_height < mids[l] < 5]
+    assert below
+    for l in below:
+        sl = tp.layer_slices()[l]
+        r = np.hypot(tp.xyz[sl, 0], tp.xyz[sl, 1])
+        solid = tp.working[sl] & np.isin(tp.role[sl], (Role.SOLID_INFILL, Role.TOP_SOLID_INFILL, Role.BRIDGE_INFILL))
+        sparse = tp.working[sl] & (tp.role[sl] == Role.INFILL)
+        assert r[solid].max() > 4 + band - 0.6
+        assert sparse.any() and r[sparse].min() > 4 + band - 0.6
+
+
+def test_wavering_wall_gets_one_gap_line_not_specks(etitc):
+    """A 2.46 mm wall whose one side is a 0.15 mm sawtooth: the third perimeter barely fits
+    and would break into specks; they are left to the gap fill, which runs the whole
+    length in a few lines."""
+    import shapely
+    import trimesh
+
+    from deltaslice.mesh import mesh_from_arrays
+
+    x = np.linspace(0, 20, 41)
+    saw = np.where(np.arange(41) % 2 == 0, 0.0, 0.15)
+    outline = np.vstack([np.column_stack([x, saw]), [[20, 2.456], [0, 2.456]]])
+    tm = trimesh.creation.extrude_polygon(shapely.Polygon(outline), 3.0)
+    tp = slice_mesh(mesh_from_arrays(tm.vertices, tm.faces, name="sawtooth wall"),
+                    dataclasses.replace(etitc.slicing, skirt_loops=0), etitc.tool)
+    layer = tp.n_layers // 2
+    sl = tp.layer_slices()[layer]
+    w = tp.working[sl]
+    runs = tp.role[sl][w & ~np.concatenate([[False], w[:-1]])]
+    assert np.sum(runs == Role.PERIMETER) <= 2  # the second loop, not a speck per tooth
+    assert 1 <= np.sum(runs == Role.GAP_FILL) <= 3
+    m = layer_moves(tp, layer)
+    g = m[tp.role[m] == Role.GAP_FILL]
+    assert seg_lengths(tp, g).sum() > 15.0
