@@ -72,10 +72,12 @@ def main():
               help="feed: obey the toolpath's feed rates; machine: only the actuators' limits.")
 @click.option("--planner", type=click.Choice(["toppra", "trapezoid"]), default="toppra", show_default=True,
               help="toppra: time-optimal in joint space; trapezoid: the conventional Cartesian planner (made safe).")
+@click.option("--solver", type=click.Choice(["fast", "toppra"]), default="fast", show_default=True,
+              help="The time-optimal planner's solver: fast (compiled reachability) or toppra (reference).")
 @_placement_options
 @click.option("--workers", type=int, default=None, help="Planning processes (default: all cores).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
-def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, rotate, keep_position, workers, quiet):
+def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, solver, scale, rotate, keep_position, workers, quiet):
     """Compile PART (mesh or G-code) into a trajectory for the printer."""
     from .pipeline import compile_part
 
@@ -87,6 +89,7 @@ def compile_cmd(part, printer_path, output, fmt, speed_limit, planner, scale, ro
         fmt=fmt,
         speed_limit=speed_limit,
         planner=planner,
+        solver=solver,
         scale=scale,
         rotate=rotate,
         keep_position=keep_position,

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import Toolpath
+from .fastpath import SOLVERS
 from .topp import RunSpec, plan_run
 from .trajectory import Trajectory
 from .travel import plan_travel
@@ -75,21 +76,23 @@ def _init_worker(printer):
 
 
 def _plan_chunk(args):
-    specs, speed_limit = args
+    specs, speed_limit, solver = args
     printer, kin = _WORKER["printer"], _WORKER["kin"]
     out = []
     for s in specs:
-        res = plan_run(kin, printer, s, speed_limit)
+        res = plan_run(kin, printer, s, speed_limit, solver=solver)
         out.append(res if isinstance(res, list) else [res])
     return out
 
 
-def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None) -> Trajectory:
+def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None, solver="fast") -> Trajectory:
     """Plan a toolpath for a printer.
 
     speed_limit: "feed" obeys the toolpath's feed rates; "machine" only the actuators' limits.
     planner: "toppra" (time-optimal, joint space) or "trapezoid" (conventional, made safe).
     workers: processes for the runs (default: all cores). progress: callable(done, total) or None.
+    solver: "fast" (:mod:`.reachability`, compiled) or "toppra" (toppra's seidel solver), for the
+    time-optimal planner's runs and travels.
     """
     if speed_limit not in ("feed", "machine"):
         raise DeltasliceError(f"speed_limit must be 'feed' or 'machine', not {speed_limit!r}")
@@ -102,6 +105,8 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         return plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress)
     if planner != "toppra":
         raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
+    if solver not in SOLVERS:
+        raise DeltasliceError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
 
     kin = printer.kinematics()
     ranges = split_runs(toolpath)
@@ -113,12 +118,12 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     if workers == 1 or len(specs) < 8:
         _init_worker(printer)
         for n, c in enumerate(chunks):
-            run_pieces.extend(_plan_chunk((c, speed_limit)))
+            run_pieces.extend(_plan_chunk((c, speed_limit, solver)))
             if progress:
                 progress(n + 1, len(chunks))
     else:
         with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(printer,)) as pool:
-            for n, res in enumerate(pool.map(_plan_chunk, [(c, speed_limit) for c in chunks])):
+            for n, res in enumerate(pool.map(_plan_chunk, [(c, speed_limit, solver) for c in chunks])):
                 run_pieces.extend(res)
                 if progress:
                     progress(n + 1, len(chunks))
@@ -130,17 +135,17 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     prev_end = 0
     e_start = 0.0
     for (i, j), run in zip(ranges, run_pieces):
-        pieces.extend(_travel(kin, printer, toolpath, prev_end, i, pos, printed_top, speed_limit))
+        pieces.extend(_travel(kin, printer, toolpath, prev_end, i, pos, printed_top, speed_limit, solver))
         pieces.extend(run)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
     if prev_end < len(toolpath):
-        pieces.extend(_travel(kin, printer, toolpath, prev_end, len(toolpath), pos, printed_top, speed_limit))
+        pieces.extend(_travel(kin, printer, toolpath, prev_end, len(toolpath), pos, printed_top, speed_limit, solver))
     return Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit, e_start=e_start)
 
 
-def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit):
+def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit, solver="fast"):
     """Pieces for the non-working moves [i, j) that go from pos to the start of move j."""
     if j <= i:
         return []
@@ -158,5 +163,6 @@ def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit):
         unretract=float(e[e > 0].sum()),
         speed_limit=speed_limit,
         via=toolpath.xyz[i : j - 1],
+        solver=solver,
         feed=float(toolpath.feed[i:j][np.linalg.norm(toolpath.xyz[i:j] - np.concatenate([[pos], toolpath.xyz[i : j - 1]]), axis=1) > 0].max(initial=0.0)) or None,
     )

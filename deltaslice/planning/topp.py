@@ -32,6 +32,7 @@ from toppra.interpolator import AbstractGeometricPath
 
 from ..errors import PlanningError, UnreachableError
 from .blend import BlendedPath, blend_polyline, dedupe
+from .fastpath import fast_speeds, grid_derivatives, velocity_cap2
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
@@ -239,9 +240,10 @@ def _conservative_profile(rp, x, vmax, amax, xd_cap):
     return np.minimum(v, np.sqrt(2 * a * np.minimum(x, 1.0 - x).clip(0)))
 
 
-def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece | list:
+def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None, solver: str = "fast") -> RunPiece | list:
     """Plan one run from rest to rest. kin: kinematics; printer: Printer;
-    tolerance: blend tolerance, mm (default: the printer's).
+    tolerance: blend tolerance, mm (default: the printer's); solver: "fast" (:mod:`.reachability`)
+    or "toppra" (the same problem through toppra's seidel solver).
 
     Returns a RunPiece, or, in the rare case toppra's numerics fail on the whole run, the
     list of RunPieces of its two halves (split at a vertex, each from rest to rest)."""
@@ -256,7 +258,7 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
             return []
         return [FilamentPiece(q, amount, ex.max_filament_speed, ex.max_filament_acceleration, spec.layer, kind="run")]
     try:
-        return _plan_run(kin, printer, spec, speed_limit, tolerance)
+        return _plan_run(kin, printer, spec, speed_limit, tolerance, solver)
     except PlanningError:
         m = len(spec.points) - 1
         if m < 2:
@@ -266,12 +268,12 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         second = RunSpec(spec.points[h:], spec.feed[h:], spec.e[h:], spec.tool, spec.layer)
         out = []
         for part in (first, second):
-            res = plan_run(kin, printer, part, speed_limit, tolerance)
+            res = plan_run(kin, printer, part, speed_limit, tolerance, solver)
             out.extend(res if isinstance(res, list) else [res])
         return out
 
 
-def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None) -> RunPiece:
+def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None, solver: str = "fast") -> RunPiece:
     pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
     path = blend_polyline(pts, printer.planning.blend_tolerance if tolerance is None else tolerance)
     S = path.length
@@ -314,14 +316,21 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
     x_grid = s_grid / S
     x_grid[0], x_grid[-1] = 0.0, 1.0
-    constraints = [
-        PathVelocityConstraint(vmax, feed_grid, S),
-        toppra.constraint.JointAccelerationConstraint(
-            amax, discretization_scheme=toppra.constraint.DiscretizationType.Interpolation
-        ),
-    ]
-    algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
-    sdd, sd, _ = algo.compute_parameterization(0.0, 0.0)
+    if solver == "fast":
+        dq, ddq = grid_derivatives(rp, x_grid)
+        cap2 = velocity_cap2(dq, vmax, feed_grid, S)
+        sd = fast_speeds(dq, ddq, amax, cap2, x_grid)
+    else:
+        constraints = [
+            PathVelocityConstraint(vmax, feed_grid, S),
+            toppra.constraint.JointAccelerationConstraint(
+                amax, discretization_scheme=toppra.constraint.DiscretizationType.Interpolation
+            ),
+        ]
+        algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
+        sdd, sd, _ = algo.compute_parameterization(0.0, 0.0)
+        cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
+        dq, ddq = rp(x_grid, 1), rp(x_grid, 2)
     if sd is None or not np.all(np.isfinite(sd)):
         # Seidel's 2-D LP occasionally meets a degenerate stage; a conservative profile from
         # the same limits is always feasible (and slower only on this run).
@@ -343,8 +352,6 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
 
     # Which stages have a limit active (the optimality certificate): the speed at its
     # first-order cap, or some joint's acceleration at its limit.
-    cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
-    dq, ddq = rp(x_grid[:-1], 1), rp(x_grid[:-1], 2)
-    acc = np.abs(dq * xdd[:, None] + ddq * (sd[:-1] ** 2)[:, None]) / amax[None]
+    acc = np.abs(dq[:-1] * xdd[:, None] + ddq[:-1] * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
     return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()))

@@ -134,7 +134,7 @@ def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
     return bool(ok and kin.reachable(p).all())
 
 
-def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit, via=None, feed=None):
+def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit, via=None, feed=None, solver="fast"):
     """Pieces that take the tool from point a to point b (both (3,) mm, bed frame).
 
     via: (k,3) the toolpath's own travel points between a and b (the slicer's z-hop, if any);
@@ -159,7 +159,7 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
         z_clear = top + (0.5 * lift if lift > 0 else 0.0) if not short else min(a[2], b[2])
         # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
         own = np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
-        cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed)
+        cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed, solver=solver)
         best = cartesian
         # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.
         if not short:
@@ -169,9 +169,9 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
                 if joint_move_clear(kin, joint, z_clear):
                     cand = [joint]
                     if a_up[2] > a[2] + 1e-9:
-                        cand = _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed) + cand
+                        cand = _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed, solver=solver) + cand
                     if b_up[2] > b[2] + 1e-9:
-                        cand = cand + _cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed)
+                        cand = cand + _cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed, solver=solver)
                     if sum(p.duration for p in cand) < sum(p.duration for p in cartesian):
                         best = cand
         pieces.extend(best)
@@ -180,13 +180,13 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     return pieces
 
 
-def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None) -> list:
+def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None, solver="fast") -> list:
     """A straight Cartesian travel (tool off) planned with toppra."""
     keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
     pts = pts[keep]
     m = len(pts) - 1
     feed = np.full(m, feed or printer.slicing.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
-    res = plan_run(kin, printer, spec, speed_limit, tolerance)
+    res = plan_run(kin, printer, spec, speed_limit, tolerance, solver)
     parts = res if isinstance(res, list) else [res]
     return [RunPiece(**{**p.__dict__, "kind": "travel"}) for p in parts]
