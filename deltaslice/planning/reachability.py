@@ -116,18 +116,25 @@ def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
     for i in range(n - 1, -1, -1):
         nl, nu, xl, xh = _u_rows(a, b, lo, hi, i, ds[i], interp, n_rows, low_p, low_r, up_p, up_r)
         d2 = 2.0 * ds[i]
-        # The seidel solver's box, and x_{i+1} = x + 2 ds u inside K_{i+1}.
+        # The seidel solver's box, and x_{i+1} = x + 2 ds u inside K_{i+1} (on a zero-length
+        # stage: x itself inside K_{i+1}, u free).
         low_p[nl] = -BOX
         low_r[nl] = 0.0
-        low_p[nl + 1] = K[i + 1, 0] / d2
-        low_r[nl + 1] = -1.0 / d2
         up_p[nu] = BOX
         up_r[nu] = 0.0
-        up_p[nu + 1] = K[i + 1, 1] / d2
-        up_r[nu + 1] = -1.0 / d2
+        extra = 1
+        if d2 > 0.0:
+            low_p[nl + 1] = K[i + 1, 0] / d2
+            low_r[nl + 1] = -1.0 / d2
+            up_p[nu + 1] = K[i + 1, 1] / d2
+            up_r[nu + 1] = -1.0 / d2
+            extra = 2
+        else:
+            xl = max(xl, K[i + 1, 0])
+            xh = min(xh, K[i + 1, 1])
         xl = max(xl, 0.0)
         xh = min(xh, min(xmax[i], BOX))
-        xl, xh = _x_range(nl + 2, nu + 2, low_p, low_r, up_p, up_r, xl, xh)
+        xl, xh = _x_range(nl + extra, nu + extra, low_p, low_r, up_p, up_r, xl, xh)
         if xl > xh and xl - xh <= 1e-9 * (1.0 + abs(xh)):
             xl = xh  # a single point, split by rounding
         if not (xl <= xh):
@@ -153,8 +160,13 @@ def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
         x = xs[i]
         nl, nu, xl, xh = _u_rows(a, b, lo, hi, i, ds[i], interp, n_rows, low_p, low_r, up_p, up_r)
         d2 = 2.0 * ds[i]
-        lo_u = max(-BOX, (K[i + 1, 0] - x) / d2)
-        hi_u = min(BOX, (K[i + 1, 1] - x) / d2)
+        lo_u = -BOX
+        hi_u = BOX
+        if d2 > 0.0:
+            lo_u = max(lo_u, (K[i + 1, 0] - x) / d2)
+            hi_u = min(hi_u, (K[i + 1, 1] - x) / d2)
+        elif x < K[i + 1, 0] - TINY or x > K[i + 1, 1] + TINY:
+            lo_u = np.inf
         for k in range(nl):
             lo_u = max(lo_u, low_p[k] + low_r[k] * x)
         for k in range(nu):
@@ -199,7 +211,8 @@ def solve(a, b, lo, hi, xmax, ds, *, x_start=0.0, x_end=0.0, interpolation=True)
 
     a, b: (n+1, m) float, coefficients of u and x in each second-order row (q'_j(s_i), q''_j(s_i));
     lo, hi: (m,) the rows' bounds (lo <= 0 <= hi for a problem with a solution at rest);
-    xmax: (n+1,) first-order bound on x (>= 0, may be inf); ds: (n,) > 0 stage lengths in path units;
+    xmax: (n+1,) first-order bound on x (>= 0, may be inf); ds: (n,) >= 0 stage lengths in path
+    units (a zero-length stage keeps x and takes the largest u its rows allow);
     x_start, x_end: squared path speeds at the ends.
     interpolation: toppra's interpolation discretisation (else collocation).
 
