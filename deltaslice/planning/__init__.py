@@ -76,11 +76,15 @@ def _init_worker(printer):
 
 
 def _plan_chunk(args):
-    specs, speed_limit, solver = args
+    """Plan a chunk of jobs in print order: ("run", RunSpec) or ("travel", plan_travel's keywords)."""
+    jobs, speed_limit, solver = args
     printer, kin = _WORKER["printer"], _WORKER["kin"]
     out = []
-    for s in specs:
-        res = plan_run(kin, printer, s, speed_limit, solver=solver)
+    for kind, job in jobs:
+        if kind == "travel":
+            out.append(plan_travel(kin, printer, speed_limit=speed_limit, solver=solver, **job))
+            continue
+        res = plan_run(kin, printer, job, speed_limit, solver=solver)
         out.append(res if isinstance(res, list) else [res])
     return out
 
@@ -108,61 +112,57 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     if solver not in SOLVERS:
         raise DeltasliceError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
 
-    kin = printer.kinematics()
     ranges = split_runs(toolpath)
-    specs = [_run_spec(toolpath, i, j) for i, j in ranges]
+    # Runs and the travels between them (and before the first / after the last), in print order;
+    # a travel needs only the toolpath, so both are planned in the worker processes.
+    jobs = []
+    pos = toolpath.start
+    printed_top = 0.0
+    prev_end = 0
+    for i, j in ranges:
+        if i > prev_end:
+            jobs.append(("travel", _travel_args(toolpath, prev_end, i, pos, printed_top)))
+        jobs.append(("run", _run_spec(toolpath, i, j)))
+        pos = toolpath.xyz[j - 1]
+        printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
+        prev_end = j
+    if prev_end < len(toolpath):
+        jobs.append(("travel", _travel_args(toolpath, prev_end, len(toolpath), pos, printed_top)))
     workers = max(1, workers or os.cpu_count() or 1)
-    run_pieces = []
-    chunk = max(1, min(64, len(specs) // (4 * workers) or 1))
-    chunks = [specs[k : k + chunk] for k in range(0, len(specs), chunk)]
-    if workers == 1 or len(specs) < 8:
+    pieces = []
+    chunk = max(1, min(64, len(jobs) // (4 * workers) or 1))
+    chunks = [jobs[k : k + chunk] for k in range(0, len(jobs), chunk)]
+    results = []
+    if workers == 1 or len(jobs) < 8:
         _init_worker(printer)
         for n, c in enumerate(chunks):
-            run_pieces.extend(_plan_chunk((c, speed_limit, solver)))
+            results.extend(_plan_chunk((c, speed_limit, solver)))
             if progress:
                 progress(n + 1, len(chunks))
     else:
         with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(printer,)) as pool:
             for n, res in enumerate(pool.map(_plan_chunk, [(c, speed_limit, solver) for c in chunks])):
-                run_pieces.extend(res)
+                results.extend(res)
                 if progress:
                     progress(n + 1, len(chunks))
-
-    # Travels between runs (and before the first / after the last), in order.
-    pieces = []
-    pos = toolpath.start
-    printed_top = 0.0
-    prev_end = 0
+    for res in results:
+        pieces.extend(res)
     e_start = 0.0
-    for (i, j), run in zip(ranges, run_pieces):
-        pieces.extend(_travel(kin, printer, toolpath, prev_end, i, pos, printed_top, speed_limit, solver))
-        pieces.extend(run)
-        pos = toolpath.xyz[j - 1]
-        printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
-        prev_end = j
-    if prev_end < len(toolpath):
-        pieces.extend(_travel(kin, printer, toolpath, prev_end, len(toolpath), pos, printed_top, speed_limit, solver))
     return Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit, e_start=e_start)
 
 
-def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit, solver="fast"):
-    """Pieces for the non-working moves [i, j) that go from pos to the start of move j."""
-    if j <= i:
-        return []
+def _travel_args(toolpath, i, j, pos, printed_top) -> dict:
+    """plan_travel's keywords for the non-working moves [i, j) that go from pos to the start of move j."""
     target = toolpath.xyz[j - 1]
     e = toolpath.e[i:j]
     layer = int(toolpath.layer[min(j, len(toolpath) - 1)])
-    return plan_travel(
-        kin,
-        printer,
-        np.asarray(pos, float),
-        np.asarray(target, float),
+    return dict(
+        a=np.asarray(pos, float),
+        b=np.asarray(target, float),
         layer=layer,
         printed_top=printed_top,
         retract=float(e[e < 0].sum()),
         unretract=float(e[e > 0].sum()),
-        speed_limit=speed_limit,
-        via=toolpath.xyz[i : j - 1],
-        solver=solver,
+        via=toolpath.xyz[i : j - 1].copy(),
         feed=float(toolpath.feed[i:j][np.linalg.norm(toolpath.xyz[i:j] - np.concatenate([[pos], toolpath.xyz[i : j - 1]]), axis=1) > 0].max(initial=0.0)) or None,
     )

@@ -42,7 +42,6 @@ PARALLEL = 1e-12
 def _u_rows(a, b, lo, hi, i, ds, interp, n_rows, low_p, low_r, up_p, up_r):
     """Bounds on u at stage i as u >= p + r x (low) and u <= p + r x (up); rows with no u
     term become bounds on x. Returns (n_low, n_up, xl, xh); xl > xh when infeasible."""
-    n = a.shape[0] - 1
     m = a.shape[1]
     nl = 0
     nu = 0

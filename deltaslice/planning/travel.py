@@ -17,6 +17,7 @@ import numpy as np
 import ruckig
 
 from ..errors import PlanningError
+from .ruckig_profile import RuckigProfile
 from .topp import RunPiece, RunSpec, plan_run
 
 CHECK_SAMPLES = 48
@@ -24,8 +25,10 @@ CHECK_SAMPLES = 48
 
 @dataclass
 class JointMovePiece:
-    """A ruckig joint-space move from rest to rest (kept in the main process)."""
+    """A ruckig joint-space move from rest to rest, as its phases (:mod:`.ruckig_profile`);
+    ``traj`` (the ruckig object, not picklable) only where the phases are not exposed."""
 
+    profile: RuckigProfile | None
     traj: object
     q0: np.ndarray
     q1: np.ndarray
@@ -35,7 +38,7 @@ class JointMovePiece:
 
     @property
     def duration(self) -> float:
-        return float(self.traj.duration)
+        return float(self.profile.duration if self.profile is not None else self.traj.duration)
 
     @property
     def active_time(self) -> float:
@@ -45,7 +48,10 @@ class JointMovePiece:
 
     def sample(self, kin, tau):
         tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
-        q = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
+        if self.profile is not None:
+            q = self.profile.positions(tau)
+        else:
+            q = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
         return q, np.zeros(len(tau)), np.zeros(len(tau))
 
     @property
@@ -122,7 +128,8 @@ def _ruckig_move(printer, q0, q1, layer):
     result = otg.calculate(inp, traj)
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise PlanningError(f"layer {layer}: ruckig could not plan a travel ({result})")
-    return JointMovePiece(traj, np.asarray(q0, float), np.asarray(q1, float), layer)
+    profile = RuckigProfile.from_trajectory(traj)
+    return JointMovePiece(profile, None if profile is not None else traj, np.asarray(q0, float), np.asarray(q1, float), layer)
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
