@@ -231,3 +231,28 @@ def test_unknown_solver_is_refused():
     printer = load_printer(ROOT / "printers" / "delta_etitc.toml")
     with pytest.raises(DeltasliceError, match="solver"):
         plan(_circle_and_square(printer), printer, solver="seidel")
+
+
+def test_cli_solver_option_gives_the_same_print_time(tmp_path):
+    """`--solver toppra` and the default (fast) compile the same part to the same print time."""
+    import re
+
+    from click.testing import CliRunner
+
+    from deltaslice.cli import main
+
+    printer = str(ROOT / "printers" / "delta_etitc.toml")
+    cube = ROOT / "examples" / "parts" / "calibration_cube.stl"
+    runner = CliRunner()
+    gcode = tmp_path / "cube.gcode"
+    r = runner.invoke(main, ["slice", str(cube), "--printer", printer, "-o", str(gcode), "--scale", "0.3", "--quiet"])
+    assert r.exit_code == 0, r.output
+    times = {}
+    for solver in ("fast", "toppra"):
+        r = runner.invoke(main, [str(gcode), "--printer", printer, "-o", str(tmp_path / f"{solver}.dsl"), "--quiet",
+                                 "--workers", "1", "--solver", solver])
+        assert r.exit_code == 0, r.output
+        times[solver] = float(re.search(r"print time: ([\d.]+) s", r.output).group(1))
+    assert times["fast"] == pytest.approx(times["toppra"], rel=1e-3)
+    r = runner.invoke(main, [str(gcode), "--printer", printer, "-o", str(tmp_path / "x.dsl"), "--solver", "cvxpy"])
+    assert r.exit_code != 0 and "cvxpy" in r.output

@@ -173,13 +173,16 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
             q_up_a, q_up_b = kin.inverse(a_up[None])[0], kin.inverse(b_up[None])[0]
             if np.all(np.isfinite(q_up_a)) and np.all(np.isfinite(q_up_b)):
                 joint = _ruckig_move(printer, q_up_a, q_up_b, layer)
-                if joint_move_clear(kin, joint, z_clear):
+                # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
+                # travel, its clearance check and its lift and lower moves need not be planned.
+                own_time = sum(p.duration for p in cartesian)
+                if joint.duration < own_time and joint_move_clear(kin, joint, z_clear):
                     cand = [joint]
                     if a_up[2] > a[2] + 1e-9:
                         cand = _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed, solver=solver) + cand
-                    if b_up[2] > b[2] + 1e-9:
+                    if b_up[2] > b[2] + 1e-9 and sum(p.duration for p in cand) < own_time:
                         cand = cand + _cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed, solver=solver)
-                    if sum(p.duration for p in cand) < sum(p.duration for p in cartesian):
+                    if sum(p.duration for p in cand) < own_time:
                         best = cand
         pieces.extend(best)
     if extruder and unretract > 0:
