@@ -251,6 +251,8 @@ def main():
               help="feed: obey the toolpath's feed rates; machine: only the actuators' limits.")
 @click.option("--planner", type=click.Choice(["toppra", "trapezoid"]), default="toppra", show_default=True,
               help="toppra: time-optimal in joint space; trapezoid: the conventional Cartesian planner (made safe).")
+@click.option("--solver", type=click.Choice(["fast", "toppra"]), default="fast", show_default=True,
+              help="The time-optimal planner's solver: fast (compiled reachability) or toppra (reference).")
 @placement_options
 @click.option("--center", is_flag=True, help="G-code: move the part's footprint to the bed centre (a file sliced for another machine).")
 @_engrave_options
@@ -258,7 +260,7 @@ def main():
 @bound_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
 @json_option
-def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner, scale, rotate, keep_position, center,
+def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner, solver, scale, rotate, keep_position, center,
                 workers, max_time, max_size, quiet, as_json, **engrave):
     """Compile PART (mesh, G-code, or an image or SVG for a laser) into a trajectory for the printer."""
     from .pipeline import compile_part
@@ -272,6 +274,7 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
         fmt=fmt,
         speed_limit=speed_limit,
         planner=planner,
+        solver=solver,
         workers=workers,
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),

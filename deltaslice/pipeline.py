@@ -319,6 +319,7 @@ def compile_part(
     fmt=None,
     speed_limit="feed",
     planner="toppra",
+    solver="fast",
     workers=None,
     progress=False,
     echo=None,
@@ -353,6 +354,7 @@ def compile_part(
         printer,
         speed_limit=speed_limit,
         planner=planner,
+        solver=solver,
         workers=workers or os.cpu_count() or 1,
         progress=stderr_progress(progress, "planning runs"),
     )

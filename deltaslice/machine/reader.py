@@ -109,6 +109,14 @@ def _read_tool(sec: Section) -> Tool:
     )
 
 
+def _number(value, fallback: float) -> float:
+    """A default taken from another key's raw value: that value if it is a finite number, else
+    ``fallback`` (the other key's own getter reports what is wrong with it)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return fallback
+
+
 def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
     nozzle = tool.nozzle_diameter if isinstance(tool, Extruder) else 0.2
     layer = sec.getfloat("layer_height", above=0, maxval=10)
@@ -140,7 +148,8 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
         solid_infill_below_area=sec.getfloat("solid_infill_below_area", 70.0 * (nozzle / 0.4) ** 2, minval=0),
         bridge_speed=sec.getfloat("bridge_speed", sec.data.get("perimeter_speed", 30.0), above=0),
         bridge_flow=sec.getfloat("bridge_flow", 1.0, above=0, maxval=3),
-        overhang_speed=sec.getfloat("overhang_speed", 0.5 * float(sec.data.get("external_perimeter_speed", sec.data.get("perimeter_speed", 30.0))), above=0),
+        overhang_speed=sec.getfloat("overhang_speed", 0.5 * _number(sec.data.get("external_perimeter_speed",
+                                                                                 sec.data.get("perimeter_speed")), 30.0), above=0),
     )
     if s.first_layer_height > 0 and isinstance(tool, Extruder) and s.layer_height > tool.nozzle_diameter * 1.5:
         sec.fail("layer_height", layer, f"a layer height <= 1.5 x nozzle diameter ({1.5 * tool.nozzle_diameter:g} mm)")

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import WAIT_KINDS, Role, Toolpath
+from .fastpath import SOLVERS
 from .pieces import Piece
 from .topp import RunSpec, plan_run
 from .trajectory import Trajectory
@@ -109,18 +110,28 @@ def _init_worker(printer):
 
 
 def _plan_chunk(args):
-    specs, speed_limit = args
+    """Plan a chunk of jobs in print order: ("run", RunSpec) or ("travel", plan_travel's keywords).
+    Returns one list of pieces per job."""
+    jobs, speed_limit, solver = args
     printer, kin = _WORKER["printer"], _WORKER["kin"]
     out = []
-    return [plan_run(kin, printer, s, speed_limit) for s in specs]
+    for kind, job in jobs:
+        if kind == "travel":
+            out.append(plan_travel(kin, printer, speed_limit=speed_limit, solver=solver, **job))
+        else:
+            out.append(plan_run(kin, printer, job, speed_limit, solver=solver))
+    return out
 
 
-def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None) -> Trajectory:
+def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None,
+         solver="fast") -> Trajectory:
     """Plan a toolpath for a printer.
 
     speed_limit: "feed" obeys the toolpath's feed rates; "machine" only the actuators' limits.
     planner: "toppra" (time-optimal, joint space) or "trapezoid" (conventional, made safe).
-    workers: processes for the runs (default: all cores). progress: callable(done, total) or None.
+    workers: processes for the runs and travels (default: all cores). progress: callable(done, total) or None.
+    solver: "fast" (:mod:`.reachability`, compiled) or "toppra" (toppra's seidel solver, the
+    reference), for the time-optimal planner's runs and travels.
     """
     from ..machine import Printer
 
@@ -133,6 +144,8 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError(f"speed_limit must be 'feed' or 'machine', not {speed_limit!r}")
     if planner not in ("toppra", "trapezoid"):
         raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
+    if solver not in SOLVERS:
+        raise DeltasliceError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise DeltasliceError(f"plan: workers = {workers!r}: expected an integer >= 1 or None")
     if progress is not None and not callable(progress):
@@ -155,7 +168,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         times = traj.pieces[len(head)].t0[np.minimum(kept_before[toolpath.events["index"]], len(traj.pieces[len(head)].t0) - 1)]
         traj.events = _at_rest(toolpath, _event_times(toolpath, times), head, traj.duration)
         return traj
-    traj = _plan_toppra(toolpath, printer, speed_limit, workers, progress)
+    traj = _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver)
     whole = Trajectory(printer, head + traj.pieces + tail, planner=traj.planner, speed_limit=speed_limit,
                        e_start=traj.e_start, info=traj.info)
     whole.events = _at_rest(toolpath, traj.events, head, whole.duration)
@@ -175,48 +188,50 @@ def _at_rest(toolpath: Toolpath, events: tuple, head: list, duration: float) -> 
     )
 
 
-def _plan_toppra(toolpath, printer, speed_limit, workers, progress) -> Trajectory:
-    kin = printer.kinematics()
+def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver) -> Trajectory:
     ranges = split_runs(toolpath)
-    specs = [_run_spec(toolpath, i, j) for i, j in ranges]
+    # Runs and the travels between them (and before the first / after the last), in print order;
+    # a travel needs only the toolpath, so both are planned in the worker processes.
+    jobs, starts = [], []  # starts: the first move of each job's range, for the events' times
+    pos = toolpath.start
+    printed_top = 0.0
+    prev_end = 0
+    for i, j in ranges:
+        if i > prev_end:
+            jobs.append(("travel", _travel_args(toolpath, prev_end, i, pos, printed_top)))
+            starts.append(prev_end)
+        jobs.append(("run", _run_spec(toolpath, i, j)))
+        starts.append(i)
+        pos = toolpath.xyz[j - 1]
+        printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
+        prev_end = j
+    if prev_end < len(toolpath):
+        jobs.append(("travel", _travel_args(toolpath, prev_end, len(toolpath), pos, printed_top)))
+        starts.append(prev_end)
     workers = max(1, workers or os.cpu_count() or 1)
-    run_pieces = []
-    chunk = max(1, min(64, len(specs) // (4 * workers) or 1))
-    chunks = [specs[k : k + chunk] for k in range(0, len(specs), chunk)]
-    if workers == 1 or len(specs) < 8:
+    chunk = max(1, min(64, len(jobs) // (4 * workers) or 1))
+    chunks = [jobs[k : k + chunk] for k in range(0, len(jobs), chunk)]
+    results = []
+    if workers == 1 or len(jobs) < 8:
         _init_worker(printer)
         for n, c in enumerate(chunks):
-            run_pieces.extend(_plan_chunk((c, speed_limit)))
+            results.extend(_plan_chunk((c, speed_limit, solver)))
             if progress:
                 progress(n + 1, len(chunks))
     else:
         with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(printer,)) as pool:
-            for n, res in enumerate(pool.map(_plan_chunk, [(c, speed_limit) for c in chunks])):
-                run_pieces.extend(res)
+            for n, res in enumerate(pool.map(_plan_chunk, [(c, speed_limit, solver) for c in chunks])):
+                results.extend(res)
                 if progress:
                     progress(n + 1, len(chunks))
-
-    # Travels between runs (and before the first / after the last), in order.
-    pieces = []
-    pos = toolpath.start
-    printed_top = 0.0
-    prev_end = 0
-    e_start = 0.0
-    first_piece = []  # (first move, index of its first piece) per move range, for the events' times
-    for (i, j), run in zip(ranges, run_pieces):
-        first_piece.append((prev_end, len(pieces)))
-        pieces.extend(_travel(kin, printer, toolpath, prev_end, i, pos, printed_top, speed_limit))
-        first_piece.append((i, len(pieces)))
-        pieces.extend(run)
-        pos = toolpath.xyz[j - 1]
-        printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
-        prev_end = j
-    first_piece.append((prev_end, len(pieces)))
-    if prev_end < len(toolpath):
-        pieces.extend(_travel(kin, printer, toolpath, prev_end, len(toolpath), pos, printed_top, speed_limit))
+    pieces, first_piece = [], []  # (first move, index of its first piece) per job
+    for start, res in zip(starts, results):
+        first_piece.append((start, len(pieces)))
+        pieces.extend(res)
+    first_piece.append((len(toolpath), len(pieces)))
     if not pieces:
         raise DeltasliceError("the toolpath never moves the tool or the filament: nothing to plan")
-    traj = Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit, e_start=e_start)
+    traj = Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit)
     moves, piece_at = np.array(first_piece).T
     ev = toolpath.events["index"]
     k = piece_at[np.searchsorted(moves, ev, side="right") - 1]
@@ -232,23 +247,19 @@ def _event_times(toolpath: Toolpath, times) -> tuple:
     return tuple((float(t), int(k), float(v)) for t, k, v in zip(np.asarray(times, float).tolist(), ev["kind"], ev["value"]))
 
 
-def _travel(kin, printer, toolpath, i, j, pos, printed_top, speed_limit):
-    """Pieces for the non-working moves [i, j) that go from pos to the start of move j."""
-    if j <= i:
-        return []
+def _travel_args(toolpath, i, j, pos, printed_top) -> dict:
+    """plan_travel's keywords for the non-working moves [i, j) that go from pos to the start of move j."""
     target = toolpath.xyz[j - 1]
     e = toolpath.e[i:j]
     layer = int(toolpath.layer[min(j, len(toolpath) - 1)])
-    return plan_travel(
-        kin,
-        printer,
-        np.asarray(pos, float),
-        np.asarray(target, float),
+    steps = np.linalg.norm(toolpath.xyz[i:j] - np.concatenate([[pos], toolpath.xyz[i : j - 1]]), axis=1)
+    return dict(
+        a=np.asarray(pos, float),
+        b=np.asarray(target, float),
         layer=layer,
         printed_top=printed_top,
         retract=float(e[e < 0].sum()),
         unretract=float(e[e > 0].sum()),
-        speed_limit=speed_limit,
-        via=toolpath.xyz[i : j - 1],
-        feed=float(toolpath.feed[i:j][np.linalg.norm(toolpath.xyz[i:j] - np.concatenate([[pos], toolpath.xyz[i : j - 1]]), axis=1) > 0].max(initial=0.0)) or None,
+        via=toolpath.xyz[i : j - 1].copy(),
+        feed=float(toolpath.feed[i:j][steps > 0].max(initial=0.0)) or None,
     )

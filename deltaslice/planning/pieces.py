@@ -20,6 +20,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from .blend import BlendedPath
+from .ruckig_profile import RuckigProfile
 
 
 @runtime_checkable
@@ -114,8 +115,10 @@ class RunPiece:
 
 @dataclass(frozen=True)
 class JointMovePiece:
-    """A ruckig joint-space move from rest to rest (kept in the main process)."""
+    """A ruckig joint-space move from rest to rest, as its phases (:mod:`.ruckig_profile`);
+    ``traj`` (the ruckig object, not picklable) only where the phases are not exposed."""
 
+    profile: RuckigProfile | None
     traj: object
     q0: np.ndarray
     q1: np.ndarray
@@ -125,7 +128,7 @@ class JointMovePiece:
 
     @property
     def duration(self) -> float:
-        return float(self.traj.duration)
+        return float(self.profile.duration if self.profile is not None else self.traj.duration)
 
     @property
     def q_start(self) -> np.ndarray:
@@ -143,7 +146,10 @@ class JointMovePiece:
 
     def sample(self, kin, tau):
         tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
-        q = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
+        if self.profile is not None:
+            q = self.profile.positions(tau)
+        else:
+            q = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
         return q, np.zeros(len(tau)), np.zeros(len(tau))
 
     @property

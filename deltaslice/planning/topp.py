@@ -32,6 +32,7 @@ from toppra.interpolator import AbstractGeometricPath
 
 from ..errors import PlanningError, UnreachableError
 from .blend import BlendedPath, blend_polyline, dedupe
+from .fastpath import fast_speeds, grid_derivatives, velocity_cap2
 from .pieces import FilamentPiece, RunPiece
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
@@ -201,10 +202,12 @@ def _conservative_profile(rp, x, vmax, amax, xd_cap):
     return np.minimum(v, np.sqrt(2 * a * np.minimum(x, 1.0 - x).clip(0)))
 
 
-def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None, kind: str = "run") -> list:
+def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None, kind: str = "run",
+             solver: str = "fast") -> list:
     """Plan one run from rest to rest: a list of pieces (usually one RunPiece).
 
     kin: the printer's kinematics; tolerance: blend tolerance, mm (default: the printer's);
+    solver: "fast" (:mod:`.reachability`) or "toppra" (the same problem through toppra's seidel solver);
     kind: the pieces' kind ("run", or "travel" for a straight travel). A run shorter than a
     micron is its filament pushed at rest (or nothing); in the rare case toppra's numerics
     fail on a whole run, the pieces of its two halves (split at a vertex, each from rest to rest)."""
@@ -216,16 +219,16 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         q = kin.inverse(spec.points[-1:])[0]
         return [FilamentPiece(q, amount, float(limits.velocity[-1]), float(limits.acceleration[-1]), spec.layer, kind=kind)]
     try:
-        return [_plan_run(kin, printer, spec, speed_limit, tolerance, kind)]
+        return [_plan_run(kin, printer, spec, speed_limit, tolerance, kind, solver)]
     except PlanningError:
         m = len(spec.points) - 1
         if m < 2:
             raise
         h = m // 2
-        return [p for part in (spec.part(0, h), spec.part(h, m)) for p in plan_run(kin, printer, part, speed_limit, tolerance, kind)]
+        return [p for part in (spec.part(0, h), spec.part(h, m)) for p in plan_run(kin, printer, part, speed_limit, tolerance, kind, solver)]
 
 
-def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str) -> RunPiece:
+def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str, solver: str) -> RunPiece:
     pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
     path = blend_polyline(pts, printer.planning.blend_tolerance if tolerance is None else tolerance)
     S = path.length
@@ -266,14 +269,21 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
     x_grid = s_grid / S
     x_grid[0], x_grid[-1] = 0.0, 1.0
-    constraints = [
-        PathVelocityConstraint(vmax, feed_grid, S),
-        toppra.constraint.JointAccelerationConstraint(
-            amax, discretization_scheme=toppra.constraint.DiscretizationType.Interpolation
-        ),
-    ]
-    algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
-    sdd, sd, _ = algo.compute_parameterization(0.0, 0.0)
+    if solver == "fast":
+        dq, ddq = grid_derivatives(rp, x_grid)
+        cap2 = velocity_cap2(dq, vmax, feed_grid, S)
+        sd = fast_speeds(dq, ddq, amax, cap2, x_grid)
+    else:
+        constraints = [
+            PathVelocityConstraint(vmax, feed_grid, S),
+            toppra.constraint.JointAccelerationConstraint(
+                amax, discretization_scheme=toppra.constraint.DiscretizationType.Interpolation
+            ),
+        ]
+        algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
+        sdd, sd, _ = algo.compute_parameterization(0.0, 0.0)
+        cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
+        dq, ddq = rp(x_grid, 1), rp(x_grid, 2)
     if sd is None or not np.all(np.isfinite(sd)):
         # Seidel's 2-D LP occasionally meets a degenerate stage; a conservative profile from
         # the same limits is always feasible (and slower only on this run).
@@ -295,9 +305,7 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
 
     # Which stages have a limit active (the optimality certificate): the speed at its
     # first-order cap, or some joint's acceleration at its limit.
-    cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
-    dq, ddq = rp(x_grid[:-1], 1), rp(x_grid[:-1], 2)
-    acc = np.abs(dq * xdd[:, None] + ddq * (sd[:-1] ** 2)[:, None]) / amax[None]
+    acc = np.abs(dq[:-1] * xdd[:, None] + ddq[:-1] * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
     q_ends = rp(np.array([0.0, 1.0]))[:, : kin.n_joints]
     power = nominal = None

@@ -16,6 +16,7 @@ import ruckig
 
 from ..errors import PlanningError
 from .pieces import FilamentPiece, JointMovePiece
+from .ruckig_profile import RuckigProfile
 from .topp import RunSpec, plan_run
 
 CHECK_SAMPLES = 48
@@ -43,7 +44,8 @@ def _ruckig_move(printer, q0, q1, layer):
     result = otg.calculate(inp, traj)
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise PlanningError(f"layer {layer}: ruckig could not plan a travel ({result})")
-    return JointMovePiece(traj, np.asarray(q0, float), np.asarray(q1, float), layer)
+    profile = RuckigProfile.from_trajectory(traj)
+    return JointMovePiece(profile, None if profile is not None else traj, np.asarray(q0, float), np.asarray(q1, float), layer)
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
@@ -55,7 +57,8 @@ def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
     return bool(ok and kin.reachable(p).all())
 
 
-def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit, via=None, feed=None):
+def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit, via=None, feed=None,
+                solver="fast"):
     """Pieces that take the tool from point a to point b (both (3,) mm, bed frame).
 
     via: (k,3) the toolpath's own travel points between a and b (the slicer's z-hop, if any);
@@ -82,20 +85,23 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
         b_up = np.array([b[0], b[1], max(b[2], z_travel)])
         z_clear = top + (0.5 * lift if lift > 0 else 0.0) if not short else min(a[2], b[2])
         # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
-        cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed)
+        cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed, solver=solver)
         best = cartesian
         # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.
         if not short:
             q_up_a, q_up_b = kin.inverse(a_up[None])[0], kin.inverse(b_up[None])[0]
             if np.all(np.isfinite(q_up_a)) and np.all(np.isfinite(q_up_b)):
                 joint = _ruckig_move(printer, q_up_a, q_up_b, layer)
-                if joint_move_clear(kin, joint, z_clear):
+                # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
+                # travel, its clearance check and its lift and lower moves need not be planned.
+                own_time = sum(p.duration for p in cartesian)
+                if joint.duration < own_time and joint_move_clear(kin, joint, z_clear):
                     cand = [joint]
                     if a_up[2] > a[2] + 1e-9:
-                        cand = _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed) + cand
-                    if b_up[2] > b[2] + 1e-9:
-                        cand = cand + _cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed)
-                    if sum(p.duration for p in cand) < sum(p.duration for p in cartesian):
+                        cand = _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed, solver=solver) + cand
+                    if b_up[2] > b[2] + 1e-9 and sum(p.duration for p in cand) < own_time:
+                        cand = cand + _cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed, solver=solver)
+                    if sum(p.duration for p in cand) < own_time:
                         best = cand
         pieces.extend(best)
     if unretract > 0:
@@ -103,14 +109,14 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     return pieces
 
 
-def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None) -> list:
+def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None, solver="fast") -> list:
     """A straight Cartesian travel (tool off) planned with toppra."""
     keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
     pts = pts[keep]
     m = len(pts) - 1
     feed = np.full(m, feed or printer.slicing.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
-    return plan_run(kin, printer, spec, speed_limit, tolerance, kind="travel")
+    return plan_run(kin, printer, spec, speed_limit, tolerance, kind="travel", solver=solver)
 
 
 def from_rest(kin, printer, point, speed_limit) -> list:

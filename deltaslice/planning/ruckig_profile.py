@@ -1,0 +1,65 @@
+"""A ruckig trajectory as plain arrays, sampled exactly and vectorised.
+
+ruckig's ``Trajectory.at_time`` costs one Python call per sample and the object cannot be pickled
+(so a travel could not be planned in a worker process). A time-synchronised move from rest to rest
+is one section whose every degree of freedom is a sequence of seven constant-jerk phases; ruckig's
+Python binding exposes them (``Trajectory.profiles``: phase durations ``t``, jerks ``j`` and the
+position, velocity and acceleration ``p, v, a`` at each phase start), and evaluating the same cubic
+ruckig evaluates gives the same samples.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RuckigProfile:
+    """t_end: (J,7) cumulative phase end times, s; p, v, a: (J,8) state at each phase start
+    (joint units, /s, /s^2); j: (J,7) jerk per phase; pf: (J,) final position; duration: s."""
+
+    t_end: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    j: np.ndarray
+    pf: np.ndarray
+    duration: float
+
+    @classmethod
+    def from_trajectory(cls, traj) -> "RuckigProfile | None":
+        """The arrays of a ruckig Trajectory, or None when it is not one section without brake or
+        pre-acceleration phases (then only ``at_time`` is exact)."""
+        profiles = getattr(traj, "profiles", None)
+        if profiles is None or len(profiles) != 1:
+            return None
+        section = profiles[0]
+        if any(pr.brake.duration > 0 or pr.accel.duration > 0 for pr in section):
+            return None
+        t = np.array([pr.t for pr in section], dtype=float)
+        return cls(
+            t_end=np.cumsum(t, axis=1),
+            p=np.array([pr.p for pr in section], dtype=float),
+            v=np.array([pr.v for pr in section], dtype=float),
+            a=np.array([pr.a for pr in section], dtype=float),
+            j=np.array([pr.j for pr in section], dtype=float),
+            pf=np.array([pr.pf for pr in section], dtype=float),
+            duration=float(traj.duration),
+        )
+
+    def positions(self, tau: np.ndarray) -> np.ndarray:
+        """Joint positions (n,J) at times tau (n,) s, clipped to [0, duration]."""
+        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+        n_dof = self.t_end.shape[0]
+        q = np.empty((len(tau), n_dof))
+        for d in range(n_dof):  # a loop over the 3-4 joints, not the samples
+            k = np.searchsorted(self.t_end[d], tau, side="right")
+            done = k >= self.t_end.shape[1]
+            k = np.minimum(k, self.t_end.shape[1] - 1)
+            start = np.where(k > 0, self.t_end[d][np.maximum(k - 1, 0)], 0.0)
+            dt = tau - start
+            qd = self.p[d, k] + dt * (self.v[d, k] + dt * (0.5 * self.a[d, k] + dt * self.j[d, k] / 6.0))
+            q[:, d] = np.where(done, self.pf[d], qd)
+        return q
