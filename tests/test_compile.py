@@ -71,8 +71,9 @@ def test_unknown_output_extension_fails_before_slicing(tmp_path):
 
 def test_an_output_beyond_a_limit_fails_the_compile_and_writes_nothing(tmp_path, monkeypatch):
     """The compile measures the samples it writes; if the planner ever plans beyond a limit
-    (simulated: it plans to 1.5x the joint accelerations) the compile exits non-zero naming the
-    channel and the previous output stays as it was. verify agrees on what is allowed."""
+    (simulated: it plans to 1.5x the joint accelerations and its own stage-wise check is off)
+    the compile exits non-zero naming the channel and the previous output stays as it was.
+    verify agrees on what is allowed."""
     from deltaslice.machine import Printer
     from deltaslice.machine.limits import TOLERANCE
     from deltaslice.verify import MARGIN
@@ -80,8 +81,11 @@ def test_an_output_beyond_a_limit_fails_the_compile_and_writes_nothing(tmp_path,
     assert MARGIN == TOLERANCE
     out = tmp_path / "cube.dsl"
     out.write_bytes(b"previous output")
+    import deltaslice.planning.topp as topp
+
     real = Printer.planned_limits
     monkeypatch.setattr(Printer, "planned_limits", lambda self: real(self).scaled(1.5))
+    monkeypatch.setattr(topp, "CHECK_TOLERANCE", float("inf"))  # past the planner's own stage-wise check too
     r = CliRunner().invoke(main, [str(CUBE), "--printer", str(ROOT / "printers" / "delta_etitc.toml"), "-o", str(out),
                                   "--scale", "0.3", "--quiet", "--workers", "1"])
     assert r.exit_code == 1, r.output

@@ -123,9 +123,13 @@ def test_tool_limits_and_extrusion(planned):
         ev = np.abs(np.diff(s.e)) * rate
         on = s.tool[1:] > 0
         assert ev[on].max() <= printer.tool.max_filament_speed * MARGIN, mode
-        # Monotone while extruding; total equals the toolpath's.
+        # Monotone while extruding; total is the slicer's filament per mm times the path
+        # driven: blending corners shortens the path (and the filament) by under 1 %.
         assert np.all(np.diff(s.e)[on] >= -1e-12)
-        assert s.e[-1] == pytest.approx(toolpath.extruded_length(), abs=1e-9)
+        runs = [p for p in traj.pieces if p.kind == "run"]
+        driven = sum(float(np.dot(p.e_ratio, np.diff(p.path.piece_start))) for p in runs)
+        assert s.e[-1] == pytest.approx(driven, abs=1e-9)
+        assert 0.99 * toolpath.extruded_length() <= s.e[-1] <= toolpath.extruded_length() + 1e-9
 
 
 def test_path_followed_within_blend_tolerance(planned):

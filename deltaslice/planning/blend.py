@@ -16,6 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 _MIN_TURN = 1e-6  # rad: straighter corners are not blended
+# rad: a corner within this of a full reversal is taken at rest (its arc would be shorter
+# than a micron, with a curvature no joint can follow at any useful speed).
+_REVERSAL = 1e-3
 
 
 @dataclass(frozen=True)
@@ -107,13 +110,13 @@ def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     din, dout = d[:-1], d[1:]
     cos_t = np.clip(np.einsum("ij,ij->i", din, dout), -1.0, 1.0)
     turn = np.arccos(cos_t)
-    blended = (turn > _MIN_TURN) & (turn <= np.pi - 1e-9)
+    blended = (turn > _MIN_TURN) & (turn <= np.pi - _REVERSAL)
     half = turn / 2
     with np.errstate(divide="ignore", invalid="ignore"):
         # Set-back that puts the arc midpoint exactly `tolerance` from the corner.
         sb_tol = tolerance * np.tan(half) / (1 / np.cos(half) - 1)
         # An exact reversal cannot be blended: go to the point and turn there, at rest.
-        sb_tol = np.where(turn > np.pi - 1e-9, 0.0, sb_tol)
+        sb_tol = np.where(turn > np.pi - _REVERSAL, 0.0, sb_tol)
     room = 0.5 * np.minimum(seg_len[:-1], seg_len[1:])
     setback = np.where(blended, np.minimum(sb_tol, room), 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -166,3 +169,48 @@ def dedupe(points: np.ndarray, feed: np.ndarray, e: np.ndarray, eps: float = 1e-
     pts = np.concatenate([points[:1], points[1:][keep]])
     pts[-1] = points[-1]
     return pts, feed[keep], e_kept
+
+
+def merge_short(points: np.ndarray, feed: np.ndarray, e: np.ndarray, resolution: float, max_deviation: float):
+    """Remove the vertices of segments shorter than ``resolution`` (mm) where the polyline
+    moves by at most ``max_deviation`` (mm): PrusaSlicer's ``gcode_resolution``, done in the
+    planner. Such segments leave no room for a grid and their rounded E values make the
+    filament per mm jump.
+
+    points (m+1,3); feed, e: per segment (m,). The merged segment takes both segments'
+    filament (the total is exact) and the slower feed. Only interior vertices go; the
+    endpoints stay. Returns (points, feed, e, deviation): the largest distance of a removed
+    vertex from the new polyline, mm."""
+    pts, feed, e = np.asarray(points, float), np.asarray(feed, float), np.asarray(e, float)
+    deviation = 0.0
+    idle = 0
+    parity = 1
+    while len(pts) > 2 and idle < 2:
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        short = seg < resolution
+        v = np.arange(1, len(pts) - 1)  # interior vertices; vertex v joins segments v-1 and v
+        cand = (short[v - 1] | short[v]) & (v % 2 == parity)
+        parity ^= 1
+        if cand.any():
+            a, b, c = pts[v - 1], pts[v], pts[v + 1]
+            ac = c - a
+            ll = np.einsum("ij,ij->i", ac, ac)
+            t = np.clip(np.einsum("ij,ij->i", b - a, ac) / np.maximum(ll, 1e-300), 0.0, 1.0)
+            dev = np.linalg.norm(b - a - t[:, None] * ac, axis=1)
+            cand &= (dev <= max_deviation) & (ll > 0)
+        if not cand.any():
+            idle += 1
+            continue
+        idle = 0
+        gone = v[cand]
+        deviation = max(deviation, float(dev[cand].max()))
+        e = e.copy()
+        feed = feed.copy()
+        e[gone - 1] += e[gone]
+        feed[gone - 1] = np.minimum(feed[gone - 1], feed[gone])
+        keep_seg = np.ones(len(e), dtype=bool)
+        keep_seg[gone] = False
+        keep_pt = np.ones(len(pts), dtype=bool)
+        keep_pt[gone] = False
+        pts, feed, e = pts[keep_pt], feed[keep_seg], e[keep_seg]
+    return pts, feed, e, deviation

@@ -9,13 +9,26 @@ filament position (extruders), so
 
 * joint and filament velocity limits and the feed cap become one grid-wide
   bound on x_dot^2 (:class:`PathVelocityConstraint`),
-* joint and filament acceleration limits are toppra's
-  ``JointAccelerationConstraint`` (interpolation discretisation),
+* joint and filament acceleration limits are :class:`StageAccelerationConstraint`:
+  inside one stage the path acceleration u is constant and x_dot^2 is linear in x,
+  so the joint acceleration q'(x) u + q''(x) x_dot^2 is a known linear form in
+  (u, x_dot^2) at any point of the stage. It is imposed at the stage's start,
+  quarter points, middle and end, each with the derivatives of the piece the
+  stage lies in (every line/arc join is a grid point, so the stage ending at a
+  join uses the curvature before it, the stage starting there the curvature
+  after it),
 
-all reduced by the printer's ``limit_margin`` because toppra enforces them at
-grid points only. The grid is refined geometrically toward every line/arc join
-with points on both sides of each, so braking before a corner is resolved
-without a fine grid on long lines.
+all reduced by the printer's ``limit_margin``. After solving, :func:`stage_maxima`
+bounds every joint's velocity and acceleration over each whole stage (nine points
+per stage plus a curvature bound between them) against the printer's limits; a
+stage beyond them is refined and re-planned, and a run that still exceeds a limit
+raises :class:`PlanningError` naming the layer, position and limit.
+
+The grid is refined geometrically toward every line/arc join with points on both
+sides of each, so braking before a corner is resolved without a fine grid on long
+lines; every piece shorter than a few grid steps gets interior points, so a piece
+that starts or stops at rest always has room to move. Segments shorter than
+``MERGE_LENGTH`` are merged first (:func:`.blend.merge_short`).
 """
 
 from __future__ import annotations
@@ -31,9 +44,9 @@ from toppra.constraint.linear_constraint import LinearConstraint
 from toppra.interpolator import AbstractGeometricPath
 
 from ..errors import PlanningError, UnreachableError
-from .blend import BlendedPath, blend_polyline, dedupe
-from .fastpath import fast_speeds, grid_derivatives, velocity_cap2
+from .blend import BlendedPath, blend_polyline, dedupe, merge_short
 from .pieces import FilamentPiece, RunPiece
+from .reachability import solve as fast_solve
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
@@ -44,6 +57,15 @@ GROWTH = 2.0
 ARC_STEP = 0.15  # rad of tangent turn between grid points inside a blend arc
 REFINE = 1  # stages per grid interval; tests set 10 to check grid convergence
 ACTIVE = 0.95  # a limit counts as active within 5 % of it
+SHORT_PIECE = 4 * MIN_STEP  # pieces shorter than this get interior grid points
+SHORT_FRACTIONS = np.array([0.25, 0.5, 0.75])
+MERGE_LENGTH = 0.02  # mm: segments shorter than this are merged where the path allows
+MERGE_DEVIATION = 0.25  # of the blend tolerance: what merging may move the path
+EVAL = np.array([0.0, 0.25, 0.5, 0.75, 1.0])  # stage fractions where toppra constrains acceleration
+CHECK = np.linspace(0.0, 1.0, 9)  # stage fractions of the stage-wise limit check
+FD_STEP = 1e-3  # mm: step of the inverse Jacobian's directional derivative
+CHECK_TOLERANCE = 1e-6  # a stage-wise ratio beyond 1 + this fails the run
+REFINE_PASSES = 3  # times a run's violating stages are split before it fails
 
 
 @dataclass(frozen=True)
@@ -97,11 +119,47 @@ class RunPath(AbstractGeometricPath):
             )
         return p, q
 
-    def _first(self, s, piece):
+    def _jinv(self, p, q):
+        if hasattr(self.kin, "inverse_jacobian_at"):
+            return self.kin.inverse_jacobian_at(p, q)
+        return self.kin.inverse_jacobian(q)
+
+    def derivatives(self, s: np.ndarray, piece: np.ndarray):
+        """First and second derivatives of the path with respect to x, at arc lengths s (mm)
+        inside the given pieces (so a join is evaluated on the side the caller names).
+        -> (dq, ddq), (n, dof) each, joint units per path unit.
+
+        q'(s) = Jinv(p) t(s); q''(s) = (d Jinv / ds along t) t + Jinv(p) kappa(s), the
+        directional derivative by a central difference of FD_STEP mm in space (the
+        inverse kinematics is smooth across joins; only t and kappa are piece-wise)."""
         p, q = self._ik(s, piece)
-        jinv = self.kin.inverse_jacobian(q) if not hasattr(self.kin, "inverse_jacobian_at") else self.kin.inverse_jacobian_at(p, q)
-        dq = np.einsum("nij,nj->ni", jinv, self.path.evaluate(s, 1, piece)) * self.S
-        return q, dq
+        t = self.path.evaluate(s, 1, piece)
+        kappa = self.path.evaluate(s, 2, piece)
+        jinv = self._jinv(p, q)
+        h = FD_STEP
+        pp, pm = p + h * t, p - h * t
+        jp = self._jinv(pp, self.kin.inverse(pp))
+        jm = self._jinv(pm, self.kin.inverse(pm))
+        djp, djm = (jp - jinv) / h, (jinv - jm) / h
+        # One-sided where a neighbour is out of reach (at the edge of the workspace).
+        dj = np.where(np.isfinite(jp) & np.isfinite(jm), 0.5 * (djp + djm), np.where(np.isfinite(jp), djp, djm))
+        dq = np.einsum("nij,nj->ni", jinv, t) * self.S
+        ddq = (np.einsum("nij,nj->ni", dj, t) + np.einsum("nij,nj->ni", jinv, kappa)) * (self.S * self.S)
+        if self.e_ratio is not None:
+            dq = np.column_stack([dq, self.e_ratio[piece] * self.S])
+            ddq = np.column_stack([ddq, np.zeros(len(s))])
+        return dq, ddq
+
+    def stage_derivatives(self, x: np.ndarray, frac: np.ndarray):
+        """Derivatives at fractions ``frac`` (f,) of every stage of the grid x (n+1,), each
+        with the piece the stage lies in. -> (dq, ddq), (n, f, dof) each."""
+        s = np.asarray(x, float) * self.S
+        ds = np.diff(s)
+        owner = self.path.locate(0.5 * (s[:-1] + s[1:]))
+        at = s[:-1, None] + ds[:, None] * frac[None]
+        dq, ddq = self.derivatives(at.ravel(), np.repeat(owner, len(frac)))
+        shape = (len(ds), len(frac), self._dof)
+        return dq.reshape(shape), ddq.reshape(shape)
 
     def __call__(self, xs, order=0):
         xs = np.atleast_1d(np.asarray(xs, dtype=float))
@@ -112,23 +170,58 @@ class RunPath(AbstractGeometricPath):
             if self.e_ratio is not None:
                 out = np.column_stack([out, s * 0])  # e enters only through its derivatives
             return out
-        if order == 1:
-            dq = self._first(s, piece)[1]
-            if self.e_ratio is not None:
-                dq = np.column_stack([dq, self.e_ratio[piece] * self.S])
-            return dq
-        # Second derivative: forward difference of the exact first derivative, inside the piece.
-        end = self.path.piece_start[piece + 1]
-        h = np.minimum(1e-4, np.maximum((end - s) / 3, 0))
-        back = h <= 1e-9
-        h = np.where(back, 1e-4, h)
-        s2 = np.where(back, np.maximum(s - h, 0), s + h)
-        d1 = self._first(s, piece)[1]
-        d2 = self._first(s2, piece)[1]
-        ddq = (d2 - d1) / (np.where(back, -h, h)[:, None] / self.S)
-        if self.e_ratio is not None:
-            ddq = np.column_stack([ddq, np.zeros(len(s))])
-        return ddq
+        dq, ddq = self.derivatives(s, piece)
+        return dq if order == 1 else ddq
+
+
+class StageAccelerationConstraint(LinearConstraint):
+    """Joint (and filament) acceleration limits imposed inside every stage.
+
+    In stage i (x_i..x_{i+1}, width d) the path acceleration u is constant and
+    x_dot^2 = x_i + 2 f d u at fraction f, so the acceleration at f is
+    (q'(f) + 2 f d q''(f)) u + q''(f) x_i: collocation rows in toppra's (u, x_i), one
+    set per fraction in ``frac``, derivatives from the stage's own piece. ``stage``:
+    precomputed ``RunPath.stage_derivatives(x, frac)``."""
+
+    def __init__(self, amax: np.ndarray, frac: np.ndarray = EVAL, stage=None):
+        super().__init__()
+        self.amax = np.asarray(amax, dtype=float)
+        self.dof = len(self.amax)
+        self.frac = np.asarray(frac, dtype=float)
+        self.stage = stage
+        self.identical = True
+        self._format_string = "    stage-wise acceleration (joints, filament)\n"
+
+    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+        dq, ddq = self.stage if self.stage is not None else path.stage_derivatives(gridpoints, self.frac)
+        d = np.diff(gridpoints)
+        n, f, dof = dq.shape
+        a = np.empty((n + 1, f * dof))
+        b = np.empty((n + 1, f * dof))
+        a[:-1] = (dq + 2 * self.frac[None, :, None] * d[:, None, None] * ddq).reshape(n, -1)
+        b[:-1] = ddq.reshape(n, -1)
+        # The last grid point has no stage ahead: its own (end) derivatives, no u-term.
+        a[-1] = np.tile(dq[-1, -1], f)
+        b[-1] = np.tile(ddq[-1, -1], f)
+        eye = np.eye(f * dof)
+        F = np.vstack([eye, -eye])
+        g = np.tile(self.amax, 2 * f)
+        return a, b, np.zeros_like(a), F, g, None, None
+
+
+def gridpoint_speed_factor(dq_stage: np.ndarray) -> np.ndarray:
+    """Largest |q'| (n+1, dof) at each grid point over both sides of it and the stages around
+    it (their start, middle and end), from stage derivatives (n, f, dof) at fractions whose
+    first is 0, middle 0.5 and last 1: a cap on x_dot^2 at both ends of a stage also holds in
+    its middle, where x_dot^2 is their mean."""
+    a = np.abs(dq_stage)
+    mid = a.shape[1] // 2
+    ahead = np.maximum(a[:, 0], a[:, mid])  # stage i seen from its start point
+    behind = np.maximum(a[:, -1], a[:, mid])  # stage i seen from its end point
+    out = np.zeros((a.shape[0] + 1, a.shape[2]))
+    out[:-1] = ahead
+    out[1:] = np.maximum(out[1:], behind)
+    return out
 
 
 class PathVelocityConstraint(LinearConstraint):
@@ -136,8 +229,9 @@ class PathVelocityConstraint(LinearConstraint):
     velocity limits through q'(x), and the feed cap on the Cartesian speed S x_dot.
     Returns only toppra's ``xbound`` (bounds on x_dot^2)."""
 
-    def __init__(self, vmax: np.ndarray, feed_at_grid: np.ndarray, S: float):
+    def __init__(self, vmax: np.ndarray, feed_at_grid: np.ndarray, S: float, speed_factor: np.ndarray | None = None):
         super().__init__()
+        self.speed_factor = speed_factor  # (n+1, dof) |q'| per grid point, both sides (gridpoint_speed_factor)
         self.vmax = np.asarray(vmax, dtype=float)
         self.dof = len(self.vmax)
         self.feed = np.asarray(feed_at_grid, dtype=float)
@@ -145,7 +239,7 @@ class PathVelocityConstraint(LinearConstraint):
         self._format_string = "    path velocity (joints, filament, feed)\n"
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
-        dq = np.abs(path(gridpoints, 1))
+        dq = np.abs(path(gridpoints, 1)) if self.speed_factor is None else self.speed_factor
         with np.errstate(divide="ignore"):
             cap = np.min(self.vmax[None] / dq, axis=1)
         cap = np.minimum(cap, self.feed / self.S)
@@ -157,8 +251,7 @@ class PathVelocityConstraint(LinearConstraint):
 def grid(path: BlendedPath) -> np.ndarray:
     """Grid in arc length (mm): from every join, steps growing geometrically from
     MIN_STEP to MAX_STEP on both sides, so every join has close neighbours on
-    both sides and long lines get few stages (the gap where the two sequences of a
-    piece meet is at most 2 MAX_STEP). (n,) sorted, includes 0 and S."""
+    both sides and long lines get few stages. (n,) sorted, includes 0 and S."""
     joins = np.concatenate([[0.0], path.joins(), [path.length]])
     half = np.diff(joins) / 2  # each interval is refined from both its ends toward its middle
     steps = [MIN_STEP]
@@ -177,7 +270,12 @@ def grid(path: BlendedPath) -> np.ndarray:
     owner = np.repeat(np.arange(len(arc)), count)
     within = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
     on_arcs = path.piece_start[arc][owner] + arc_len[owner] * within / count[owner]
-    g = np.unique(np.concatenate([joins, left[inside], right[inside], on_arcs]))
+    # A piece too short for the geometric steps still gets interior points: one that starts
+    # and stops at rest needs a stage whose end can move.
+    length = np.diff(path.piece_start)
+    short = np.flatnonzero((length < SHORT_PIECE) & (length > 0))
+    in_short = (path.piece_start[short, None] + length[short, None] * SHORT_FRACTIONS[None]).ravel()
+    g = np.unique(np.concatenate([joins, left[inside], right[inside], on_arcs, in_short]))
     # Points closer than 1e-7 mm add nothing but ill-conditioned stages.
     keep = np.concatenate([[True], np.diff(g) > 1e-7])
     g = g[keep]
@@ -188,18 +286,77 @@ def grid(path: BlendedPath) -> np.ndarray:
     return g
 
 
-def _conservative_profile(rp, x, vmax, amax, xd_cap):
-    """Path speeds (n,) at the grid x for one constant path acceleration A and speed cap V
-    that satisfy every limit at every grid point whatever the signs: |q'| V <= vmax and
-    |q'| A + |q''| V^2 <= amax. Returns None when no positive speed is possible."""
-    d1, d2 = np.abs(rp(x, 1)), np.abs(rp(x, 2))
+def _conservative_profile(x, dq_stage, ddq_stage, vmax, amax, xd_cap):
+    """Path speeds (n+1,) at the grid x for one constant path acceleration A and speed cap V
+    that satisfy every limit at every evaluated point of every stage whatever the signs:
+    |q'| V <= vmax and |q'| A + |q''| V^2 <= amax. Returns None when no positive speed is
+    possible."""
+    # |q' + 2 f d q''| <= |q'| + 2 d |q''| over the stage
+    d1 = np.abs(dq_stage).max(axis=1) + 2 * np.diff(x)[:, None] * np.abs(ddq_stage).max(axis=1)
+    d2 = np.abs(ddq_stage).max(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        v = min(float(np.min(vmax[None] / d1)), float(np.min(xd_cap)))
+        v = min(float(np.min(vmax[None] / np.abs(dq_stage).max(axis=1))), float(np.min(xd_cap)))
         v = min(v, float(np.sqrt(0.5 * np.min(amax[None] / d2))))
         a = float(np.min((amax[None] - d2 * v * v) / d1))
     if not (v > 0 and a > 0 and np.isfinite(v) and np.isfinite(a)):
         return None
     return np.minimum(v, np.sqrt(2 * a * np.minimum(x, 1.0 - x).clip(0)))
+
+
+@dataclass(frozen=True)
+class StageMaxima:
+    """Stage-wise bounds of a planned run: per channel (joints, then the filament for
+    extruders), the largest velocity and acceleration over every stage as a fraction of the
+    limits given, and where the worst is. velocity, acceleration: (dof,); stage: (dof,) index
+    of the stage of the acceleration peak; s: (dof,) its arc length, mm; per_stage: (n,) the
+    largest ratio of any channel in each stage."""
+
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    stage_v: np.ndarray
+    stage_a: np.ndarray
+    per_stage: np.ndarray
+
+    @property
+    def worst(self) -> float:
+        return float(max(self.velocity.max(initial=0.0), self.acceleration.max(initial=0.0)))
+
+
+def stage_maxima(rp: "RunPath", x, xd, xdd, vmax, amax, frac: np.ndarray = CHECK) -> StageMaxima:
+    """Bound every channel's velocity and acceleration over every stage of a solution.
+
+    x (n+1,) grid, xd (n+1,) path speed, xdd (n,) path acceleration; vmax, amax (dof,).
+    Within a stage u = xdd is constant and x_dot^2 is linear, so velocity |q'| x_dot and
+    acceleration |q' u + q'' x_dot^2| are exact at the ``frac`` points, each with the
+    stage's own piece (a join is seen from both sides); between points the excess of a
+    smooth function over its samples is at most h^2 max|g''| / 8, bounded here by an eighth
+    of the largest second difference of the samples (plus a quarter, for safety)."""
+    dq, ddq = rp.stage_derivatives(x, frac)
+    x2 = xd**2
+    w = x2[:-1, None] + (x2[1:] - x2[:-1])[:, None] * frac[None]  # (n, f)
+    w = np.maximum(w, 0.0)
+    vel = np.abs(dq) * np.sqrt(w)[..., None] / vmax
+    acc = np.abs(dq * xdd[:, None, None] + ddq * w[..., None]) / amax
+
+    def bound(g):
+        top = g.max(axis=1)
+        if g.shape[1] > 2:
+            top = top + 0.3125 * np.abs(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]).max(axis=1)
+        return top  # (n, dof)
+
+    bv, ba = bound(vel), bound(acc)
+    return StageMaxima(bv.max(axis=0), ba.max(axis=0), bv.argmax(axis=0), ba.argmax(axis=0), np.maximum(bv, ba).max(axis=1))
+
+
+def run_stage_maxima(piece: RunPiece, kin, vmax, amax, filament: tuple[float, float] | None = None) -> StageMaxima:
+    """:func:`stage_maxima` of a planned RunPiece against limits vmax, amax (J,) (pass the
+    printer's own limits to check the output, the margin-reduced ones to check toppra);
+    filament: (speed, acceleration) limits when the run extrudes."""
+    e_ratio = piece.e_ratio if filament is not None and np.any(piece.e_ratio != 0) else None
+    rp = RunPath(kin, piece.path, e_ratio, piece.layer)
+    if e_ratio is not None:
+        vmax, amax = np.append(vmax, filament[0]), np.append(amax, filament[1])
+    return stage_maxima(rp, piece.x, piece.xd, piece.xdd, np.asarray(vmax, float), np.asarray(amax, float))
 
 
 def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None = None, kind: str = "run",
@@ -228,90 +385,146 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         return [p for part in (spec.part(0, h), spec.part(h, m)) for p in plan_run(kin, printer, part, speed_limit, tolerance, kind, solver)]
 
 
+def _describe(printer, channel: int) -> str:
+    return printer.limits.names[channel]
+
+
 def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str, solver: str) -> RunPiece:
     pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
-    path = blend_polyline(pts, printer.planning.blend_tolerance if tolerance is None else tolerance)
+    tol = printer.planning.blend_tolerance if tolerance is None else tolerance
+    pts, feed, e, moved = merge_short(pts, feed, e, MERGE_LENGTH, MERGE_DEVIATION * tol)
+    # The blend keeps within what merging left of the tolerance.
+    path = blend_polyline(pts, tol - moved)
     S = path.length
 
-    # Filament per mm of each piece: the polyline segment's own ratio (equal widths stay equal),
-    # scaled once for the run so the blended (slightly shorter) path pushes exactly the
-    # toolpath's filament.
+    # Filament per mm of each piece: the polyline segment's own ratio, so the filament
+    # pushed is always that ratio times the arc length driven (blend arcs included) and
+    # the bead is what the slicer asked for; blending a corner shortens the path and the
+    # filament with it.
     seg_ratio = e / np.linalg.norm(np.diff(pts, axis=0), axis=1)
     e_ratio = seg_ratio[path.segment]
-    pushed = float(np.dot(e_ratio, np.diff(path.piece_start)))
-    if pushed != 0.0:
-        e_ratio = e_ratio * (float(e.sum()) / pushed)
     cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
 
-    # The tool channel only where filament moves (a laser's e is zero): all-zero rows make
-    # toppra's LP degenerate.
+    # The tool channel only where filament moves (a laser's e is zero): all-zero rows make the
+    # LP degenerate. The planner plans to the margin-reduced limits and checks the real ones.
     extruder = bool(np.any(e != 0))
-    limits = printer.planned_limits()
+    planned, limits = printer.planned_limits(), printer.limits
     channels = limits.n_channels if extruder else limits.n_joints
-    vmax, amax = limits.velocity[:channels], limits.acceleration[:channels]
+    vmax, amax = planned.velocity[:channels], planned.acceleration[:channels]
+    true_v, true_a = limits.velocity[:channels], limits.acceleration[:channels]
 
     s_grid = grid(path)
-    piece = path.locate(s_grid)
     seg_feed = feed if speed_limit == "feed" else np.full(len(feed), np.inf)
     # An arc is capped by the slower of the segments it joins.
     prev_seg = np.maximum(path.segment - 1, 0)
     piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev_seg]), seg_feed[path.segment])
-    feed_grid = piece_feed[piece].copy()
-    feed_grid[np.isin(s_grid, path.stops())] = 0.0  # a tangent break is taken at rest
+    stop_at = path.stops()
     if extruder and len(path.kind) > 1:
         # Where the filament per mm changes (a new extrusion width) the filament speed would step,
         # an unbounded filament acceleration: such a join is taken at rest (rare: a role change
         # inside one run).
         jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
-        at = np.clip(np.searchsorted(s_grid, path.piece_start[1:-1][jump]), 0, len(s_grid) - 1)
-        feed_grid[at] = 0.0
-
+        stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
     rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
-    x_grid = s_grid / S
-    x_grid[0], x_grid[-1] = 0.0, 1.0
-    if solver == "fast":
-        dq, ddq = grid_derivatives(rp, x_grid)
-        cap2 = velocity_cap2(dq, vmax, feed_grid, S)
-        sd = fast_speeds(dq, ddq, amax, cap2, x_grid)
-    else:
+
+    for attempt in range(REFINE_PASSES + 1):
+        x_grid = s_grid / S
+        x_grid[0], x_grid[-1] = 0.0, 1.0
+        # Feed cap at a grid point: the slower of the pieces on its two sides.
+        before = path.locate(np.maximum(s_grid - 1e-9, 0.0))
+        feed_grid = np.minimum(piece_feed[path.locate(s_grid)], piece_feed[before])
+        feed_grid[np.isin(s_grid, stop_at)] = 0.0
+        dq_st, ddq_st = rp.stage_derivatives(x_grid, EVAL)
         constraints = [
-            PathVelocityConstraint(vmax, feed_grid, S),
-            toppra.constraint.JointAccelerationConstraint(
-                amax, discretization_scheme=toppra.constraint.DiscretizationType.Interpolation
-            ),
+            PathVelocityConstraint(vmax, feed_grid, S, gridpoint_speed_factor(dq_st)),
+            StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
         ]
-        algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
-        sdd, sd, _ = algo.compute_parameterization(0.0, 0.0)
-        cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
-        dq, ddq = rp(x_grid, 1), rp(x_grid, 2)
-    if sd is None or not np.all(np.isfinite(sd)):
-        # Seidel's 2-D LP occasionally meets a degenerate stage; a conservative profile from
-        # the same limits is always feasible (and slower only on this run).
-        sd = _conservative_profile(rp, x_grid, vmax, amax, feed_grid / S)
-        if sd is None:
+        sd = _speeds(constraints, rp, x_grid, amax, solver)
+        if sd is None or not np.all(np.isfinite(sd)):
+            # Seidel's 2-D LP occasionally meets a degenerate stage; a conservative profile from
+            # the same limits is always feasible (and slower only on this run).
+            sd = _conservative_profile(x_grid, dq_st, ddq_st, vmax, amax, feed_grid / S)
+            if sd is None:
+                raise PlanningError(_infeasible(printer, spec, path, s_grid, 0, vmax, dq_st))
+        sd = np.maximum(sd, 0.0)
+        dx = np.diff(x_grid)
+        vsum = sd[:-1] + sd[1:]
+        if not np.all(vsum > 0):
+            raise PlanningError(_infeasible(printer, spec, path, s_grid, int(np.flatnonzero(vsum <= 0)[0]), vmax, dq_st))
+        dt = 2 * dx / vsum
+        # Constant acceleration per stage consistent with the end speeds.
+        xdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2 * dx)
+        check = stage_maxima(rp, x_grid, sd, xdd, true_v, true_a)
+        bad = check.per_stage > 1.0 + CHECK_TOLERANCE
+        if not bad.any():
+            break
+        if attempt == REFINE_PASSES:
+            ch = int(np.argmax(np.maximum(check.velocity, check.acceleration)))
+            kind = "velocity" if check.velocity[ch] >= check.acceleration[ch] else "acceleration"
+            st = int(check.stage_v[ch] if kind == "velocity" else check.stage_a[ch])
+            p = path.evaluate(np.array([s_grid[st]]))[0]
             raise PlanningError(
-                f"layer {spec.layer}: no feasible speed profile for the run starting at "
-                f"x = {pts[0, 0]:.2f}, y = {pts[0, 1]:.2f} mm (near a singularity or limit)"
+                f"layer {spec.layer}: {_describe(printer, ch)} {kind} reaches "
+                f"{100 * max(check.velocity[ch], check.acceleration[ch]):.2f} % of its limit between grid points "
+                f"at x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm after {REFINE_PASSES} grid refinements"
             )
-    dx = np.diff(x_grid)
-    vsum = sd[:-1] + sd[1:]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dt = np.where(vsum > 0, 2 * dx / vsum, np.inf)
-    if not np.all(np.isfinite(dt)):
-        raise PlanningError(f"layer {spec.layer}: path speed stays zero along a run (limits too tight)")
-    # Constant acceleration per stage consistent with the end speeds.
-    xdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2 * dx)
+        # Split the offending stages (and their neighbours) in four and plan again.
+        idx = np.flatnonzero(bad)
+        idx = np.unique(np.clip(np.concatenate([idx - 1, idx, idx + 1]), 0, len(dx) - 1))
+        extra = (s_grid[idx, None] + np.diff(s_grid)[idx, None] * SHORT_FRACTIONS[None]).ravel()
+        s_grid = np.unique(np.concatenate([s_grid, extra]))
     t = np.concatenate([[0.0], np.cumsum(dt)])
 
     # Which stages have a limit active (the optimality certificate): the speed at its
     # first-order cap, or some joint's acceleration at its limit.
-    acc = np.abs(dq[:-1] * xdd[:, None] + ddq[:-1] * (sd[:-1] ** 2)[:, None]) / amax[None]
+    cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
+    acc = np.abs(dq_st[:, 0] * xdd[:, None] + ddq_st[:, 0] * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
     q_ends = rp(np.array([0.0, 1.0]))[:, : kin.n_joints]
     power = nominal = None
     if spec.power is not None:
-        # dedupe drops the same segments from any per-segment array passed as its feed
-        power = dedupe(spec.points, spec.power, spec.e)[1][path.segment]
+        # merged and deduplicated segments carry their power along as they do their feed
+        power = _segment_power(spec, pts)[path.segment]
         nominal = feed[path.segment]
     return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()), kind,
                     q_ends[0], q_ends[1], power=power, nominal_feed=nominal, dynamic_power=spec.dynamic_power)
+
+
+def _speeds(constraints, rp, x_grid, amax, solver):
+    """Path speeds x_dot (n+1,) on the grid from rest to rest under the path-velocity cap and the
+    stage-wise acceleration rows, or None where the solver finds no profile. "fast": the
+    compiled reachability solver on the same rows (collocation: each stage's rows in its
+    start's (u, x)); "toppra": toppra's seidel solver, the reference."""
+    if solver == "fast":
+        cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
+        a, b = constraints[1].compute_constraint_params(rp, x_grid)[:2]
+        bound = np.tile(amax, len(constraints[1].frac))
+        x, _u, _k = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), interpolation=False)
+        return np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None
+    algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
+    return algo.compute_parameterization(0.0, 0.0)[1]
+
+
+def _segment_power(spec: RunSpec, pts: np.ndarray) -> np.ndarray:
+    """The laser power of each segment of the planned polyline ``pts`` (after deduplication and
+    merging): the power of the toolpath segment it ends in."""
+    from scipy.spatial import cKDTree
+
+    # the kept vertices are vertices of the toolpath's own polyline
+    _d, k = cKDTree(spec.points[1:]).query(pts[1:])
+    return spec.power[k]
+
+
+def _infeasible(printer, spec, path, s_grid, i, vmax, dq_st) -> str:
+    """Why the path speed is zero on the stage from grid point i: a forced stop with no room
+    on either side, or the limit with the smallest speed cap there."""
+    p = path.evaluate(np.array([s_grid[min(i, len(s_grid) - 1)]]))[0]
+    where = f"x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm"
+    f = gridpoint_speed_factor(dq_st)[min(i, len(s_grid) - 1)]
+    with np.errstate(divide="ignore"):
+        cap = vmax / f
+    ch = int(np.argmin(cap))
+    return (
+        f"layer {spec.layer}: no feasible speed along the run near {where}: "
+        f"{_describe(printer, ch)} velocity limit {vmax[ch]:.4g} allows {cap[ch] * path.length:.3g} mm/s of path there"
+    )

@@ -80,3 +80,20 @@ class Trajectory:
         solution (toppra stages at a velocity or acceleration bound; ruckig and retract
         profiles are bang-bang and always at a bound)."""
         return float(sum(p.active_time for p in self.pieces) / self.duration) if self.duration > 0 else 0.0
+
+    def stage_maxima(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds on the continuous motion of every toppra piece (runs and Cartesian travels),
+        from each piece's own derivatives stage by stage (:func:`.topp.stage_maxima`): per
+        joint, the peak velocity and acceleration as fractions of the printer's limits.
+        (J,), (J,)."""
+        from .pieces import RunPiece
+        from .topp import run_stage_maxima
+
+        J = self.printer.n_joints
+        vmax, amax = self.printer.limits.velocity[:J], self.printer.limits.acceleration[:J]
+        pv, pa = np.zeros(J), np.zeros(J)
+        for p in self.pieces:
+            if isinstance(p, RunPiece) and len(p.x) > 1:
+                m = run_stage_maxima(p, self.kin, vmax, amax)
+                pv, pa = np.maximum(pv, m.velocity), np.maximum(pa, m.acceleration)
+        return pv, pa
