@@ -138,3 +138,72 @@ def test_host_player_on_damaged_streams(players, streams, tmp_path, how):
             assert r.returncode == 1, (buffers, chunk, r.stderr)
             assert r.stdout == ref, (buffers, chunk)  # same samples before the error, none from the bad block
             assert where in r.stderr and where in err, (r.stderr, err)
+
+
+# ---------------------------------------------------------------- version 2: event records
+
+# Events at the first sample (more than the player's queue of 4 at one index), mid-stream
+# (inside what would have been one block), and at the end (after the last sample).
+EVENTS = [(0, 3, 60.0), (0, 1, 215.0), (0, 4, 60.0), (0, 2, 215.0), (0, 5, 0.0), (0, 6, 4.0),
+          (1234, 5, 255.0), (1234, 1, 210.5), (3000, 6, 0.0), (-1, 5, 0.0)]
+
+
+@pytest.fixture(scope="module")
+def event_stream(tmp_path_factory):
+    p = printer("delta_etitc")
+    s, _ = realistic("delta_etitc", layers=1)
+    n = sum(len(b.t) for b in blocks(s, 2500))
+    events = [(n if i < 0 else i, k, v) for i, k, v in EVENTS]
+    path = tmp_path_factory.mktemp("events") / "events.dsl"
+    write_samples(blocks(s, 2500), p, path, fmt="stream", rate=p.planning.output_rate, metadata={"planner": "t"},
+                  events=events)
+    return path
+
+
+def test_host_player_plays_event_records_in_order(players, event_stream):
+    ref, err = python_decode(event_stream)
+    assert err is None
+    lines = ref.splitlines()
+    events = [ln for ln in lines if ln.startswith("# event")]
+    assert len(events) == len(EVENTS)
+    assert lines[:6] == [ln for ln in events[:6]]  # the six events at sample 0 come before it
+    assert lines[-1].startswith("# event") and "kind=fan value=0" in lines[-1]
+    assert "# event i=1234 kind=hotend_set value=210.5" in events
+    for exe in players.values():
+        for chunk in (4096, 1):
+            r = run(exe, event_stream, chunk)
+            assert r.returncode == 0, r.stderr
+            assert r.stdout == ref
+
+
+@pytest.mark.parametrize("how", ["event_crc", "event_kind", "event_index", "version1"])
+def test_host_player_refuses_bad_event_records(players, event_stream, tmp_path, how):
+    data = bytearray(event_stream.read_bytes())
+    recs = [r for r in record_offsets(bytes(data)) if r[2] == stream.REC_EVENT]
+    off = recs[6][0]  # the first mid-stream event
+    if how == "event_crc":
+        data[off + 9] ^= 1
+    elif how == "event_kind":
+        data[off + 7] = 9
+    elif how == "event_index":
+        data[off + 3] ^= 1
+    else:  # an event record in a stream whose header says version 1 (header CRC fixed up)
+        import struct
+        import zlib
+        data[8:10] = struct.pack("<H", 1)
+        hlen = struct.unpack_from("<H", data, 10)[0]
+        data[hlen - 4:hlen] = struct.pack("<I", zlib.crc32(bytes(data[:hlen - 4])))
+        off = recs[0][0]
+    if how in ("event_kind", "event_index"):  # a faulty encoder: the record's own CRC is right
+        import struct
+        import zlib
+        data[off + 12:off + 16] = struct.pack("<I", zlib.crc32(bytes(data[off:off + 12])))
+    bad = tmp_path / "bad.dsl"
+    bad.write_bytes(bytes(data))
+    ref, err = python_decode(bad)
+    assert err is not None
+    for exe in players.values():
+        r = run(exe, bad, 7)
+        assert r.returncode == 1, (how, r.stderr)
+        assert r.stdout == ref, how  # the samples and events before the bad record, nothing after
+        assert f"byte offset {off}" in r.stderr and f"byte offset {off}" in err, (r.stderr, err)

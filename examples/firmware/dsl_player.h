@@ -1,5 +1,5 @@
 /*
- * dsl_player.h - reference player of the deltaslice binary setpoint stream (.dsl, version 1).
+ * dsl_player.h - reference player of the deltaslice binary setpoint stream (.dsl, versions 1 and 2).
  *
  * Portable C99, header only, no malloc, no floating point, fixed buffers.
  * Specification: docs/stream-format.md. Feed the stream byte by byte or in chunks
@@ -11,7 +11,10 @@
  *     for (;;) {
  *         int32_t counts[DSL_MAX_CHANNELS];
  *         int r;
- *         while ((r = dsl_next(&p, counts)) == DSL_SAMPLE) use(counts);   // p.n_channels values
+ *         while ((r = dsl_next(&p, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
+ *             if (r == DSL_EVENT) act(p.event_kind, p.event_value);  // before the next sample
+ *             else use(counts);                                      // p.n_channels values
+ *         }
  *         if (r == DSL_DONE) break;                  // end record checked: stream complete
  *         if (r == DSL_ERROR) { report(p.error); break; }
  *         // r == DSL_AGAIN: give it more bytes (dsl_feed consumes fewer than offered
@@ -21,9 +24,11 @@
  *
  * Memory: DSL_BUFFERS record buffers of DSL_MAX_RECORD (512) bytes each, plus about
  * 150 bytes of state and a DSL_ERROR_LEN-byte message (sizeof(dsl_player) on a PC:
- * 804 bytes with one buffer, 1316 with two). DSL_BUFFERS = 1 (default) suits a player that may stop reading
+ * 864 bytes with one buffer, 1376 with two, with DSL_MAX_EVENTS 4). DSL_BUFFERS = 1 (default) suits a player that may stop reading
  * while it plays a block (file, SD card); 2 lets it receive the next block while the
- * current one plays (serial link).
+ * current one plays (serial link). Event records (version 2: heaters, fan, laser mode) wait in
+ * a queue of DSL_MAX_EVENTS (default 4, 12 bytes each) until the samples before them are played;
+ * the receive side stops consuming bytes while that queue is full.
  *
  * Define DSL_BUFFERS before including to change it. In exactly the way the Python
  * decoder does, errors are reported only after every sample of the intact blocks
@@ -44,16 +49,26 @@
 #endif
 #define DSL_MAX_RECORD 512
 #define DSL_MAX_CHANNELS 8
-#define DSL_VERSION 1
+#ifndef DSL_MAX_EVENTS
+#define DSL_MAX_EVENTS 4
+#endif
+#define DSL_VERSION 2 /* the newest version this player knows; it plays 1 too */
+#define DSL_EVENT_LEN 16
 
-enum { DSL_ERROR = -1, DSL_AGAIN = 0, DSL_SAMPLE = 1, DSL_DONE = 2 };
+enum { DSL_ERROR = -1, DSL_AGAIN = 0, DSL_SAMPLE = 1, DSL_DONE = 2, DSL_EVENT = 3 };
+/* Event kinds; values are tenths of a degree C for temperatures, 0..255 for the fan, 0/3/4 for
+   the laser mode (off, constant M3, dynamic M4). A wait event holds the time base: play the
+   next sample only once the heater is at its set temperature. */
+enum { DSL_EV_HOTEND_SET = 1, DSL_EV_HOTEND_WAIT = 2, DSL_EV_BED_SET = 3, DSL_EV_BED_WAIT = 4,
+       DSL_EV_FAN = 5, DSL_EV_LASER_MODE = 6 };
 enum { DSL_KIND_REVOLUTE = 1, DSL_KIND_PRISMATIC = 2, DSL_KIND_EXTRUDER = 3, DSL_KIND_LASER = 4 };
 
-enum { DSL_S_HEADER, DSL_S_RECORD_START, DSL_S_BLOCK, DSL_S_END_RECORD, DSL_S_END, DSL_S_ERROR };
+enum { DSL_S_HEADER, DSL_S_RECORD_START, DSL_S_BLOCK, DSL_S_EVENT_RECORD, DSL_S_END_RECORD, DSL_S_END, DSL_S_ERROR };
 
 typedef struct {
     /* --- from the header (valid once header_ok is 1) --- */
     uint8_t header_ok;
+    uint8_t version;
     uint8_t n_channels;
     uint8_t kinds[DSL_MAX_CHANNELS];
     uint32_t fingerprint;
@@ -73,6 +88,8 @@ typedef struct {
     uint16_t rec_len;
     uint8_t buf[DSL_BUFFERS][DSL_MAX_RECORD];
     uint8_t q_head, q_count; /* checked blocks waiting or playing, buf[q_head] first */
+    struct { uint32_t index; int32_t value; uint8_t kind; } ev[DSL_MAX_EVENTS]; /* checked events, in order */
+    uint8_t ev_head, ev_count;
     /* --- play side --- */
     uint8_t playing;
     uint16_t n, i;          /* samples in the playing block, next sample */
@@ -80,6 +97,9 @@ typedef struct {
     uint8_t order[DSL_MAX_CHANNELS], width[DSL_MAX_CHANNELS];
     int32_t x[DSL_MAX_CHANNELS], v[DSL_MAX_CHANNELS];
     uint32_t sample_index;  /* index of the next sample released */
+    uint32_t event_index;   /* the event dsl_next last returned: before sample event_index */
+    int32_t event_value;
+    uint8_t event_kind;
     char error[DSL_ERROR_LEN];
 } dsl_player;
 
@@ -205,10 +225,11 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
             p->rate_mhz = dsl_u32(p->small + 16);
             p->n_channels = p->small[20];
             p->max_record = dsl_u16(p->small + 22);
-            if (dsl_u16(p->small + 8) != DSL_VERSION) {
-                dsl_fail(p, "stream format version not supported (this player knows 1)");
+            if (dsl_u16(p->small + 8) < 1 || dsl_u16(p->small + 8) > DSL_VERSION) {
+                dsl_fail(p, "stream format version not supported (this player knows 1 and 2)");
                 return;
             }
+            p->version = (uint8_t)dsl_u16(p->small + 8);
             if (p->n_channels < 2 || p->n_channels > DSL_MAX_CHANNELS || p->rate_mhz == 0 ||
                 p->header_len < 24u + 17u * p->n_channels + 7u) {
                 dsl_fail(p, "header holds invalid values");
@@ -250,6 +271,14 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
             rec[0] = b;
             p->stream_crc = dsl_crc_byte(p->stream_crc, b);
             p->rx_state = DSL_S_BLOCK;
+        } else if (b == 'V') {
+            if (p->version < 2) {
+                dsl_fail(p, "event record in a version 1 stream");
+                return;
+            }
+            p->small[0] = b;
+            p->stream_crc = dsl_crc_byte(p->stream_crc, b);
+            p->rx_state = DSL_S_EVENT_RECORD;
         } else if (b == 'E') {
             p->small[0] = b;
             p->rx_state = DSL_S_END_RECORD;
@@ -288,6 +317,29 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
         }
         return;
     }
+    case DSL_S_EVENT_RECORD:
+        p->small[pos] = b;
+        p->stream_crc = dsl_crc_byte(p->stream_crc, b);
+        if (pos < 12) p->crc = dsl_crc_byte(p->crc, b);
+        p->pos = ++pos;
+        if (pos == DSL_EVENT_LEN) {
+            uint8_t kind = p->small[7], slot;
+            if (dsl_crc_final(p->crc) != dsl_u32(p->small + 12) || dsl_u16(p->small + 1) != DSL_EVENT_LEN) {
+                dsl_fail(p, "event record corrupt (CRC mismatch or length)");
+                return;
+            }
+            if (kind < DSL_EV_HOTEND_SET || kind > DSL_EV_LASER_MODE || dsl_u32(p->small + 3) != p->rx_samples) {
+                dsl_fail(p, "event kind not 1..6 or index not the next block's");
+                return;
+            }
+            slot = (uint8_t)((p->ev_head + p->ev_count) % DSL_MAX_EVENTS);
+            p->ev[slot].index = dsl_u32(p->small + 3);
+            p->ev[slot].kind = kind;
+            p->ev[slot].value = (int32_t)dsl_u32(p->small + 8);
+            p->ev_count++;
+            p->rx_state = DSL_S_RECORD_START;
+        }
+        return;
     case DSL_S_END_RECORD:
         p->small[pos] = b;
         if (pos < 11) p->crc = dsl_crc_byte(p->crc, b);
@@ -321,7 +373,9 @@ static size_t dsl_feed(dsl_player *p, const uint8_t *data, size_t len)
     size_t k = 0;
     while (k < len) {
         if (p->rx_state == DSL_S_ERROR) break;
-        if (p->rx_state == DSL_S_RECORD_START && p->q_count == DSL_BUFFERS) break;
+        if (p->rx_state == DSL_S_RECORD_START &&
+            ((data[k] == 'B' && p->q_count == DSL_BUFFERS) || (data[k] == 'V' && p->ev_count == DSL_MAX_EVENTS)))
+            break;
         dsl_rx_byte(p, data[k]);
         k++;
         p->offset++;
@@ -340,6 +394,8 @@ static void dsl_finish(dsl_player *p)
         dsl_fail(p, "stream truncated: ends without an end record");
     } else if (p->rx_state == DSL_S_BLOCK) {
         dsl_fail(p, "stream truncated inside the block");
+    } else if (p->rx_state == DSL_S_EVENT_RECORD) {
+        dsl_fail(p, "stream truncated inside an event record");
     } else {
         dsl_fail(p, "stream truncated inside the end record");
     }
@@ -355,12 +411,21 @@ static uint32_t dsl_bits(dsl_player *p, const uint8_t *b, uint8_t width)
     return u;
 }
 
-/* Take the next sample: DSL_SAMPLE (counts[0 .. n_channels-1] filled), DSL_AGAIN (feed
-   more bytes), DSL_DONE (stream complete and checked) or DSL_ERROR (see p->error). */
+/* Take the next sample: DSL_SAMPLE (counts[0 .. n_channels-1] filled), DSL_EVENT (an event that
+   takes effect before the next sample: p->event_kind, p->event_value), DSL_AGAIN (feed more
+   bytes), DSL_DONE (stream complete and checked) or DSL_ERROR (see p->error). */
 static int dsl_next(dsl_player *p, int32_t *counts)
 {
     const uint8_t *b;
     uint8_t c;
+    if (p->ev_count && p->ev[p->ev_head].index == p->sample_index) {
+        p->event_index = p->ev[p->ev_head].index;
+        p->event_kind = p->ev[p->ev_head].kind;
+        p->event_value = p->ev[p->ev_head].value;
+        p->ev_head = (uint8_t)((p->ev_head + 1) % DSL_MAX_EVENTS);
+        p->ev_count--;
+        return DSL_EVENT;
+    }
     if (!p->playing) {
         if (p->q_count == 0) {
             if (p->rx_state == DSL_S_ERROR) return DSL_ERROR;
