@@ -14,19 +14,9 @@ from deltaslice.planning.blend import blend_polyline
 from deltaslice.planning.pieces import JointMovePiece
 from deltaslice.planning.trapezoid import corner_violations, plan_firmware, plan_safe
 from deltaslice.toolpath import Role, ToolpathBuilder
+from trajectories import finite_differences
 
 MARGIN = 1.02  # toppra enforces limits at grid points; samples may exceed by discretisation only
-
-
-def finite_differences(samples, rate):
-    """Brute force, independent of the package: joint velocity (np.gradient) and acceleration
-    (second differences, zero at both ends) at the output rate, (n, J) each."""
-    q = samples.q
-    v = np.gradient(q, 1.0 / rate, axis=0)
-    a = np.zeros_like(q)
-    if len(q) > 2:
-        a[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate * rate
-    return v, a
 
 
 def layered_part(z0, dz, n_layers, size, filament_per_mm=0.02, center=(0.0, 0.0), retract=1.0):

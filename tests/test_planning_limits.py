@@ -23,23 +23,13 @@ from deltaslice.planning import plan
 from deltaslice.planning.topp import RunSpec, plan_run, run_stage_maxima
 from deltaslice.machine import printer_from_dict
 from deltaslice.toolpath import Role, ToolpathBuilder
+from trajectories import finite_differences
 
 ROOT = Path(__file__).resolve().parents[1]
 PARTS = ROOT.parent / "shared" / "parts"
 Z0 = {"delta_etitc": 0.5, "delta_ucb": 0.25, "delta_uady": 0.25, "fivebar_atlas": 0.3, "linear_kossel": 0.3, "delta_espe_laser": 0.0}
 SIZE = {"delta_etitc": 40, "delta_ucb": 30, "delta_uady": 40, "fivebar_atlas": 40, "linear_kossel": 40, "delta_espe_laser": 40}
 TEN_KHZ = 1.01  # finite differences at 10 kHz against the printer's limits
-
-
-def finite_differences(samples, rate):
-    """Brute force, independent of the package: joint velocity (np.gradient) and acceleration
-    (second differences, zero at both ends) at the output rate, (n, J) each."""
-    q = samples.q
-    v = np.gradient(q, 1.0 / rate, axis=0)
-    a = np.zeros_like(q)
-    if len(q) > 2:
-        a[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate * rate
-    return v, a
 
 
 def printer_at(name: str, rate: float):

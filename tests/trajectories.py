@@ -194,3 +194,14 @@ def long_print(samples: Samples, n_total: int):
         yield Samples(np.arange(done, done + k) / rate, q2[:k], e, tool2[:k])
         e_off = e[-1]
         done += k
+
+
+def finite_differences(samples, rate):
+    """Brute force, independent of the package: joint velocity (np.gradient) and acceleration
+    (second differences, zero at both ends) at the output rate, (n, J) each."""
+    q = samples.q
+    v = np.gradient(q, 1.0 / rate, axis=0)
+    a = np.zeros_like(q)
+    if len(q) > 2:
+        a[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate * rate
+    return v, a
