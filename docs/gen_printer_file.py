@@ -62,7 +62,7 @@ DOCS = {
     ("joints", "velocity_max"): (JOINT + "/s", "Joint speed limit the planner keeps and `verify` checks.", None),
     ("joints", "acceleration_max"): (JOINT + "/s²", "Joint acceleration limit.", None),
     ("joints", "jerk_max"): (JOINT + "/s³", "Joint jerk limit for the lifted travels (ruckig); omit for none.", "none"),
-    ("joints", "counts_per_unit"): ("counts per joint unit", "Actuator counts per degree (or mm): PWM microseconds, microsteps, encoder or Dynamixel ticks; the stream's resolution.", None),
+    ("joints", "counts_per_unit"): ("counts per joint unit, non-zero", "Actuator counts per degree (or mm): PWM microseconds, microsteps, encoder or Dynamixel ticks; the stream's resolution. Not 0; negative for a joint whose actuator turns the other way (counts decrease as the joint angle grows).", None),
     ("joints", "zero_count"): ("counts", "Count at joint position 0 (`count = zero_count + counts_per_unit x q`).", None),
     ("joints", "rest"): ("deg or mm", "The rest pose: where every trajectory starts and parks (servos attached, axes homed).", "the highest reachable point above the bed centre"),
     # tool

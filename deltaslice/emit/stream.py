@@ -15,6 +15,7 @@ Encoding and decoding are vectorised per block with numpy.
 
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -156,7 +157,7 @@ def _parse_header(data: bytes, where: str) -> StreamHeader:
     chans = []
     for _ in range(nch):
         kind, cpu, zero = _CHANNEL.unpack_from(data, pos)
-        if kind not in KIND_NAMES or not cpu > 0:
+        if kind not in KIND_NAMES or not (math.isfinite(cpu) and cpu != 0):
             raise StreamError(f"{where}: header byte offset {pos}: invalid channel kind {kind} or scale {cpu}")
         chans.append(Channel(kind, cpu, zero))
         pos += _CHANNEL.size

@@ -163,7 +163,7 @@ def resolution(kin, q, counts_per_unit) -> np.ndarray:
     q: (N,J) joint values -> (N,) float, mm per count (the largest Jacobian column
     norm divided by that joint's counts per unit)."""
     jac = kin.jacobian(np.atleast_2d(q))
-    col = np.linalg.norm(jac, axis=1) / np.asarray(counts_per_unit, dtype=float)[None]
+    col = np.linalg.norm(jac, axis=1) / np.abs(np.asarray(counts_per_unit, dtype=float))[None]
     return col.max(axis=1)
 
 

@@ -43,7 +43,9 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     jerk = sec.getfloats("jerk_max", n, default=[0.0] * n, minval=0)
     if "jerk_max" not in sec.data:
         jerk = (None,) * n
-    cpu = sec.getfloats("counts_per_unit", n, above=0)
+    cpu = sec.getfloats("counts_per_unit", n)
+    if any(c == 0 for c in cpu):
+        sec.fail("counts_per_unit", list(cpu), "a non-zero number for every joint (a negative one reverses the joint)")
     zero = sec.getfloats("zero_count", n, default=[0.0] * n)
     rest = sec.getfloats("rest", n, default=[0.0] * n)
     if "rest" not in sec.data:  # the default pose is found from the kinematics (_rest_pose)
