@@ -136,7 +136,7 @@ BAD = {
         "max_height = 120",
     ),
     "missing section": (lambda t: t.replace("[bed]", "[bedd]", 1), "unknown key 'bedd'", "did you mean 'bed'"),
-    "negative count": (_sub("counts_per_unit = 11.111", "counts_per_unit = -11.111"), "[joints] counts_per_unit", "> 0"),
+    "zero count scale": (_sub("counts_per_unit = 11.111", "counts_per_unit = 0"), "[joints] counts_per_unit", "non-zero"),
     "tilt over 90": (_sub("ball_joint_tilt_max = 13.0", "ball_joint_tilt_max = 100.0"), "[kinematics] ball_joint_tilt_max", "<= 90"),
 }
 
