@@ -44,12 +44,12 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     if "jerk_max" not in sec.data:
         jerk = (None,) * n
     cpu = sec.getfloats("counts_per_unit", n)
-    if any(c == 0 for c in cpu):
-        sec.fail("counts_per_unit", list(cpu), "a non-zero number for every joint (a negative one reverses the joint)")
     zero = sec.getfloats("zero_count", n, default=[0.0] * n)
     rest = sec.getfloats("rest", n, default=[0.0] * n)
     if "rest" not in sec.data:  # the default pose is found from the kinematics (_rest_pose)
         rest = (math.nan,) * n
+    if any(c == 0 for c in cpu):
+        sec.fail("counts_per_unit", list(cpu), "a non-zero number for every joint (a negative one reverses the joint)")
     for i in range(n):
         if not lo[i] < hi[i]:
             sec.fail(
