@@ -362,6 +362,25 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
         click.echo(workspace_summary(result))
 
 
+@main.command("firmware-config")
+@printer_options
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Header file to write (default: print it).")
+def firmware_config_cmd(printer_path, overrides, output):
+    """Write the C header the firmware players include (dsl_config.h): the printer's fingerprint,
+    rest pose and joint-sensor calibration in actuator counts.
+
+    \b
+    Example:
+      deltaslice firmware-config --printer delta_ucb -o examples/firmware/config/delta_ucb.h
+    """
+    from .pipeline import write_firmware_config
+
+    text = _run(write_firmware_config, _printer(printer_path, overrides), output)
+    if output is None:
+        click.echo(text, nl=False)
+
+
 @main.command("decode")
 @click.argument("stream", type=click.Path(dir_okay=False))
 @click.option("--units", is_flag=True, help="Print the setpoints CSV format (joint units) instead of integer counts.")

@@ -218,6 +218,19 @@ def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> None:
         f.write(text)
 
 
+def write_firmware_config(printer, output=None) -> str:
+    """The firmware players' configuration header of ``printer`` (path, name or Printer); written
+    atomically to ``output`` when given. Returns the header text."""
+    from .emit.firmware_config import firmware_config
+
+    printer = _printer(printer)
+    text = firmware_config(printer)
+    if output is not None:
+        with atomic_output(output, "w", encoding="ascii", newline="\n") as f:
+            f.write(text)
+    return text
+
+
 def slice_to_gcode(part, printer, output, *, progress=False, echo=None, **mesh_options) -> str:
     """Slice a mesh and write G-code. Returns a summary line."""
     _check_path(part, "part")

@@ -64,6 +64,7 @@ DOCS = {
     ("joints", "jerk_max"): (JOINT + "/s³", "Joint jerk limit for the lifted travels (ruckig); omit for none.", "none"),
     ("joints", "counts_per_unit"): ("counts per joint unit, non-zero", "Actuator counts per degree (or mm): PWM microseconds, microsteps, encoder or Dynamixel ticks; the stream's resolution. Not 0; negative for a joint whose actuator turns the other way (counts decrease as the joint angle grows).", None),
     ("joints", "zero_count"): ("counts", "Count at joint position 0 (`count = zero_count + counts_per_unit x q`).", None),
+    ("joints", "sensor_table"): ("reading, deg or mm", "Absolute joint sensors (potentiometers, absolute encoders): per joint, `[[reading, joint position], ...]`, at least 2 points with distinct readings; interpolated piecewise-linearly (`Printer.joint_from_sensor`) and written into the firmware configuration header (`deltaslice firmware-config`), where a player reads its joints at power-up.", "none"),
     ("joints", "rest"): ("deg or mm", "The rest pose: where every trajectory starts and parks (servos attached, axes homed).", "the highest reachable point above the bed centre"),
     # tool
     ("tool", "kind"): ("", "`extruder` (FDM) or `laser`: the tool channel of every output.", None),

@@ -19,7 +19,9 @@ class Printer:
 
     ``kinematics`` is built once from the geometry, the joint position limits and the
     singularity limit; ``limits`` holds every channel's limits and counts (joints, then
-    the tool channel); ``rest_pose`` (J,) joint units: where every trajectory starts and ends."""
+    the tool channel); ``rest_pose`` (J,) joint units: where every trajectory starts and ends;
+    ``sensor_table`` per joint: ``((reading, joint value), ...)`` sorted by reading, joint units
+    (rad or mm), () for a joint without an absolute sensor."""
 
     name: str
     path: str
@@ -34,6 +36,7 @@ class Printer:
     planning: PlanningSettings
     kinematics_: Kinematics = field(repr=False, compare=False)
     rest_pose: np.ndarray = field(repr=False, compare=False, default=None)
+    sensor_table: tuple = ()
     sources: dict = field(default_factory=dict, compare=False, hash=False)
 
     @property
@@ -52,6 +55,21 @@ class Printer:
     def kinematics(self) -> Kinematics:
         """The kinematics object of this printer's family (built once, at load)."""
         return self.kinematics_
+
+    def joint_from_sensor(self, joint: int, readings) -> np.ndarray:
+        """Joint values (joint units) of raw sensor readings of one joint, interpolated
+        piecewise-linearly in ``sensor_table`` and extrapolated along its end segments.
+        readings: (n,) float -> (n,) float. Raises ValueError for a joint without a table."""
+        table = self.sensor_table[joint] if self.sensor_table else ()
+        if not table:
+            raise ValueError(f"joint {joint + 1} of {self.name} has no sensor_table")
+        r, v = np.array(table).T
+        x = np.asarray(readings, dtype=float)
+        out = np.interp(x, r, v)
+        lo, hi = x < r[0], x > r[-1]
+        out[lo] = v[0] + (x[lo] - r[0]) * (v[1] - v[0]) / (r[1] - r[0])
+        out[hi] = v[-1] + (x[hi] - r[-1]) * (v[-1] - v[-2]) / (r[-1] - r[-2])
+        return out
 
     def planned_limits(self) -> Limits:
         """The limits the planner plans to: every rate limit times ``1 - limit_margin``."""

@@ -48,6 +48,7 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     rest = sec.getfloats("rest", n, default=[0.0] * n)
     if "rest" not in sec.data:  # the default pose is found from the kinematics (_rest_pose)
         rest = (math.nan,) * n
+    sensor = _read_sensor_table(sec, n)
     if any(c == 0 for c in cpu):
         sec.fail("counts_per_unit", list(cpu), "a non-zero number for every joint (a negative one reverses the joint)")
     for i in range(n):
@@ -56,16 +57,40 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
                 "position_min", list(lo), f"position_min < position_max for every joint (joint {i + 1}: {lo[i]:g} >= {hi[i]:g})"
             )
     out = {key: [] for key in ("names", "kinds", "position_min", "position_max", "velocity", "acceleration", "jerk",
-                                "counts_per_unit", "zero_count", "rest")}
+                                "counts_per_unit", "zero_count", "rest", "sensor_table")}
     for i, kind in enumerate(kinds):
         # Revolute joints are in degrees in the file and radians inside.
         k = math.radians(1.0) if kind == "revolute" else 1.0
         for key, value in (("names", names[i]), ("kinds", kind), ("position_min", lo[i] * k), ("position_max", hi[i] * k),
                            ("velocity", vel[i] * k), ("acceleration", acc[i] * k),
                            ("jerk", math.nan if jerk[i] is None else jerk[i] * k),
-                           ("counts_per_unit", cpu[i] / k), ("zero_count", zero[i]), ("rest", rest[i] * k)):
+                           ("counts_per_unit", cpu[i] / k), ("zero_count", zero[i]), ("rest", rest[i] * k),
+                           ("sensor_table", tuple((r, v * k) for r, v in sensor[i]))):
             out[key].append(value)
     return out
+
+
+def _read_sensor_table(sec: Section, n: int) -> tuple:
+    """``[joints] sensor_table``: per joint, ``[[reading, joint value], ...]`` (raw sensor reading,
+    joint value in file units), at least two points with distinct readings; () per joint when absent."""
+    sec._record("sensor_table", "list", False, None)
+    table = sec.get("sensor_table", None)
+    if table is None:
+        return ((),) * n
+    expected = (f"a list of {n} tables (one per joint), each a list of at least 2 [reading, joint value] pairs of "
+                "finite numbers with distinct readings")
+    if not isinstance(table, list) or len(table) != n:
+        sec.fail("sensor_table", table, expected)
+    out = []
+    for j, points in enumerate(table):
+        ok = (isinstance(points, list) and len(points) >= 2 and all(
+            isinstance(p, list) and len(p) == 2 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in p)
+            for p in points))
+        if not ok or len({float(p[0]) for p in points}) != len(points):
+            sec.fail("sensor_table", table, f"{expected} (joint {j + 1}: {points!r})")
+        out.append(tuple(sorted((float(r), float(v)) for r, v in points)))
+    return tuple(out)
 
 
 def _limits(joints: dict, tool) -> Limits:
@@ -326,6 +351,7 @@ def printer_from_dict(data: dict, path: str = "<printer>") -> Printer:
         planning=planning,
         kinematics_=kinematics,
         rest_pose=rest,
+        sensor_table=tuple(joints["sensor_table"]),
         sources=dict(sources),
     )
     _check_reaches_something(printer)

@@ -1,0 +1,53 @@
+"""The firmware players' configuration header: the committed ``examples/firmware/config/*.h``
+equal what ``deltaslice firmware-config`` writes now (regenerate with
+``for p in delta_espe_laser delta_etitc delta_uady delta_ucb fivebar_atlas linear_kossel; do
+deltaslice firmware-config --printer $p -o examples/firmware/config/$p.h; done``), and the
+UCB's potentiometer table reaches the header in counts."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from trajectories import ROOT
+
+from deltaslice import load_printer
+from deltaslice.errors import PrinterFileError
+from deltaslice.machine.printer import Printer
+from deltaslice.pipeline import write_firmware_config
+
+CONFIG = ROOT / "examples" / "firmware" / "config"
+
+
+@pytest.mark.parametrize("name", [p.stem for p in sorted((ROOT / "deltaslice" / "printers").glob("*.toml"))])
+def test_committed_header_is_current(name):
+    assert (CONFIG / f"{name}.h").read_text() == write_firmware_config(name)
+
+
+def test_ucb_table_in_counts():
+    p = load_printer("delta_ucb")
+    text = write_firmware_config(p)
+    assert "#define DSL_CFG_SENSOR_POINTS 2" in text
+    assert "#define DSL_CFG_SENSOR_ADC {{1790, 3200}, {1810, 3160}, {2000, 3160}}" in text
+    cpd = 3200 / 360  # microsteps per degree
+    assert f"{{{{{round(90 * cpd)}, 0}}" in text
+    assert np.allclose(np.degrees(p.joint_from_sensor(0, [3200, 1790, 2495])), [0, 90, 45])
+    assert np.allclose(np.degrees(p.joint_from_sensor(2, [2000 - 116])), [90 + 116 * 90 / 1160])  # extrapolated
+    fp = re.search(r"DSL_CFG_FINGERPRINT 0x([0-9A-F]{8})UL", text).group(1)
+    assert int(fp, 16) == p.fingerprint()
+
+
+@pytest.mark.parametrize("table, why", [
+    ([[[3200, 0.0]], [[3160, 0.0], [1810, 90.0]], [[3160, 0.0], [2000, 90.0]]], "joint 1"),
+    ([[[3200, 0.0], [3200, 90.0]], [[3160, 0.0], [1810, 90.0]], [[3160, 0.0], [2000, 90.0]]], "distinct"),
+    ([[[3200, 0.0], [1790, 90.0]]], "a list of 3 tables"),
+])
+def test_bad_sensor_table_named(table, why):
+    with pytest.raises(PrinterFileError, match=r"\[joints\] sensor_table.*" + why):
+        load_printer("delta_ucb", {"joints.sensor_table": table})
+
+
+def test_joint_without_sensor_refused():
+    with pytest.raises(ValueError, match="no sensor_table"):
+        Printer.joint_from_sensor(load_printer("delta_etitc"), 0, [1000])
