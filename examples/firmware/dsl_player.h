@@ -47,6 +47,11 @@
 #ifndef DSL_ERROR_LEN
 #define DSL_ERROR_LEN 112 /* error message buffer; 40 is enough for "block N at byte offset M" on small MCUs */
 #endif
+#if defined(__GNUC__)
+#define DSL_MAYBE_UNUSED __attribute__((unused))
+#else
+#define DSL_MAYBE_UNUSED
+#endif
 #define DSL_MAX_RECORD 512
 #define DSL_MAX_CHANNELS 8
 #ifndef DSL_MAX_EVENTS
@@ -106,9 +111,11 @@ typedef struct {
 /* ---- CRC-32 (IEEE, reflected 0xEDB88320), 16-entry nibble table: 64 bytes ---- */
 #if defined(__AVR__)
 #include <avr/pgmspace.h>
+#define DSL_STR(s) PSTR(s)
 #define DSL_TABLE_ATTR PROGMEM
 #define DSL_TABLE_READ(t, i) pgm_read_dword(&(t)[i])
 #else
+#define DSL_STR(s) (s)
 #define DSL_TABLE_ATTR
 #define DSL_TABLE_READ(t, i) ((t)[i])
 #endif
@@ -145,13 +152,22 @@ static void dsl_init(dsl_player *p)
     p->stream_crc = 0xFFFFFFFFUL;
 }
 
+/* what: a message in flash on AVR (DSL_STR), so the player's strings take no RAM there. */
 static void dsl_fail(dsl_player *p, const char *what)
 {
+#if defined(__AVR__)
+    if (p->rx_state == DSL_S_HEADER)
+        snprintf_P(p->error, sizeof p->error, PSTR("header: %S"), what);
+    else
+        snprintf_P(p->error, sizeof p->error, PSTR("block %lu at byte offset %lu: %S"), (unsigned long)p->rx_blocks,
+                   (unsigned long)p->record_offset, what);
+#else
     if (p->rx_state == DSL_S_HEADER)
         snprintf(p->error, sizeof p->error, "header: %s", what);
     else
         snprintf(p->error, sizeof p->error, "block %lu at byte offset %lu: %s", (unsigned long)p->rx_blocks,
                  (unsigned long)p->record_offset, what);
+#endif
     p->rx_state = DSL_S_ERROR;
 }
 
@@ -215,7 +231,7 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
     switch (p->rx_state) {
     case DSL_S_HEADER:
         if (pos < 8 && b != dsl_magic[pos]) {
-            dsl_fail(p, "not a deltaslice stream (bad magic at byte offset 0)");
+            dsl_fail(p, DSL_STR("not a deltaslice stream (bad magic at byte offset 0)"));
             return;
         }
         if (pos < 24) p->small[pos] = b;
@@ -226,23 +242,23 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
             p->n_channels = p->small[20];
             p->max_record = dsl_u16(p->small + 22);
             if (dsl_u16(p->small + 8) < 1 || dsl_u16(p->small + 8) > DSL_VERSION) {
-                dsl_fail(p, "stream format version not supported (this player knows 1 and 2)");
+                dsl_fail(p, DSL_STR("stream format version not supported (this player knows 1 and 2)"));
                 return;
             }
             p->version = (uint8_t)dsl_u16(p->small + 8);
             if (p->n_channels < 2 || p->n_channels > DSL_MAX_CHANNELS || p->rate_mhz == 0 ||
                 p->header_len < 24u + 17u * p->n_channels + 7u) {
-                dsl_fail(p, "header holds invalid values");
+                dsl_fail(p, DSL_STR("header holds invalid values"));
                 return;
             }
             if (p->max_record > DSL_MAX_RECORD) {
-                dsl_fail(p, "stream needs a record buffer larger than DSL_MAX_RECORD");
+                dsl_fail(p, DSL_STR("stream needs a record buffer larger than DSL_MAX_RECORD"));
                 return;
             }
         }
         if (pos >= 24 && pos < 24u + 17u * p->n_channels && (pos - 24) % 17 == 0) {
             if (b < DSL_KIND_REVOLUTE || b > DSL_KIND_LASER) {
-                dsl_fail(p, "invalid channel kind");
+                dsl_fail(p, DSL_STR("invalid channel kind"));
                 return;
             }
             p->kinds[(pos - 24) / 17] = b;
@@ -256,7 +272,7 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
         p->pos = ++pos;
         if (pos >= 24 && pos == p->header_len) {
             if (dsl_crc_final(p->crc) != dsl_u32(p->small)) {
-                dsl_fail(p, "header CRC mismatch: the header is corrupt");
+                dsl_fail(p, DSL_STR("header CRC mismatch: the header is corrupt"));
                 return;
             }
             p->header_ok = 1;
@@ -273,7 +289,7 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
             p->rx_state = DSL_S_BLOCK;
         } else if (b == 'V') {
             if (p->version < 2) {
-                dsl_fail(p, "event record in a version 1 stream");
+                dsl_fail(p, DSL_STR("event record in a version 1 stream"));
                 return;
             }
             p->small[0] = b;
@@ -283,7 +299,7 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
             p->small[0] = b;
             p->rx_state = DSL_S_END_RECORD;
         } else {
-            dsl_fail(p, "unknown record type (corrupt or out of sync)");
+            dsl_fail(p, DSL_STR("unknown record type (corrupt or out of sync)"));
             return;
         }
         p->pos = 1;
@@ -295,7 +311,7 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
         if (pos == 2) {
             p->rec_len = dsl_u16(rec + 1);
             if (p->rec_len < 5u + 2u * p->n_channels + 4u || p->rec_len > p->max_record) {
-                dsl_fail(p, "block length out of range (corrupt)");
+                dsl_fail(p, DSL_STR("block length out of range (corrupt)"));
                 return;
             }
         }
@@ -303,11 +319,11 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
         p->pos = ++pos;
         if (pos >= 3 && pos == p->rec_len) {
             if (dsl_crc_final(p->crc) != dsl_u32(rec + pos - 4)) {
-                dsl_fail(p, "CRC mismatch: block is corrupt");
+                dsl_fail(p, DSL_STR("CRC mismatch: block is corrupt"));
                 return;
             }
             if (dsl_parse_block(p, rec, 0)) {
-                dsl_fail(p, "inconsistent block structure");
+                dsl_fail(p, DSL_STR("inconsistent block structure"));
                 return;
             }
             p->rx_blocks++;
@@ -325,11 +341,11 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
         if (pos == DSL_EVENT_LEN) {
             uint8_t kind = p->small[7], slot;
             if (dsl_crc_final(p->crc) != dsl_u32(p->small + 12) || dsl_u16(p->small + 1) != DSL_EVENT_LEN) {
-                dsl_fail(p, "event record corrupt (CRC mismatch or length)");
+                dsl_fail(p, DSL_STR("event record corrupt (CRC mismatch or length)"));
                 return;
             }
             if (kind < DSL_EV_HOTEND_SET || kind > DSL_EV_LASER_MODE || dsl_u32(p->small + 3) != p->rx_samples) {
-                dsl_fail(p, "event kind not 1..6 or index not the next block's");
+                dsl_fail(p, DSL_STR("event kind not 1..6 or index not the next block's"));
                 return;
             }
             slot = (uint8_t)((p->ev_head + p->ev_count) % DSL_MAX_EVENTS);
@@ -346,11 +362,11 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
         p->pos = ++pos;
         if (pos == 15) {
             if (dsl_crc_final(p->crc) != dsl_u32(p->small + 11) || dsl_u16(p->small + 1) != 15) {
-                dsl_fail(p, "end record corrupt (CRC mismatch)");
+                dsl_fail(p, DSL_STR("end record corrupt (CRC mismatch)"));
             } else if (dsl_u32(p->small + 3) != p->rx_samples) {
-                dsl_fail(p, "end record's sample count disagrees with the blocks");
+                dsl_fail(p, DSL_STR("end record's sample count disagrees with the blocks"));
             } else if (dsl_u32(p->small + 7) != dsl_crc_final(p->stream_crc)) {
-                dsl_fail(p, "whole-stream CRC mismatch");
+                dsl_fail(p, DSL_STR("whole-stream CRC mismatch"));
             } else {
                 p->rx_state = DSL_S_END;
             }
@@ -358,7 +374,7 @@ static void dsl_rx_byte(dsl_player *p, uint8_t b)
         return;
     case DSL_S_END:
         p->record_offset = p->offset;
-        dsl_fail(p, "unexpected bytes after the end record");
+        dsl_fail(p, DSL_STR("unexpected bytes after the end record"));
         return;
     default:
         return;
@@ -384,20 +400,20 @@ static size_t dsl_feed(dsl_player *p, const uint8_t *data, size_t len)
 }
 
 /* The input has ended: anything but a complete stream is a truncation error. */
-static void dsl_finish(dsl_player *p)
+DSL_MAYBE_UNUSED static void dsl_finish(dsl_player *p)
 {
     if (p->rx_state == DSL_S_END || p->rx_state == DSL_S_ERROR) return;
     if (p->rx_state == DSL_S_HEADER) {
-        dsl_fail(p, "stream truncated inside the header");
+        dsl_fail(p, DSL_STR("stream truncated inside the header"));
     } else if (p->rx_state == DSL_S_RECORD_START) {
         p->record_offset = p->offset;
-        dsl_fail(p, "stream truncated: ends without an end record");
+        dsl_fail(p, DSL_STR("stream truncated: ends without an end record"));
     } else if (p->rx_state == DSL_S_BLOCK) {
-        dsl_fail(p, "stream truncated inside the block");
+        dsl_fail(p, DSL_STR("stream truncated inside the block"));
     } else if (p->rx_state == DSL_S_EVENT_RECORD) {
-        dsl_fail(p, "stream truncated inside an event record");
+        dsl_fail(p, DSL_STR("stream truncated inside an event record"));
     } else {
-        dsl_fail(p, "stream truncated inside the end record");
+        dsl_fail(p, DSL_STR("stream truncated inside the end record"));
     }
 }
 

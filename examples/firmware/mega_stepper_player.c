@@ -1,0 +1,237 @@
+/*
+ * mega_stepper_player.c - step/dir steppers on an Arduino Mega 2560 + RAMPS 1.4 (the Atlas
+ * five-bar; the Kossel with CONFIG=config/linear_kossel.h), played from a deltaslice stream
+ * received over serial (avr_serial.h's credit flow control).
+ *
+ *   joint 1  X: step D54 (PF0), dir D55 (PF1), enable D38 (PD7)
+ *   joint 2  Y: step D60 (PF6), dir D61 (PF7), enable D56 (PF2)
+ *   joint 3  Z: step D46 (PL3), dir D48 (PL1), enable D62 (PK0)
+ *   tool     E0: step D26 (PA4), dir D28 (PA6), enable D24 (PA2)
+ *   heaters  hot end D10 (PB4) with the thermistor on A13, bed D8 (PH5) with A14
+ *   strobe   D13 (PB7, the LED) toggles at every sample (a scope or the simulator counts them)
+ *
+ * Timer1 interrupts DSL_SUBTICKS times per sample period; dsl_stepper.h spreads each sample's
+ * count differences evenly over the period. The machine must be at the stream's first sample
+ * (the rest pose, dsl_config.h) when playback starts: home it there first.
+ * Heater events switch the heaters bang-bang (2 C hysteresis) from the thermistors (100k NTC,
+ * beta 3950, 4.7k pull-up); a wait event holds the sample clock until the heater is within 2 C.
+ */
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <avr/pgmspace.h>
+#include <stdint.h>
+
+#define USART_RX_vect_NAME USART0_RX_vect
+#include "avr_serial.h"
+
+#define DSL_BUFFERS 2
+#define DSL_ERROR_LEN 40
+#include "dsl_player.h"
+#include "dsl_stepper.h"
+#include DSL_CONFIG
+
+#define AXES 4
+#define RING 4 /* decoded samples waiting for the step interrupt */
+
+static dsl_player player;
+static dsl_stepper stepper;
+static int32_t ring[RING][AXES];
+static volatile uint8_t ring_head, ring_count;
+static volatile uint8_t playing, held; /* held: a wait event stops the clock */
+static volatile uint8_t idle;            /* the last sample's steps are all issued and none waits */
+static volatile uint32_t samples_played;
+
+/* NTC 100k, beta 3950, 4.7k pull-up to 5 V, 10-bit ADC: reading at 0, 10, ... 300 C. The
+   reading falls as the temperature rises. */
+static const uint16_t ntc_adc[31] PROGMEM = {
+    1009, 1000, 986, 966, 940, 905, 860, 807, 747, 680, 611, 542, 475, 412, 355, 305, 261, 223, 191, 163,
+    140, 120, 104, 90, 78, 68, 60, 52, 46, 41, 36};
+
+static uint16_t adc_for_celsius_x10(int32_t t10)
+{
+    uint8_t k;
+    int32_t lo, hi;
+    if (t10 <= 0) return 1023;
+    k = (uint8_t)(t10 / 100);
+    if (k >= 30) return pgm_read_word(&ntc_adc[30]);
+    lo = pgm_read_word(&ntc_adc[k]);
+    hi = pgm_read_word(&ntc_adc[k + 1]);
+    return (uint16_t)(lo + (hi - lo) * (t10 - 100 * (int32_t)k) / 100);
+}
+
+static uint16_t adc_read(uint8_t channel)
+{
+    ADMUX = _BV(REFS0) | (channel & 7);
+    ADCSRB = channel & 8 ? _BV(MUX5) : 0;
+    ADCSRA = _BV(ADEN) | _BV(ADSC) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);
+    while (ADCSRA & _BV(ADSC)) {
+    }
+    return ADC;
+}
+
+/* Heaters: [0] hot end, [1] bed. A set temperature of 0 is off. */
+static uint16_t heater_on_below[2], heater_off_below[2]; /* ADC thresholds; 0: off */
+static uint8_t waiting_for = 0xFF;
+
+static void heater_set(uint8_t h, int32_t t10)
+{
+    if (t10 <= 0) {
+        heater_on_below[h] = heater_off_below[h] = 0;
+        return;
+    }
+    /* on while colder than t - 2 C (ADC above), off once hotter than t + 2 C */
+    heater_on_below[h] = adc_for_celsius_x10(t10 - 20);
+    heater_off_below[h] = adc_for_celsius_x10(t10 + 20);
+}
+
+static uint8_t heater_update(uint8_t h)
+{
+    uint16_t a = adc_read(h ? 14 : 13);
+    volatile uint8_t *port = h ? &PORTH : &PORTB;
+    uint8_t bit = h ? _BV(PH5) : _BV(PB4);
+    if (!heater_on_below[h] || a < heater_off_below[h]) *port &= (uint8_t)~bit;
+    else if (a > heater_on_below[h]) *port |= bit;
+    return heater_on_below[h] && a <= heater_on_below[h]; /* within 2 C below or hotter */
+}
+
+static void pins_init(void)
+{
+    DDRF |= _BV(PF0) | _BV(PF1) | _BV(PF6) | _BV(PF7) | _BV(PF2);
+    DDRD |= _BV(PD7);
+    DDRL |= _BV(PL3) | _BV(PL1);
+    DDRK |= _BV(PK0);
+    DDRA |= _BV(PA4) | _BV(PA6) | _BV(PA2);
+    DDRB |= _BV(PB4) | _BV(PB7);
+    DDRH |= _BV(PH5);
+    PORTD &= (uint8_t)~_BV(PD7); /* drivers enabled (active low) */
+    PORTF &= (uint8_t)~_BV(PF2);
+    PORTK &= (uint8_t)~_BV(PK0);
+    PORTA &= (uint8_t)~_BV(PA2);
+}
+
+static void set_dirs(uint8_t m)
+{
+    if (m & 1) PORTF |= _BV(PF1); else PORTF &= (uint8_t)~_BV(PF1);
+    if (m & 2) PORTF |= _BV(PF7); else PORTF &= (uint8_t)~_BV(PF7);
+    if (m & 4) PORTL |= _BV(PL1); else PORTL &= (uint8_t)~_BV(PL1);
+    if (m & 8) PORTA |= _BV(PA6); else PORTA &= (uint8_t)~_BV(PA6);
+}
+
+static void pulse(uint8_t m)
+{
+    uint8_t f = (uint8_t)((m & 1 ? _BV(PF0) : 0) | (m & 2 ? _BV(PF6) : 0));
+    PORTF |= f;
+    if (m & 4) PORTL |= _BV(PL3);
+    if (m & 8) PORTA |= _BV(PA4);
+    __builtin_avr_delay_cycles(16); /* 1 us: A4988, DRV8825 and TMC drivers all take it */
+    PORTF &= (uint8_t)~f;
+    PORTL &= (uint8_t)~_BV(PL3);
+    PORTA &= (uint8_t)~_BV(PA4);
+}
+
+ISR(TIMER1_COMPA_vect)
+{
+    if (!playing || held) return;
+    if (stepper.tick == 0 || stepper.tick >= DSL_SUBTICKS) {
+        if (!ring_count) { /* underrun or the end: wait for the next sample, the motors at rest */
+            idle = 1;
+            return;
+        }
+        idle = 0;
+        set_dirs(dsl_stepper_sample(&stepper, ring[ring_head], AXES));
+        ring_head = (uint8_t)((ring_head + 1) % RING);
+        ring_count--;
+        samples_played++;
+        PINB = _BV(PB7); /* toggle the strobe */
+        return;
+    }
+    pulse(dsl_stepper_tick(&stepper, AXES));
+}
+
+static void stop(const char *message_P)
+{
+    while (playing && !idle) {
+    }
+    TIMSK1 = 0;
+    PORTB &= (uint8_t)~_BV(PB4);
+    PORTH &= (uint8_t)~_BV(PH5);
+    if (message_P) {
+        serial_puts_P(PSTR("ERR "));
+        serial_puts_P(message_P);
+    } else if (player.rx_state == DSL_S_ERROR) {
+        const char *e = player.error;
+        serial_puts_P(PSTR("ERR "));
+        while (*e) serial_put((uint8_t)*e++);
+    } else {
+        serial_puts_P(PSTR("OK "));
+        serial_putu(player.sample_index);
+    }
+    serial_put('\n');
+    for (;;) {
+    }
+}
+
+int main(void)
+{
+    int32_t counts[DSL_MAX_CHANNELS];
+    uint8_t started = 0, hb = 0, have = 0, k;
+    uint16_t heater_clock = 0;
+
+    pins_init();
+    serial_init();
+    dsl_init(&player);
+    sei();
+    for (;;) {
+        int r;
+        serial_grant();
+        if (!have) have = serial_take(&hb);
+        while (have && dsl_feed(&player, &hb, 1) == 1) have = serial_take(&hb);
+        if (++heater_clock == 0 || waiting_for != 0xFF) {
+            uint8_t ready0 = heater_update(0), ready1 = heater_update(1);
+            if (waiting_for != 0xFF && (waiting_for ? ready1 : ready0)) {
+                waiting_for = 0xFF;
+                held = 0;
+            }
+        }
+        if (!started) {
+            if (player.rx_state == DSL_S_ERROR) stop(0);
+            if (!player.header_ok) continue;
+            if (player.fingerprint != DSL_CFG_FINGERPRINT) stop(PSTR("stream made for another printer (fingerprint)"));
+            if (player.q_count < DSL_BUFFERS && player.rx_state != DSL_S_END) continue;
+            OCR1A = (uint16_t)(1000000000UL / player.rate_mhz * 16 / DSL_SUBTICKS - 1); /* /1: 62.5 ns ticks */
+            TCCR1A = 0;
+            TCCR1B = _BV(WGM12) | _BV(CS10);
+            started = 1;
+        }
+        if (ring_count >= RING || waiting_for != 0xFF) continue;
+        r = dsl_next(&player, counts);
+        if (r == DSL_EVENT) {
+            uint8_t kind = player.event_kind;
+            if (kind >= DSL_EV_HOTEND_SET && kind <= DSL_EV_BED_WAIT) {
+                uint8_t h = kind >= DSL_EV_BED_SET;
+                heater_set(h, player.event_value);
+                if ((kind == DSL_EV_HOTEND_WAIT || kind == DSL_EV_BED_WAIT) && player.event_value > 0) {
+                    /* hold the clock once the samples before the event are played */
+                    while (playing && !idle) {
+                    }
+                    held = 1;
+                    waiting_for = h;
+                }
+            }
+            continue;
+        }
+        if (r == DSL_SAMPLE) {
+            if (!playing) dsl_stepper_init(&stepper, counts, AXES); /* the machine is at the first sample */
+            for (k = 0; k < AXES; k++) ring[(ring_head + ring_count) % RING][k] = counts[k];
+            cli();
+            ring_count++;
+            if (!playing) {
+                playing = 1;
+                TIMSK1 = _BV(OCIE1A);
+            }
+            sei();
+        } else if (r == DSL_DONE || r == DSL_ERROR) {
+            stop(0);
+        }
+    }
+}

@@ -1,0 +1,155 @@
+"""The AVR players run in simavr, fed a compiled stream through the simulated UART with the
+credit flow control `deltaslice send` uses (examples/firmware/sim_harness.c):
+
+* Arduino Uno, hobby servos (ETITC): static RAM within 1,536 bytes; every 20 ms frame's pulse
+  widths equal, within 1 us, the joint counts of the sample being played at the frame start; the
+  servos hold the rest pose before the stream starts; the sample clock keeps time at 115200 baud.
+* Arduino Mega 2560 + RAMPS, step/dir (Atlas five-bar, Kossel): the step count of every axis
+  equals the stream's count difference at every sample, both directions, and at the end.
+
+They need avr-gcc, avr-libc and simavr (Debian: gcc-avr avr-libc simavr libsimavr-dev
+libelf-dev); they skip without them, except under CI (env CI set), where .ci/run installs them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from meshes import write
+from trajectories import ROOT, blocks, printer, realistic
+
+from deltaslice.pipeline import compile_part, read_counts, write_samples
+
+FIRMWARE = ROOT / "examples" / "firmware"
+UNO_RAM_BUDGET = 1536
+CYCLES_PER_US = 16
+
+
+def _missing() -> str | None:
+    if not shutil.which("avr-gcc") or not shutil.which("make"):
+        return "avr-gcc or make"
+    if not Path("/usr/include/simavr/sim_avr.h").exists():
+        return "libsimavr-dev"
+    return None
+
+
+@pytest.fixture(scope="module")
+def build(tmp_path_factory):
+    missing = _missing()
+    if missing:
+        if os.environ.get("CI"):
+            pytest.fail(f"{missing} missing under CI: .ci/run installs the Debian packages")
+        pytest.skip(f"{missing} not installed (apt-get install gcc-avr avr-libc simavr libsimavr-dev libelf-dev)")
+    out = tmp_path_factory.mktemp("firmware")
+    r = subprocess.run(["make", "-C", str(FIRMWARE), f"BUILD={out}", "all"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return out
+
+
+def simulate(build, mcu, elf, stream, seconds=60):
+    r = subprocess.run([str(build / "sim_harness"), mcu, str(build / elf), str(stream), "--seconds", str(seconds)],
+                       capture_output=True, text=True, timeout=300)
+    lines = [ln.split(" ", 1) for ln in r.stdout.splitlines() if ln[:2] in ("P ", "S ", "T ", "L ", "F ")]
+    out = {k: [] for k in "PSTLF"}
+    for k, rest in lines:
+        out[k].append(rest)
+    return r.returncode, out
+
+
+@pytest.fixture(scope="module")
+def etitc_stream(tmp_path_factory):
+    """A one-layer part compiled for the ETITC: starts at rest, heater events at sample 0."""
+    d = tmp_path_factory.mktemp("uno")
+    part = d / "pad.stl"
+    write(trimesh.creation.box((5, 5, 0.5)), part)
+    out = d / "pad.dsl"
+    compile_part(part, printer("delta_etitc"), output=out, workers=1)
+    return out
+
+
+def test_uno_static_ram_fits_with_room_for_the_stack(build):
+    r = subprocess.run(["avr-size", "-A", str(build / "uno_servo_player.elf")], capture_output=True, text=True, check=True)
+    sizes = {m.group(1): int(m.group(2)) for m in re.finditer(r"^\.(data|bss)\s+(\d+)", r.stdout, re.M)}
+    assert sizes["data"] + sizes["bss"] <= UNO_RAM_BUDGET, sizes
+
+
+def test_uno_servo_pulses_equal_the_stream_counts(build, etitc_stream):
+    header, counts = read_counts(etitc_stream)
+    code, out = simulate(build, "atmega328p", "uno_servo_player.elf", etitc_stream)
+    assert code == 0 and out["L"] == [f"OK {len(counts)}"], out["L"]
+    strobes = np.array([int(s.split()[1]) for s in out["S"]])
+    assert len(strobes) == len(counts)  # every sample played, once
+    # the sample clock keeps time: no sample later than 5 ms behind its slot
+    lag_ms = (strobes - strobes[0]) / (CYCLES_PER_US * 1000) - np.arange(len(strobes))
+    assert lag_ms.max() < 5.0, lag_ms.max()
+    pulses = np.array([[int(x) for x in p.split()] for p in out["P"]])
+    frames = 0
+    for k in range(3):
+        rise, width = pulses[pulses[:, 0] == k, 1], pulses[pulses[:, 0] == k, 2] / CYCLES_PER_US
+        # the sample being played at the rise: the last one strobed before it (or the next, when
+        # it was taken within the 10 us between the widths' latch and its strobe)
+        j = np.searchsorted(strobes, rise, side="right") - 1
+        expect = counts[np.clip(j, 0, len(counts) - 1), k]  # before the first: the rest pose = sample 0
+        nxt = counts[np.clip(j + 1, 0, len(counts) - 1), k]
+        close = (j + 1 < len(strobes)) & (strobes[np.clip(j + 1, 0, len(strobes) - 1)] - rise < 10 * CYCLES_PER_US)
+        err = np.minimum(np.abs(width - expect), np.where(close, np.abs(width - nxt), np.inf))
+        assert err.max() <= 1.0, (k, err.max(), int(np.argmax(err)))
+        gaps = np.diff(rise) / (CYCLES_PER_US * 1000)
+        # one frame every 20 ms; now and then one starts up to a lap of Timer2 (128 us) late, well
+        # within what a servo accepts (14-25 ms), and the next one is on time again
+        assert np.abs(gaps - 20.0).max() < 0.5 and np.median(gaps) == pytest.approx(20.0, abs=1e-3), gaps.max()
+        frames += len(rise)
+    assert frames >= 3 * len(counts) // 20
+
+
+def test_uno_refuses_a_stream_for_another_printer(build, tmp_path):
+    p = printer("linear_kossel")
+    s, _ = realistic("linear_kossel", layers=1)
+    path = tmp_path / "kossel.dsl"
+    write_samples(blocks(s.__class__(s.t[:600], s.q[:600], s.e[:600], s.tool[:600]), 2500), p, path, fmt="stream",
+                  rate=p.planning.output_rate)
+    code, out = simulate(build, "atmega328p", "uno_servo_player.elf", path, seconds=5)
+    assert out["L"] and out["L"][0].startswith("ERR stream made for another printer"), out["L"]
+    assert not out["S"]
+
+
+def test_uno_stops_at_a_corrupt_block(build, etitc_stream, tmp_path):
+    from streamtools import record_offsets
+
+    data = bytearray(etitc_stream.read_bytes())
+    off, length, _ = [r for r in record_offsets(bytes(data)) if r[2] == ord("B")][2]
+    data[off + length // 2] ^= 0x10
+    bad = tmp_path / "bad.dsl"
+    bad.write_bytes(bytes(data))
+    code, out = simulate(build, "atmega328p", "uno_servo_player.elf", bad, seconds=30)
+    assert out["L"] and out["L"][0].startswith("ERR block 2 at byte offset"), out["L"]
+
+
+@pytest.mark.parametrize("name, elf", [("fivebar_atlas", "mega_stepper_player.elf"),
+                                       ("linear_kossel", "mega_stepper_player_kossel.elf")])
+def test_mega_step_counts_equal_the_stream_at_every_sample(build, tmp_path, name, elf):
+    p = printer(name)
+    s, _ = realistic(name, layers=1)
+    path = tmp_path / f"{name}.dsl"
+    # a fan event mid-stream: events are taken in order and do not disturb the steps
+    write_samples(blocks(s, 2500), p, path, fmt="stream", rate=p.planning.output_rate, events=[(5000, 5, 255.0)])
+    _, counts = read_counts(path)
+    code, out = simulate(build, "atmega2560", elf, path)
+    assert code == 0 and out["L"] == [f"OK {len(counts)}"], out["L"]
+    T = np.array([[int(x) for x in t.split()] for t in out["T"]])
+    assert len(T) == len(counts)
+    rel = counts[:, :4] - counts[0, :4]
+    # at the start of sample j the steps of every sample before it have been issued
+    expect = np.vstack([np.zeros((1, 4), np.int64), rel[:-1]])
+    assert np.array_equal(T[:, 1:], expect)
+    final = np.array([int(x) for x in out["F"][0].split()])
+    assert np.array_equal(final, rel[-1])
+    moves = np.diff(counts[:, :3], axis=0)
+    assert (moves > 0).any() and (moves < 0).any()  # both directions were exercised
