@@ -1,0 +1,140 @@
+/*
+ * dc_pid_player.c - the UADY delta's DC gear motors under dc_pid.h, following a deltaslice
+ * stream; built for the host with a simulated motor per joint in place of the PSoC's PWM and
+ * quadrature decoder:
+ *
+ *     dc_pid_player STREAM.dsl            one line per sample: i sp1 pos1 duty1 sp2 pos2 duty2 ...
+ *     dc_pid_player --step COUNTS --ms N  a setpoint step on one joint (saturation, windup)
+ *
+ * The simulated motor (stated, plausible for a 12 V 34:1 gear motor with an 11-pulse Hall
+ * encoder, since the UADY document gives no motor data): 12 V supply, armature 4 ohm, torque and
+ * back-EMF constant 0.038 N m/A (3000 rpm at 12 V no load), rotor plus reflected arm inertia
+ * 4e-6 kg m^2 at the motor, viscous 5e-6 N m s, Coulomb friction 0.003 N m, gravity of a 100 g
+ * arm at 75 mm (0.0022 N m at the motor at horizontal), 34:1 gearbox, 44 counts per motor turn
+ * (1496 per output turn), integrated at 20 kHz; the PID runs once per sample (1 kHz).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "dc_pid.h"
+#include "dsl_player.h"
+
+#define SUBSTEPS 20
+#define JOINTS_MAX 4
+
+typedef struct {
+    double theta, omega; /* motor shaft: rad, rad/s */
+} motor;
+
+static const double V_SUPPLY = 12.0, R = 4.0, K = 0.038, J = 4e-6, B = 5e-6, TC = 0.003, GRAV = 0.0022, GEAR = 34.0;
+static const double COUNTS_PER_RAD = 44.0 / 6.283185307179586; /* at the motor shaft: 44 x 34 = 1496 per output turn */
+
+static int32_t encoder(const motor *m) { return (int32_t)floor(m->theta * COUNTS_PER_RAD); }
+
+/* Advance one control period of dt seconds at a duty of -255..255. */
+static void motor_run(motor *m, int32_t duty, double dt)
+{
+    int k;
+    double h = dt / SUBSTEPS, v = V_SUPPLY * duty / 255.0;
+    for (k = 0; k < SUBSTEPS; k++) {
+        double i = (v - K * m->omega) / R;
+        double torque = K * i - B * m->omega - GRAV * cos(m->theta / GEAR);
+        if (fabs(m->omega) > 1e-3) torque -= TC * (m->omega > 0 ? 1.0 : -1.0);
+        else if (fabs(torque) < TC) torque = 0.0, m->omega = 0.0; /* stiction holds it */
+        else torque -= TC * (torque > 0 ? 1.0 : -1.0);
+        m->omega += h * torque / J;
+        m->theta += h * m->omega;
+    }
+}
+
+static int step_response(int32_t step, int ms)
+{
+    dc_pid c;
+    motor m = {0.0, 0.0};
+    dc_pid_gains g = DC_PID_UADY_GAINS;
+    int t;
+    dc_pid_init(&c, g);
+    for (t = 0; t < ms; t++) {
+        int32_t pos = encoder(&m), duty = dc_pid_step(&c, t ? step : 0, pos);
+        printf("%d %ld %ld %ld\n", t, (long)(t ? step : 0), (long)pos, (long)duty);
+        motor_run(&m, duty, 1e-3);
+    }
+    return 0;
+}
+
+static dsl_player player;
+
+int main(int argc, char **argv)
+{
+    static uint8_t in[4096];
+    dc_pid pid[JOINTS_MAX];
+    motor mot[JOINTS_MAX];
+    int32_t counts[DSL_MAX_CHANNELS], origin[JOINTS_MAX];
+    dc_pid_gains g = DC_PID_UADY_GAINS;
+    size_t avail = 0, off = 0;
+    int eof = 0, started = 0, j, joints = 0;
+    double dt = 1e-3;
+    FILE *f;
+
+    if (argc == 5 && !strcmp(argv[1], "--step") && !strcmp(argv[3], "--ms"))
+        return step_response((int32_t)atol(argv[2]), atoi(argv[4]));
+    if (argc != 2) {
+        fprintf(stderr, "usage: %s STREAM.dsl | --step COUNTS --ms N\n", argv[0]);
+        return 2;
+    }
+    f = fopen(argv[1], "rb");
+    if (!f) {
+        fprintf(stderr, "error: %s: cannot open\n", argv[1]);
+        return 2;
+    }
+    dsl_init(&player);
+    for (;;) {
+        int r;
+        while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
+            if (r == DSL_EVENT) continue; /* no heaters on this machine's joints */
+            if (!started) {
+                /* the machine starts at the stream's first sample (its rest pose): the encoder
+                   counters are zeroed there and the setpoints taken relative to it */
+                joints = player.n_channels - 1 > JOINTS_MAX ? JOINTS_MAX : player.n_channels - 1;
+                dt = 1e-3 * 1000000.0 / player.rate_mhz;
+                for (j = 0; j < joints; j++) {
+                    origin[j] = counts[j];
+                    mot[j].theta = mot[j].omega = 0.0;
+                    dc_pid_init(&pid[j], g);
+                }
+                started = 1;
+            }
+            printf("%lu", (unsigned long)(player.sample_index - 1));
+            for (j = 0; j < joints; j++) {
+                int32_t sp = counts[j] - origin[j];
+                int32_t pos = (int32_t)floor(mot[j].theta * COUNTS_PER_RAD);
+                int32_t duty = dc_pid_step(&pid[j], sp, pos);
+                printf(" %ld %ld %ld", (long)sp, (long)pos, (long)duty);
+                motor_run(&mot[j], duty, dt);
+            }
+            putchar('\n');
+        }
+        if (r == DSL_DONE) break;
+        if (r == DSL_ERROR) {
+            fflush(stdout);
+            fprintf(stderr, "error: %s: %s\n", argv[1], player.error);
+            return 1;
+        }
+        if (avail == 0 && !eof) {
+            avail = fread(in, 1, sizeof in, f);
+            off = 0;
+            if (avail == 0) eof = 1;
+        }
+        if (avail) {
+            size_t used = dsl_feed(&player, in + off, avail);
+            off += used;
+            avail -= used;
+        } else {
+            dsl_finish(&player);
+        }
+    }
+    fclose(f);
+    return 0;
+}
