@@ -362,6 +362,30 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
         click.echo(workspace_summary(result))
 
 
+@main.command("send")
+@click.argument("stream", type=click.Path(dir_okay=False))
+@click.option("--port", required=True, metavar="DEVICE", help="Serial port of the board (e.g. /dev/ttyACM0, COM3).")
+@click.option("--baud", type=click.IntRange(min=1), default=115200, show_default=True, help="Baud rate the player uses.")
+@click.option("--timeout", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
+              help="Seconds without a byte from the board before giving up (heaters may take a while).")
+@click.option("--printer", "printer_path", default=None, metavar="FILE|NAME",
+              help="Refuse the stream unless it was compiled for this printer.")
+@click.option("--quiet", is_flag=True, help="No progress output.")
+def send_cmd(stream, port, baud, timeout, printer_path, quiet):
+    """Send a checked .dsl stream to a board running a deltaslice player (examples/firmware), with
+    its credit flow control, and report what the board played.
+
+    \b
+    Example:
+      deltaslice send cube.dsl --port /dev/ttyACM0
+    """
+    from .pipeline import send_file
+
+    result = _run(send_file, stream, port, baud=baud, timeout=timeout, progress=not quiet,
+                  printer=None if printer_path is None else _printer(printer_path, None))
+    click.echo(f"sent {result.bytes_sent} bytes; the board played {result.samples} samples in {result.seconds:.1f} s")
+
+
 @main.command("firmware-config")
 @printer_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,

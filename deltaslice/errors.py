@@ -35,6 +35,10 @@ class StreamError(DeltasliceError):
     """A setpoint file or binary stream is corrupt, truncated or of the wrong kind."""
 
 
+class SendError(DeltasliceError):
+    """Sending a stream to a board failed: the port, a timeout, or the board's own error."""
+
+
 class MeshWarning(UserWarning):
     """A mesh was sliced, but only after closing gaps or similar guesswork the user should hear about."""
 

@@ -455,6 +455,37 @@ def decode_stream(path, out, *, units=False, printer=None) -> int:
         return decode_to_text(f, out, units=units, printer=loaded, name=str(path))
 
 
+def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=False, printer=None):
+    """Check a stream file whole, then send it to the board on ``port_name`` (see :mod:`deltaslice.send`).
+    printer: a path, name or Printer whose fingerprint the stream must carry, or None.
+    Returns a :class:`~deltaslice.send.SendResult`."""
+    import io
+
+    from .emit.stream import decode_to_text
+    from .errors import SendError
+    from .send import send_stream
+
+    _check_path(stream_path, "stream")
+    try:
+        data = open(stream_path, "rb").read()
+    except OSError as exc:
+        raise StreamError(f"{stream_path}: cannot open stream: {exc.strerror or exc}") from None
+    # a damaged file is refused before the port is opened: the board would stop mid-print
+    decode_to_text(io.BytesIO(data), io.StringIO(), printer=None if printer is None else _printer(printer),
+                   name=str(stream_path))
+    try:
+        import serial
+    except ImportError:
+        raise SendError("deltaslice send needs pyserial (pip install pyserial)") from None
+    try:
+        port = serial.Serial(str(port_name), baudrate=int(baud), timeout=0.2)
+    except (serial.SerialException, ValueError, OSError) as exc:
+        raise SendError(f"{port_name}: cannot open the serial port: {exc}") from None
+    with port:
+        return send_stream(data, port, timeout=timeout, name=str(stream_path),
+                           progress=stderr_progress(progress, "sending", unit="B"))
+
+
 def shipped_printers() -> list[dict]:
     """The printers packaged with deltaslice: [{name, family, tool, description, path}]."""
     from .printers import shipped_names, shipped_path

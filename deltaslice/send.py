@@ -1,0 +1,71 @@
+"""Send a stream to a board that plays it (the players in ``examples/firmware``) over a serial
+link, with their credit flow control:
+
+    board -> host   ``>``           one credit: room for one more chunk
+    host  -> board  <= CHUNK bytes  one chunk per credit (the last one may be shorter)
+    board -> host   ``OK <n>\\n``    the stream ended intact after n samples
+                    ``ERR <msg>\\n`` the board refused or stopped
+
+The host never sends more than it has credit for, so a board with a 2 KB RAM can play a print of
+any length. :func:`send_stream` takes an open serial-like object (``read(n)`` returning ``b""``
+when its timeout passes, ``write(data)``); ``pipeline.send_file`` opens the port.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+from .errors import SendError
+
+CHUNK = 64
+CREDIT = b">"
+
+
+@dataclass(frozen=True)
+class SendResult:
+    """bytes_sent: the whole stream; samples: what the board reports having played; seconds: wall time."""
+
+    bytes_sent: int
+    samples: int
+    seconds: float
+
+
+def send_stream(data: bytes, port, *, timeout: float = 10.0, progress=None, name: str = "stream") -> SendResult:
+    """Send ``data`` (a whole, checked stream) to ``port`` and wait for the board's verdict.
+
+    timeout: seconds without a byte from the board before giving up (a board waiting for its
+    heaters sends nothing for a while: give it time). progress: ``progress(done, total)`` in bytes.
+    Raises :class:`SendError` on a timeout, a closed port or an ``ERR`` line."""
+    t0 = time.monotonic()
+    sent, line, last = 0, bytearray(), time.monotonic()
+    while True:
+        b = port.read(1)
+        if not b:
+            if time.monotonic() - last >= timeout:
+                raise SendError(f"{name}: no answer from the board for {timeout:g} s after {sent} of {len(data)} bytes"
+                                " (is it running a deltaslice player at this baud rate?)")
+            continue
+        last = time.monotonic()
+        if b == CREDIT and not line:
+            if sent < len(data):
+                chunk = data[sent:sent + CHUNK]
+                port.write(chunk)
+                sent += len(chunk)
+                if progress:
+                    progress(sent, len(data))
+            continue
+        if b != b"\n":
+            line += b
+            continue
+        text = line.decode("ascii", "replace").strip()
+        line.clear()
+        if text.startswith("OK"):
+            try:
+                samples = int(text.split()[1])
+            except (IndexError, ValueError):
+                raise SendError(f"{name}: the board answered {text!r}") from None
+            return SendResult(sent, samples, time.monotonic() - t0)
+        if text.startswith("ERR"):
+            raise SendError(f"{name}: the board stopped after {sent} of {len(data)} bytes: {text[3:].strip()}")
+        # anything else (a boot banner) is not part of the protocol: ignored

@@ -1,0 +1,125 @@
+"""deltaslice send: a checked stream to a board with the credit flow control of the firmware
+players, against a fake board on a pseudo-terminal (the same serial stack as a real port)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+import tty
+
+import pytest
+from click.testing import CliRunner
+from trajectories import blocks, printer, realistic
+
+from deltaslice.cli import main
+from deltaslice.errors import SendError, StreamError
+from deltaslice.pipeline import send_file, write_samples
+from deltaslice.send import CHUNK
+
+serial = pytest.importorskip("serial")
+
+
+class FakeBoard(threading.Thread):
+    """A board with a 128-byte receive buffer that drains slowly, granting a credit per free chunk;
+    ``mode``: "ok" (answers OK <samples> after the last byte), "err" (ERR after err_after bytes),
+    "silent" (never answers)."""
+
+    def __init__(self, expected: int, mode="ok", err_after=0, samples=1234):
+        super().__init__(daemon=True)
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        self.slave = slave
+        self.expected, self.mode, self.err_after, self.samples = expected, mode, err_after, samples
+        self.received = bytearray()
+        self.max_outstanding = 0
+        self.stop = False
+
+    def run(self):
+        # like an Arduino reset by the port opening (DTR): silent while it boots, so the host has
+        # opened the port (which flushes its input) before the first credit
+        time.sleep(0.5)
+        os.set_blocking(self.master, False)
+        credits, buffered = 0, 0
+        while not self.stop:
+            if self.mode == "silent":
+                time.sleep(0.01)
+                continue
+            while buffered + credits * CHUNK + CHUNK <= 128:
+                os.write(self.master, b">")
+                credits += 1
+            self.max_outstanding = max(self.max_outstanding, credits)
+            try:
+                data = os.read(self.master, 256)
+            except BlockingIOError:
+                data = b""
+            if data:
+                self.received += data
+                buffered += len(data)
+                credits -= -(-len(data) // CHUNK) if len(data) % CHUNK else len(data) // CHUNK
+                credits = max(credits, 0)
+            buffered = max(0, buffered - 32)  # the player takes bytes as it plays
+            if self.mode == "err" and len(self.received) >= self.err_after:
+                os.write(self.master, b"ERR block 3 at byte offset 999: CRC mismatch: block is corrupt\n")
+                return
+            if self.mode == "ok" and len(self.received) >= self.expected:
+                os.write(self.master, f"OK {self.samples}\n".encode())
+                return
+            time.sleep(0.001)
+
+
+@pytest.fixture(scope="module")
+def stream(tmp_path_factory):
+    p = printer("delta_etitc")
+    s, _ = realistic("delta_etitc", layers=1)
+    path = tmp_path_factory.mktemp("send") / "part.dsl"
+    write_samples(blocks(s, 2500), p, path, fmt="stream", rate=p.planning.output_rate)
+    return path
+
+
+def test_every_byte_arrives_in_credited_chunks(stream):
+    data = stream.read_bytes()
+    board = FakeBoard(len(data))
+    board.start()
+    result = send_file(stream, board.path, timeout=5)
+    board.join(5)
+    assert bytes(board.received) == data
+    assert result.bytes_sent == len(data) and result.samples == 1234
+    assert board.max_outstanding <= 2  # never more than the board granted
+
+
+def test_cli_reports_and_exits_zero(stream):
+    data = stream.read_bytes()
+    board = FakeBoard(len(data))
+    board.start()
+    r = CliRunner().invoke(main, ["send", str(stream), "--port", board.path, "--quiet"])
+    board.join(5)
+    assert r.exit_code == 0, r.output
+    assert f"sent {len(data)} bytes; the board played 1234 samples" in r.output
+
+
+def test_board_error_is_reported(stream):
+    board = FakeBoard(10**9, mode="err", err_after=600)
+    board.start()
+    with pytest.raises(SendError, match=r"the board stopped after \d+ of \d+ bytes: block 3 at byte offset 999"):
+        send_file(stream, board.path, timeout=5)
+    r = CliRunner().invoke(main, ["send", str(stream), "--port", FakeBoard(1, mode="silent").path, "--timeout", "0.5",
+                                  "--quiet"])
+    assert r.exit_code == 1 and "no answer from the board for 0.5 s after 0 of" in r.output
+
+
+def test_corrupt_stream_refused_before_the_port_is_opened(stream, tmp_path):
+    data = bytearray(stream.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    bad = tmp_path / "bad.dsl"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(StreamError, match="block"):
+        send_file(bad, "/dev/does-not-exist")  # the port would fail: the stream is checked first
+
+
+def test_wrong_printer_and_missing_port(stream):
+    with pytest.raises(StreamError, match="fingerprint|printer"):
+        send_file(stream, "/dev/does-not-exist", printer="linear_kossel")
+    with pytest.raises(SendError, match="cannot open the serial port"):
+        send_file(stream, "/dev/does-not-exist")
