@@ -1,0 +1,71 @@
+"""Memory benchmark (not a test): a spiral-vase G-code from PrusaSlicer (one continuous run, no
+path simplification possible: a 300-lobed wavy cylinder, r = 30 +- 0.8 mm, 0.1 mm layers) compiled
+for linear_kossel, at several heights, to see how peak memory and time grow with the print.
+
+    python benchmarks/bench_memory.py [--heights 12.5,25] [--workers 1]
+
+Prints per height: G-code size and moves, compile wall time, plan time, peak RSS (wait4, the
+process and its workers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def vase(h: float, path: Path) -> None:
+    import shapely.geometry as sg
+    import trimesh
+
+    th = np.linspace(0, 2 * np.pi, 6000, endpoint=False)
+    r = 30 + 0.8 * np.sin(300 * th)
+    trimesh.creation.extrude_polygon(sg.Polygon(np.c_[r * np.cos(th), r * np.sin(th)]), h).export(path)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--heights", default="12.5,25")
+    ap.add_argument("--workers", default="1")
+    args = ap.parse_args()
+    if not shutil.which("prusa-slicer"):
+        sys.exit("prusa-slicer not found (apt-get install prusa-slicer)")
+    d = Path(tempfile.mkdtemp())
+    print("| height mm | G-code MB | moves | compile s | plan s | peak RSS MB |")
+    print("|---|---|---|---|---|---|")
+    for h in (float(x) for x in args.heights.split(",")):
+        stl, gcode = d / f"vase{h}.stl", d / f"vase{h}.gcode"
+        vase(h, stl)
+        subprocess.run(["prusa-slicer", "--export-gcode", "--spiral-vase", "--perimeters", "1", "--top-solid-layers", "0",
+                        "--bottom-solid-layers", "1", "--fill-density", "0", "--layer-height", "0.1",
+                        "--gcode-resolution", "0.0125", "--center", "0,0", "-o", str(gcode), str(stl)],
+                       check=True, capture_output=True)
+        moves = sum(1 for line in open(gcode) if line.startswith("G1"))
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "deltaslice", str(gcode), "--printer", "linear_kossel",
+                                 "-o", str(d / "out.dsl"), "--workers", args.workers, "--quiet"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        out = proc.stdout.read()
+        m = re.search(r"plan ([\d.]+) s", out)
+        print(f"| {h:g} | {gcode.stat().st_size / 1e6:.1f} | {moves} | {wall:.1f} | {m.group(1) if m else '?'} | "
+              f"{usage.ru_maxrss / 1024:.0f} |", flush=True)
+        if os.waitstatus_to_exitcode(status) != 0:
+            print(proc.stderr.read(), file=sys.stderr)
+    shutil.rmtree(d)
+
+
+if __name__ == "__main__":
+    main()
