@@ -19,6 +19,7 @@
 #include <string.h>
 
 #include "dc_pid.h"
+#include "dsl_file.h"
 #include "dsl_player.h"
 
 #define SUBSTEPS 20
@@ -68,13 +69,12 @@ static dsl_player player;
 
 int main(int argc, char **argv)
 {
-    static uint8_t in[4096];
+    static dsl_file input;
     dc_pid pid[JOINTS_MAX];
     motor mot[JOINTS_MAX];
     int32_t counts[DSL_MAX_CHANNELS], origin[JOINTS_MAX];
     dc_pid_gains g = DC_PID_UADY_GAINS;
-    size_t avail = 0, off = 0;
-    int eof = 0, started = 0, j, joints = 0;
+    int started = 0, j, joints = 0;
     double dt = 1e-3;
     FILE *f;
 
@@ -90,6 +90,7 @@ int main(int argc, char **argv)
         return 2;
     }
     dsl_init(&player);
+    dsl_file_open(&input, f, 4096);
     for (;;) {
         int r;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
@@ -122,17 +123,9 @@ int main(int argc, char **argv)
             fprintf(stderr, "error: %s: %s\n", argv[1], player.error);
             return 1;
         }
-        if (avail == 0 && !eof) {
-            avail = fread(in, 1, sizeof in, f);
-            off = 0;
-            if (avail == 0) eof = 1;
-        }
-        if (avail) {
-            size_t used = dsl_feed(&player, in + off, avail);
-            off += used;
-            avail -= used;
-        } else {
-            dsl_finish(&player);
+        if (dsl_file_pump(&player, &input)) {
+            fprintf(stderr, "error: read error\n");
+            return 2;
         }
     }
     fclose(f);

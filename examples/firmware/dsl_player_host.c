@@ -15,6 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "dsl_file.h"
 #include "dsl_player.h"
 
 static const char *const event_names[] = {"", "hotend_set", "hotend_wait", "bed_set", "bed_wait", "fan", "laser_mode"};
@@ -25,15 +26,13 @@ int main(int argc, char **argv)
 {
     const char *path = NULL;
     size_t chunk = 4096;
-    static uint8_t in[65536];
-    size_t avail = 0, off = 0;
-    int eof = 0, a;
+    static dsl_file input;
+    int a;
     FILE *f;
 
     for (a = 1; a < argc; a++) {
         if (strcmp(argv[a], "--chunk") == 0 && a + 1 < argc) {
             chunk = (size_t)strtoul(argv[++a], NULL, 10);
-            if (chunk < 1 || chunk > sizeof in) chunk = sizeof in;
         } else if (!path) {
             path = argv[a];
         } else {
@@ -51,6 +50,7 @@ int main(int argc, char **argv)
         return 2;
     }
     dsl_init(&player);
+    dsl_file_open(&input, f, chunk);
     for (;;) {
         int32_t counts[DSL_MAX_CHANNELS];
         int r, c;
@@ -72,23 +72,9 @@ int main(int argc, char **argv)
             fprintf(stderr, "error: %s: %s\n", path, player.error);
             return 1;
         }
-        if (avail == 0 && !eof) {
-            avail = fread(in, 1, chunk, f);
-            off = 0;
-            if (avail == 0) {
-                if (ferror(f)) {
-                    fprintf(stderr, "error: %s: read error\n", path);
-                    return 2;
-                }
-                eof = 1;
-            }
-        }
-        if (avail) {
-            size_t used = dsl_feed(&player, in + off, avail);
-            off += used;
-            avail -= used;
-        } else {
-            dsl_finish(&player);
+        if (dsl_file_pump(&player, &input)) {
+            fprintf(stderr, "error: %s: read error\n", path);
+            return 2;
         }
     }
     if (f != stdin) fclose(f);

@@ -22,6 +22,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "dsl_file.h"
 #include "dsl_player.h"
 #include "dynamixel.h"
 
@@ -41,9 +42,9 @@ int main(int argc, char **argv)
     uint8_t ids[DXL_MAX_SERVOS] = {1, 2, 3, 4, 5, 6, 7, 8}, packet[DXL_MAX_PACKET], joints = 0, torque_sent = 0;
     uint8_t laser_mode = 4; /* a stream without laser events fires as its tool channel says */
     int32_t counts[DSL_MAX_CHANNELS], last[DSL_MAX_CHANNELS], duty = -1;
-    static uint8_t in[4096];
-    size_t avail = 0, off = 0, len;
-    int a, eof = 0, have_last = 0;
+    static dsl_file input;
+    size_t len;
+    int a, have_last = 0;
     FILE *f;
 
     for (a = 1; a < argc; a++) {
@@ -73,6 +74,7 @@ int main(int argc, char **argv)
         return 2;
     }
     dsl_init(&player);
+    dsl_file_open(&input, f, 4096);
     for (;;) {
         int r;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
@@ -126,17 +128,9 @@ int main(int argc, char **argv)
             fprintf(stderr, "error: %s: %s\n", path, player.error);
             return 1;
         }
-        if (avail == 0 && !eof) {
-            avail = fread(in, 1, sizeof in, f);
-            off = 0;
-            if (avail == 0) eof = 1;
-        }
-        if (avail) {
-            size_t used = dsl_feed(&player, in + off, avail);
-            off += used;
-            avail -= used;
-        } else {
-            dsl_finish(&player);
+        if (dsl_file_pump(&player, &input)) {
+            fprintf(stderr, "error: read error\n");
+            return 2;
         }
     }
     if (have_last) { /* the last sample always goes out */

@@ -160,18 +160,7 @@ static void extruder_to(int32_t target)
 static void stop(const char *message_P)
 {
     clock_on = 0;
-    if (message_P) {
-        serial_puts_P(PSTR("ERR "));
-        serial_puts_P(message_P);
-    } else if (player.rx_state == DSL_S_ERROR) {
-        const char *e = player.error;
-        serial_puts_P(PSTR("ERR "));
-        while (*e) serial_put((uint8_t)*e++);
-    } else {
-        serial_puts_P(PSTR("OK "));
-        serial_putu(player.sample_index);
-    }
-    serial_put('\n');
+    serial_verdict(message_P, player.rx_state == DSL_S_ERROR ? player.error : 0, player.sample_index);
     for (;;) {
     }
 }
