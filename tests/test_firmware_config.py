@@ -51,3 +51,33 @@ def test_bad_sensor_table_named(table, why):
 def test_joint_without_sensor_refused():
     with pytest.raises(ValueError, match="no sensor_table"):
         Printer.joint_from_sensor(load_printer("delta_etitc"), 0, [1000])
+
+
+def test_ucb_potentiometers_to_counts_end_to_end(tmp_path):
+    """Printer file -> dsl_config.h -> the firmware's integer interpolation (dsl_sensor.h, built
+    with the committed config/delta_ucb.h) -> the same counts as Printer.joint_from_sensor."""
+    import os
+    import shutil
+    import subprocess
+
+    if not shutil.which("make") or not (shutil.which("cc") or shutil.which("gcc")):
+        if os.environ.get("CI"):
+            pytest.fail("no C compiler or make under CI")
+        pytest.skip("no C compiler or make")
+    r = subprocess.run(["make", "-C", str(ROOT / "examples" / "firmware"), f"BUILD={tmp_path}", f"{tmp_path}/sensor_check"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    p = load_printer("delta_ucb")
+    rng = np.random.default_rng(7)
+    readings = np.vstack([[3200, 3160, 3160], [1790, 1810, 2000], rng.integers(1500, 3400, size=(40, 3))])
+    cpu, zero = p.limits.counts_per_unit[:3], p.limits.zero_count[:3]
+    rest = np.rint(zero + cpu * p.rest_pose)
+    for row in readings:
+        out = subprocess.run([str(tmp_path / "sensor_check"), *map(str, row)], capture_output=True, text=True, check=True)
+        got = np.array([[int(x) for x in ln.split()] for ln in out.stdout.splitlines()])
+        expect = np.array([zero[j] + cpu[j] * p.joint_from_sensor(j, [row[j]])[0] for j in range(3)])
+        assert np.all(np.abs(got[:, 2] - expect) <= 0.5 + 1e-9), (row, got[:, 2], expect)
+        assert np.array_equal(got[:, 3], rest - got[:, 2])  # the steps to the rest pose
+    # the document's calibration points: 0 deg and 90 deg exactly
+    first = subprocess.run([str(tmp_path / "sensor_check"), "1790", "1810", "2000"], capture_output=True, text=True)
+    assert [int(ln.split()[2]) for ln in first.stdout.splitlines()] == [800, 800, 800]
