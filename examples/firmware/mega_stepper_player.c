@@ -31,12 +31,18 @@
 #include DSL_CONFIG
 
 #define AXES 4
-#define RING 4 /* decoded samples waiting for the step interrupt */
+#ifndef RING
+/* decoded samples waiting for the step interrupt (16 bytes each): 32 ms of playback at 1 kHz, so
+   a block's decode, the serial bursts and the heater reads never starve the step clock (with 4 the
+   simulated Mega ended the Kossel test stream 394 ms late, with 16 110 ms, with 32 1 ms) */
+#define RING 32
+#endif
 
 static dsl_player player;
 static dsl_stepper stepper;
 static int32_t ring[RING][AXES];
-static volatile uint8_t ring_head, ring_count;
+static volatile uint8_t ring_head, ring_count; /* the step interrupt takes from ring_head */
+static uint8_t ring_tail; /* the next free slot: only the main loop reads or writes it */
 static volatile uint8_t playing, held; /* held: a wait event stops the clock */
 static volatile uint8_t idle;            /* the last sample's steps are all issued and none waits */
 static volatile uint32_t samples_played;
@@ -211,7 +217,10 @@ int main(void)
         }
         if (r == DSL_SAMPLE) {
             if (!playing) dsl_stepper_init(&stepper, counts, AXES); /* the machine is at the first sample */
-            for (k = 0; k < AXES; k++) ring[(ring_head + ring_count) % RING][k] = counts[k];
+            /* the slot from the main loop's own index: ring_head + ring_count read here could mix
+               the values before and after a step interrupt and overwrite a queued sample */
+            for (k = 0; k < AXES; k++) ring[ring_tail][k] = counts[k];
+            ring_tail = (uint8_t)((ring_tail + 1) % RING);
             cli();
             ring_count++;
             if (!playing) {
