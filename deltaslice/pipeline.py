@@ -24,7 +24,7 @@ from .formats import format_for, part_kind
 from .machine import LimitMonitor, Printer, load_printer
 from .machine.limits import TOLERANCE
 from .progress import stderr_progress
-from .report import CompileResult, piece_counts, slice_summary
+from .report import CompileResult, slice_summary
 
 
 def _printer(printer) -> Printer:
@@ -369,7 +369,7 @@ def compile_part(
         planner=planner,
         solver=solver,
         workers=workers or os.cpu_count() or 1,
-        progress=stderr_progress(progress, "planning runs"),
+        progress=stderr_progress(progress, "planning", unit="moves"),
     )
     interrupt.check()
     t_plan = time.perf_counter() - t0 - t_slice
@@ -389,7 +389,7 @@ def compile_part(
                         check=within_limits)
     return CompileResult(
         printer=printer.name, output=str(output), fmt=fmt, size_bytes=size, layers=s["layers"], moves=s["moves"],
-        pieces=piece_counts(trajectory.pieces), planner=trajectory.planner, speed_limit=speed_limit,
+        pieces=trajectory.piece_counts(), planner=trajectory.planner, speed_limit=speed_limit,
         duration_s=trajectory.duration, peak_percent=monitor.peak_percent(), active_fraction=trajectory.active_fraction,
         times={"slice": t_slice, "plan": t_plan, "total": time.perf_counter() - t0},
     )

@@ -25,12 +25,6 @@ class CompileResult:
     times: dict = field(default_factory=dict)
 
 
-def piece_counts(pieces) -> dict:
-    """{kind: count} of a trajectory's pieces."""
-    kinds: dict = {}
-    for p in pieces:
-        kinds[p.kind] = kinds.get(p.kind, 0) + 1
-    return kinds
 
 
 def compile_summary(r: CompileResult) -> str:

@@ -19,7 +19,8 @@ from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .fastpath import SOLVERS
 from .pieces import Piece
-from .topp import RunSpec, plan_run
+from .spool import SPOOL_MOVES, PieceSpool
+from .topp import RunSpec, is_long, iter_run, plan_run
 from .trajectory import Trajectory
 from .travel import from_rest, plan_travel, to_rest
 
@@ -124,14 +125,18 @@ def _plan_chunk(args):
 
 
 def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None,
-         solver="fast") -> Trajectory:
+         solver="fast", spool=None) -> Trajectory:
     """Plan a toolpath for a printer.
 
     speed_limit: "feed" obeys the toolpath's feed rates; "machine" only the actuators' limits.
     planner: "toppra" (time-optimal, joint space) or "trapezoid" (conventional, made safe).
-    workers: processes for the runs and travels (default: all cores). progress: callable(done, total) or None.
+    workers: processes for the runs and travels (default: all cores). progress: callable(done, total)
+    or None, in moves of the toolpath.
     solver: "fast" (:mod:`.reachability`, compiled) or "toppra" (toppra's seidel solver, the
     reference), for the time-optimal planner's runs and travels.
+    spool: keep the planned pieces in a temporary file rather than in memory (:mod:`.spool`);
+    None: for toolpaths of more than ``SPOOL_MOVES`` moves. Memory is then bounded by what is
+    planned at once (a run, or a window of a long run), not by the print.
     """
     from ..machine import Printer
 
@@ -150,6 +155,8 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError(f"plan: workers = {workers!r}: expected an integer >= 1 or None")
     if progress is not None and not callable(progress):
         raise DeltasliceError(f"plan: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
+    if spool is not None and not isinstance(spool, bool):
+        raise DeltasliceError(f"plan: spool = {spool!r}: expected True, False or None")
     if len(toolpath) == 0:
         raise DeltasliceError("the toolpath has no moves: nothing to plan")
     if not ((toolpath.lengths > 1e-9) | (toolpath.e != 0)).any():
@@ -166,21 +173,18 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         # one trapezoid per kept move: move m starts at t0[number of kept moves before m]
         kept_before = np.concatenate([[0], np.cumsum(_moves(toolpath, printer)[-1])])
         times = traj.pieces[len(head)].t0[np.minimum(kept_before[toolpath.events["index"]], len(traj.pieces[len(head)].t0) - 1)]
-        traj.events = _at_rest(toolpath, _event_times(toolpath, times), head, traj.duration)
+        traj.events = _at_rest(toolpath, _event_times(toolpath, times), sum(p.duration for p in head), traj.duration)
         return traj
-    traj = _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver)
-    whole = Trajectory(printer, head + traj.pieces + tail, planner=traj.planner, speed_limit=speed_limit,
-                       e_start=traj.e_start, info=traj.info)
-    whole.events = _at_rest(toolpath, traj.events, head, whole.duration)
-    return whole
+    if spool is None:
+        spool = len(toolpath) > SPOOL_MOVES
+    return _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool)
 
 
-def _at_rest(toolpath: Toolpath, events: tuple, head: list, duration: float) -> tuple:
+def _at_rest(toolpath: Toolpath, events: tuple, offset: float, duration: float) -> tuple:
     """Events timed within the toolpath's own motion, moved onto the whole trajectory: those
     before the first move happen at t = 0, at the rest pose (a heater warms up and a wait holds
     there, not over the bed); those after the last move at the end, parked; the rest shift by
-    the move from rest."""
-    offset = sum(p.duration for p in head)
+    ``offset`` (s)."""
     index = toolpath.events["index"]
     return tuple(
         (0.0 if i == 0 else duration if i >= len(toolpath) else t + offset, k, v)
@@ -188,10 +192,14 @@ def _at_rest(toolpath: Toolpath, events: tuple, head: list, duration: float) -> 
     )
 
 
-def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver) -> Trajectory:
+def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool) -> Trajectory:
+    """The time-optimal planner: head (from rest), the toolpath's runs and travels, tail (to rest).
+
+    Runs and travels are planned in the worker processes in print order; a long run
+    (:func:`.topp.is_long`) is planned here, window by window, while the workers go on with what
+    follows it, so its pieces can be put away one by one."""
     ranges = split_runs(toolpath)
-    # Runs and the travels between them (and before the first / after the last), in print order;
-    # a travel needs only the toolpath, so both are planned in the worker processes.
+    # Runs and the travels between them (and before the first / after the last), in print order.
     jobs, starts = [], []  # starts: the first move of each job's range, for the events' times
     pos = toolpath.start
     printed_top = 0.0
@@ -208,35 +216,55 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver) -> T
     if prev_end < len(toolpath):
         jobs.append(("travel", _travel_args(toolpath, prev_end, len(toolpath), pos, printed_top)))
         starts.append(prev_end)
+    ends = starts[1:] + [len(toolpath)]
+    inline = [kind == "run" and is_long(job) for kind, job in jobs]
+    pooled = [job for job, here in zip(jobs, inline) if not here]
     workers = max(1, workers or os.cpu_count() or 1)
-    chunk = max(1, min(64, len(jobs) // (4 * workers) or 1))
-    chunks = [jobs[k : k + chunk] for k in range(0, len(jobs), chunk)]
-    results = []
-    if workers == 1 or len(jobs) < 8:
+    chunk = max(1, min(64, len(pooled) // (4 * workers) or 1))
+    chunks = [pooled[k : k + chunk] for k in range(0, len(pooled), chunk)]
+
+    pieces = PieceSpool() if spool else []
+    pieces.extend(head)
+    first_piece = []  # (first move, index of its first piece) per job
+    done = 0
+
+    def report(moves):
+        nonlocal done
+        done += moves
+        if progress:
+            progress(min(int(round(done)), len(toolpath)), len(toolpath))
+
+    def consume(results):
+        kin = printer.kinematics()
+        pooled_results = (res for batch in results for res in batch)
+        for n, (kind, job) in enumerate(jobs):
+            first_piece.append((starts[n], len(pieces)))
+            if inline[n]:
+                before = 0.0
+                for piece, frac in iter_run(kin, printer, job, speed_limit, solver=solver):
+                    pieces.append(piece)
+                    report((frac - before) * (ends[n] - starts[n]))
+                    before = frac
+            else:
+                pieces.extend(next(pooled_results))
+                report(ends[n] - starts[n])
+
+    if workers == 1 or len(pooled) < 8:
         _init_worker(printer)
-        for n, c in enumerate(chunks):
-            results.extend(_plan_chunk((c, speed_limit, solver)))
-            if progress:
-                progress(n + 1, len(chunks))
+        consume(_plan_chunk((c, speed_limit, solver)) for c in chunks)
     else:
         with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(printer,)) as pool:
-            for n, res in enumerate(pool.map(_plan_chunk, [(c, speed_limit, solver) for c in chunks])):
-                results.extend(res)
-                if progress:
-                    progress(n + 1, len(chunks))
-    pieces, first_piece = [], []  # (first move, index of its first piece) per job
-    for start, res in zip(starts, results):
-        first_piece.append((start, len(pieces)))
-        pieces.extend(res)
+            consume(pool.map(_plan_chunk, [(c, speed_limit, solver) for c in chunks]))
     first_piece.append((len(toolpath), len(pieces)))
-    if not pieces:
+    if len(pieces) == len(head):
         raise DeltasliceError("the toolpath never moves the tool or the filament: nothing to plan")
+    pieces.extend(tail)
     traj = Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit)
     moves, piece_at = np.array(first_piece).T
     ev = toolpath.events["index"]
     k = piece_at[np.searchsorted(moves, ev, side="right") - 1]
     times = np.where(ev >= len(toolpath), traj.duration, traj.starts[np.minimum(k, len(pieces))])
-    traj.events = _event_times(toolpath, times)
+    traj.events = _at_rest(toolpath, _event_times(toolpath, times), 0.0, traj.duration)
     return traj
 
 

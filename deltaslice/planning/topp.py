@@ -66,6 +66,10 @@ CHECK = np.linspace(0.0, 1.0, 9)  # stage fractions of the stage-wise limit chec
 FD_STEP = 1e-3  # mm: step of the inverse Jacobian's directional derivative
 CHECK_TOLERANCE = 1e-6  # a stage-wise ratio beyond 1 + this fails the run
 REFINE_PASSES = 3  # times a run's violating stages are split before it fails
+LONG_RUN = 3000  # segments: a longer run is planned in windows (bounded memory)
+WINDOW = 2000  # segments each window keeps
+LOOKAHEAD = 1000  # segments each window plans past its cut (and at least LOOKAHEAD_MM)
+LOOKAHEAD_MM = 50.0
 
 
 @dataclass(frozen=True)
@@ -376,7 +380,7 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         q = kin.inverse(spec.points[-1:])[0]
         return [FilamentPiece(q, amount, float(limits.velocity[-1]), float(limits.acceleration[-1]), spec.layer, kind=kind)]
     try:
-        return [_plan_run(kin, printer, spec, speed_limit, tolerance, kind, solver)]
+        return _plan_run(kin, printer, spec, speed_limit, tolerance, kind, solver)
     except PlanningError:
         m = len(spec.points) - 1
         if m < 2:
@@ -389,12 +393,134 @@ def _describe(printer, channel: int) -> str:
     return printer.limits.names[channel]
 
 
-def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str, solver: str) -> RunPiece:
+def _prepare(printer, spec: RunSpec, tolerance: float | None):
+    """(polyline, blend tolerance left) of a run: deduplicated, short segments merged."""
     pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
     tol = printer.planning.blend_tolerance if tolerance is None else tolerance
     pts, feed, e, moved = merge_short(pts, feed, e, MERGE_LENGTH, MERGE_DEVIATION * tol)
+    # merged and deduplicated segments carry their power along as they do their feed
+    power = None if spec.power is None else _segment_power(spec, pts)
     # The blend keeps within what merging left of the tolerance.
-    path = blend_polyline(pts, tol - moved)
+    return _Polyline(pts, feed, e, power), tol - moved
+
+
+def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str, solver: str) -> list:
+    poly, tol = _prepare(printer, spec, tolerance)
+    if len(poly.points) - 1 > LONG_RUN:
+        return [piece for piece, _done in _iter_windows(kin, printer, spec, poly, speed_limit, tol, kind, solver)]
+    return [_plan_polyline(kin, printer, spec, poly, speed_limit, tol, kind, solver)[0]]
+
+
+def is_long(spec: RunSpec) -> bool:
+    """A run planned in windows (see :func:`iter_run`)."""
+    return len(spec.points) - 1 > LONG_RUN
+
+
+def iter_run(kin, printer, spec: RunSpec, speed_limit: str, solver: str = "fast"):
+    """``plan_run``'s pieces one at a time, each with the fraction of the run planned so far: a
+    long run window by window (memory bounded by a window, however long the run), so a caller
+    can put each piece away before the next is planned."""
+    if len(dedupe(spec.points, spec.feed, spec.e)[0]) >= 2:
+        poly, tol = _prepare(printer, spec, None)
+        if len(poly.points) - 1 > LONG_RUN:
+            yield from _iter_windows(kin, printer, spec, poly, speed_limit, tol, "run", solver)
+            return
+    for piece in plan_run(kin, printer, spec, speed_limit, solver=solver):
+        yield piece, 1.0
+
+
+@dataclass(frozen=True)
+class _Polyline:
+    """A run's polyline after deduplication and merging: points (m+1,3) mm; feed, e, power (m,)."""
+
+    points: np.ndarray
+    feed: np.ndarray
+    e: np.ndarray
+    power: np.ndarray | None
+
+    def part(self, a: int, b: int) -> "_Polyline":
+        """Vertices a..b (segments a..b-1)."""
+        return _Polyline(self.points[a : b + 1], self.feed[a:b], self.e[a:b], None if self.power is None else self.power[a:b])
+
+
+class _StartTooFast(PlanningError):
+    """A window cannot start at the speed the previous one committed; ``speed``: the fastest it can (mm/s)."""
+
+    def __init__(self, speed: float):
+        super().__init__(f"start speed above {speed:.6g} mm/s")
+        self.speed = speed
+
+
+def _iter_windows(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit, tol, kind, solver):
+    """A long run planned window by window so the planner's memory is bounded by a window, not
+    the run (a spiral vase is one run of a million moves). Each window plans its WINDOW
+    segments plus a lookahead to rest, then keeps the part up to its cut, ending at the speed
+    the lookahead allowed there; the next window starts at that speed, so the pieces join
+    without stopping. Cuts are at the middle of the longest segment near every WINDOW-th
+    (a straight point: no blend arc crosses it, both windows see the same geometry around it).
+    A window that cannot start that fast (its grid refined differently) makes the previous one
+    re-plan to the speed it can start at (so each piece is handed out only once its successor
+    has started). Yields (piece, fraction of the run's segments done)."""
+    pts, m = poly.points, len(poly.points) - 1
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    cuts, target = [], WINDOW
+    while target < m - WINDOW // 2:
+        lo, hi = target - WINDOW // 8, min(target + WINDOW // 8, m - 1)
+        c = lo + int(np.argmax(seg[lo:hi]))
+        cuts.append(c)
+        target = c + WINDOW
+    cuts = np.array(cuts, dtype=int)
+    # Split every cut segment at its middle: a new vertex, half the filament on each side.
+    mid = 0.5 * (pts[cuts] + pts[cuts + 1])
+    at = cuts + 1
+    pts = np.insert(pts, at, mid, axis=0)
+    e = poly.e.copy()
+    e[cuts] *= 0.5
+    e = np.insert(e, at, e[cuts])
+    feed = np.insert(poly.feed, at, poly.feed[cuts])
+    power = None if poly.power is None else np.insert(poly.power, at, poly.power[cuts])
+    poly = _Polyline(pts, feed, e, power)
+    seg_end = np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))
+    vertices = np.concatenate([[0], cuts + 1 + np.arange(len(cuts)), [len(pts) - 1]])
+
+    held, starts, k = None, [0.0], 0  # held: the last window's piece, until the next one starts
+    caps = {}  # window -> the fastest its successor can start, after a re-plan
+    while k < len(vertices) - 1:
+        a, b = int(vertices[k]), int(vertices[k + 1])
+        last = k == len(vertices) - 2
+        end = b
+        if not last:
+            # Look ahead LOOKAHEAD segments and at least LOOKAHEAD_MM past the cut.
+            far = int(np.searchsorted(seg_end, seg_end[b - 1] + LOOKAHEAD_MM)) + 1
+            end = min(len(pts) - 1, max(b + LOOKAHEAD, far))
+        cap = None if last else (b - a, caps.get(k, np.inf))
+        try:
+            piece, cut_speed = _plan_polyline(kin, printer, spec, poly.part(a, end), speed_limit, tol, kind, solver,
+                                              v_start=starts[k], cap=cap)
+        except _StartTooFast as exc:
+            if held is None or k - 1 in caps:  # the previous piece is gone already, or was re-planned once
+                raise PlanningError(f"layer {spec.layer}: a long run's windows do not join (start {starts[k]:.4g} mm/s, "
+                                    f"at most {exc.speed:.4g} mm/s)") from None
+            caps[k - 1] = exc.speed
+            held = None
+            del starts[k:]
+            k -= 1
+            continue
+        if held is not None:
+            yield held, a / (len(pts) - 1)
+        held = piece
+        starts.append(cut_speed)
+        k += 1
+    yield held, 1.0
+
+
+def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: str, tol: float, kind: str, solver: str,
+                   v_start: float = 0.0, cap: tuple | None = None):
+    """One RunPiece along a polyline from the path speed v_start (mm/s) to rest; with
+    ``cap = (vertex, speed)`` the path speed at that vertex is capped (mm/s) and the piece is
+    cut there (the part after it was only the lookahead). Returns (piece, speed at its end)."""
+    pts, feed, e = poly.points, poly.feed, poly.e
+    path = blend_polyline(pts, tol)
     S = path.length
 
     # Filament per mm of each piece: the polyline segment's own ratio, so the filament
@@ -426,6 +552,11 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
         jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
         stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
     rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
+    if cap is not None:
+        s_cut = float(path.piece_start[np.searchsorted(path.segment, cap[0])])
+
+        def cut_g(grid_s):
+            return int(np.argmin(np.abs(grid_s - s_cut)))
 
     for attempt in range(REFINE_PASSES + 1):
         x_grid = s_grid / S
@@ -434,16 +565,22 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
         before = path.locate(np.maximum(s_grid - 1e-9, 0.0))
         feed_grid = np.minimum(piece_feed[path.locate(s_grid)], piece_feed[before])
         feed_grid[np.isin(s_grid, stop_at)] = 0.0
+        if cap is not None:
+            feed_grid[cut_g(s_grid)] = min(feed_grid[cut_g(s_grid)], cap[1])
         dq_st, ddq_st = rp.stage_derivatives(x_grid, EVAL)
         constraints = [
             PathVelocityConstraint(vmax, feed_grid, S, gridpoint_speed_factor(dq_st)),
             StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
         ]
-        sd = _speeds(constraints, rp, x_grid, amax, solver)
+        sd = _speeds(constraints, rp, x_grid, amax, solver, v_start / S)
+        if v_start > 0 and (sd is None or not np.all(np.isfinite(sd))):
+            fastest = _start_speed(constraints, rp, x_grid, amax, solver) * S
+            if v_start > fastest * (1 + 1e-9):
+                raise _StartTooFast(fastest)
         if sd is None or not np.all(np.isfinite(sd)):
             # Seidel's 2-D LP occasionally meets a degenerate stage; a conservative profile from
             # the same limits is always feasible (and slower only on this run).
-            sd = _conservative_profile(x_grid, dq_st, ddq_st, vmax, amax, feed_grid / S)
+            sd = None if v_start > 0 else _conservative_profile(x_grid, dq_st, ddq_st, vmax, amax, feed_grid / S)
             if sd is None:
                 raise PlanningError(_infeasible(printer, spec, path, s_grid, 0, vmax, dq_st))
         sd = np.maximum(sd, 0.0)
@@ -480,18 +617,49 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
     acc = np.abs(dq_st[:, 0] * xdd[:, None] + ddq_st[:, 0] * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
-    q_ends = rp(np.array([0.0, 1.0]))[:, : kin.n_joints]
     power = nominal = None
-    if spec.power is not None:
-        # merged and deduplicated segments carry their power along as they do their feed
-        power = _segment_power(spec, pts)[path.segment]
+    if poly.power is not None:
+        power = poly.power[path.segment]
         nominal = feed[path.segment]
-    return RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()), kind,
-                    q_ends[0], q_ends[1], power=power, nominal_feed=nominal, dynamic_power=spec.dynamic_power)
+    stop, g = len(path.kind), len(s_grid) - 1
+    if cap is not None:
+        # Keep the window up to its cut; what follows was the lookahead.
+        stop = int(np.searchsorted(path.segment, cap[0]))
+        g = int(cut_g(s_grid))
+        path = BlendedPath(*(arr[: stop + 1] if name == "piece_start" else arr[:stop]
+                             for name, arr in zip(BlendedPath.__dataclass_fields__, (
+                                 path.piece_start, path.kind, path.p0, path.d0, path.normal, path.radius, path.segment))))
+        scale = S / path.length
+        S = path.length
+        x_grid, sd, xdd, t = x_grid[: g + 1] * scale, sd[: g + 1] * scale, xdd[:g] * scale, t[: g + 1]
+        x_grid[-1] = 1.0
+        cum_e, e_ratio, active = cum_e[: stop + 1], e_ratio[:stop], active[:g]
+        dt = dt[:g]
+        power = None if power is None else power[:stop]
+        nominal = None if nominal is None else nominal[:stop]
+        rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
+    q_ends = rp(np.array([0.0, 1.0]))[:, : kin.n_joints]
+    piece = RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()), kind,
+                     q_ends[0], q_ends[1], power=power, nominal_feed=nominal, dynamic_power=spec.dynamic_power)
+    return piece, float(sd[-1] * S)
 
 
-def _speeds(constraints, rp, x_grid, amax, solver):
-    """Path speeds x_dot (n+1,) on the grid from rest to rest under the path-velocity cap and the
+def _start_speed(constraints, rp, x_grid, amax, solver) -> float:
+    """The fastest path speed x_dot the run can start at and still stop at its end."""
+    if solver == "fast":
+        cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
+        a, b = constraints[1].compute_constraint_params(rp, x_grid)[:2]
+        bound = np.tile(amax, len(constraints[1].frac))
+        K = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), interpolation=False)[2]
+    else:
+        algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
+        K = algo.compute_controllable_sets(0.0, 0.0)
+    top = K[0, 1]
+    return float(np.sqrt(top)) if np.isfinite(top) and top > 0 else 0.0
+
+
+def _speeds(constraints, rp, x_grid, amax, solver, sd_start=0.0):
+    """Path speeds x_dot (n+1,) on the grid from sd_start to rest under the path-velocity cap and the
     stage-wise acceleration rows, or None where the solver finds no profile. "fast": the
     compiled reachability solver on the same rows (collocation: each stage's rows in its
     start's (u, x)); "toppra": toppra's seidel solver, the reference."""
@@ -499,10 +667,10 @@ def _speeds(constraints, rp, x_grid, amax, solver):
         cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
         a, b = constraints[1].compute_constraint_params(rp, x_grid)[:2]
         bound = np.tile(amax, len(constraints[1].frac))
-        x, _u, _k = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), interpolation=False)
+        x, _u, _k = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), x_start=sd_start**2, interpolation=False)
         return np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None
     algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
-    return algo.compute_parameterization(0.0, 0.0)[1]
+    return algo.compute_parameterization(sd_start, 0.0)[1]
 
 
 def _segment_power(spec: RunSpec, pts: np.ndarray) -> np.ndarray:

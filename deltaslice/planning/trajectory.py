@@ -14,13 +14,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..samples import Samples
+from .spool import PieceSpool
 
 BLOCK = 8192  # samples per block handed to emitters
 
 
 @dataclass
 class Trajectory:
-    """Pieces end to end (see :mod:`.pieces`), for one printer; ``info``: planner details."""
+    """Pieces end to end (see :mod:`.pieces`), for one printer; ``info``: planner details.
+    ``pieces``: a list, or a :class:`~.spool.PieceSpool` for a long print (read back in order)."""
 
     printer: object
     pieces: list
@@ -34,9 +36,14 @@ class Trajectory:
 
     def __post_init__(self):
         self.kin = self.printer.kinematics()
-        self.durations = np.array([p.duration for p in self.pieces], dtype=float)
+        if isinstance(self.pieces, PieceSpool):  # what it keeps per piece, without reading the pieces back
+            self.durations = np.asarray(self.pieces.durations, dtype=float)
+            filament = np.asarray(self.pieces.filament_totals, dtype=float)
+        else:
+            self.durations = np.array([p.duration for p in self.pieces], dtype=float)
+            filament = np.array([p.filament_total for p in self.pieces], dtype=float)
         self.starts = np.concatenate([[0.0], np.cumsum(self.durations)])
-        self.e_offsets = self.e_start + np.concatenate([[0.0], np.cumsum([p.filament_total for p in self.pieces])])
+        self.e_offsets = self.e_start + np.concatenate([[0.0], np.cumsum(filament)])
 
     @property
     def duration(self) -> float:
@@ -79,7 +86,19 @@ class Trajectory:
         """Fraction of the duration with at least one limit active, from the planner's own
         solution (toppra stages at a velocity or acceleration bound; ruckig and retract
         profiles are bang-bang and always at a bound)."""
-        return float(sum(p.active_time for p in self.pieces) / self.duration) if self.duration > 0 else 0.0
+        if self.duration <= 0:
+            return 0.0
+        if isinstance(self.pieces, PieceSpool):
+            return float(np.sum(self.pieces.active_times) / self.duration)
+        return float(sum(p.active_time for p in self.pieces) / self.duration)
+
+    def piece_counts(self) -> dict:
+        """{kind: count} of the pieces."""
+        kinds = self.pieces.kinds if isinstance(self.pieces, PieceSpool) else [p.kind for p in self.pieces]
+        out: dict = {}
+        for k in kinds:
+            out[k] = out.get(k, 0) + 1
+        return out
 
     def stage_maxima(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounds on the continuous motion of every toppra piece (runs and Cartesian travels),
