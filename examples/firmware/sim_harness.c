@@ -5,7 +5,7 @@
  *   sim_harness atmega328p|atmega2560 PLAYER.elf STREAM.dsl [--seconds S]
  *
  *   P <pin> <rise_cycle> <width_cycles>     every pulse of a watched pin (16 cycles = 1 us)
- *   T <sample> <pos1> <pos2> <pos3> <pos4>  the step positions at each sample strobe (Mega)
+ *   T <sample> <cycle> <pos1> <pos2> <pos3> <pos4>  the step positions at each sample strobe (Mega)
  *   S <sample> <cycle>                      each sample the Uno plays (its strobe pin)
  *   F <pos1> <pos2> <pos3> <pos4>           the step positions at the end (Mega)
  *   L <line>                                a line the board sent ("OK n" or "ERR ...")
@@ -119,7 +119,7 @@ static void strobe(avr_irq_t *irq, uint32_t value, void *param)
     (void)irq; (void)param;
     if ((value != 0) == strobe_level) return;
     strobe_level = value != 0;
-    printf("T %ld %ld %ld %ld %ld\n", strobes++, pos[0], pos[1], pos[2], pos[3]);
+    printf("T %ld %llu %ld %ld %ld %ld\n", strobes++, (unsigned long long)avr->cycle, pos[0], pos[1], pos[2], pos[3]);
 }
 
 static void watch(char port, int bit, avr_irq_notify_t fn, int param)
