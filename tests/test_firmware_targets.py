@@ -6,7 +6,10 @@ credit flow control `deltaslice send` uses (examples/firmware/sim_harness.c):
   servos hold the rest pose before the stream starts; the sample clock keeps time at 115200 baud.
 * Arduino Mega 2560 + RAMPS, step/dir (Atlas five-bar, Kossel): the step count of every axis
   equals the stream's count difference at every sample, both directions, and at the end; the
-  sample clock keeps time at 115200 baud (no sample more than 5 ms behind its slot).
+  sample clock keeps time at 115200 baud (no sample more than 5 ms behind its slot). Its heater
+  control against the harness's thermal model (the build with the thermistors on A5/A6, which
+  simavr has): a compiled Atlas stream's set-and-wait events switch the heater pins, hold the
+  first sample until the temperatures are reached, and leave the step counts exact.
 
 They need avr-gcc, avr-libc and simavr (Debian: gcc-avr avr-libc simavr libsimavr-dev
 libelf-dev); they skip without them, except under CI (env CI set), where .ci/run installs them.
@@ -57,8 +60,8 @@ def build(tmp_path_factory):
 def simulate(build, mcu, elf, stream, seconds=60):
     r = subprocess.run([str(build / "sim_harness"), mcu, str(build / elf), str(stream), "--seconds", str(seconds)],
                        capture_output=True, text=True, timeout=300)
-    lines = [ln.split(" ", 1) for ln in r.stdout.splitlines() if ln[:2] in ("P ", "S ", "T ", "L ", "F ")]
-    out = {k: [] for k in "PSTLF"}
+    lines = [ln.split(" ", 1) for ln in r.stdout.splitlines() if ln[:2] in ("P ", "S ", "T ", "L ", "F ", "H ", "K ")]
+    out = {k: [] for k in "PSTLFHK"}
     for k, rest in lines:
         out[k].append(rest)
     return r.returncode, out
@@ -133,6 +136,65 @@ def test_uno_stops_at_a_corrupt_block(build, etitc_stream, tmp_path):
     assert out["L"] and out["L"][0].startswith("ERR block 2 at byte offset"), out["L"]
 
 
+def assert_steps_exact(out, counts):
+    """At the start of sample j the steps of every sample before it have been issued; at the end all."""
+    T = np.array([[int(x) for x in t.split()] for t in out["T"]])  # sample, cycle, 4 positions
+    assert len(T) == len(counts)
+    rel = counts[:, :4] - counts[0, :4]
+    expect = np.vstack([np.zeros((1, 4), np.int64), rel[:-1]])
+    off = np.nonzero((T[:, 2:] != expect).any(axis=1))[0]
+    assert not len(off), (len(off), off[:5])
+    final = np.array([int(x) for x in out["F"][0].split()])
+    assert np.array_equal(final, rel[-1])
+    return T
+
+
+@pytest.fixture(scope="module")
+def atlas_stream(tmp_path_factory):
+    """A one-layer part compiled for the Atlas: bed and hot end set-and-wait events at sample 0."""
+    d = tmp_path_factory.mktemp("atlas")
+    part = d / "pad.stl"
+    write(trimesh.creation.box((5, 5, 0.5)), part)
+    out = d / "pad.dsl"
+    compile_part(part, printer("fivebar_atlas"), output=out, workers=1)
+    return out
+
+
+def test_mega_heaters_hold_the_first_sample_until_hot(build, atlas_stream):
+    import io
+
+    from deltaslice.pipeline import decode_stream
+
+    text = io.StringIO()
+    decode_stream(atlas_stream, text)
+    events = dict(re.findall(r"^# event i=0 kind=(\w+) value=([\d.]+)$", text.getvalue(), re.M))
+    hot, bed = float(events["hotend_wait"]), float(events["bed_wait"])  # 200 and 60 C for PLA
+    assert hot > 100 and bed > 40 and events["hotend_set"] and events["bed_set"]
+    _, counts = read_counts(atlas_stream)
+    code, out = simulate(build, "atmega2560", "mega_stepper_player_sim.elf", atlas_stream)
+    assert code == 0 and out["L"] == [f"OK {len(counts)}"], out["L"]
+    T = assert_steps_exact(out, counts)
+    H = np.array([[int(x) for x in h.split()] for h in out["H"]])  # heater, cycle, level, temp x10
+    K = np.array([[int(x) for x in k.split()] for k in out["K"]])  # cycle, hot end x10, bed x10
+    t0 = T[0, 1]
+    for h in (0, 1):
+        sw = H[H[:, 0] == h]
+        assert sw[0, 2] == 1 and sw[0, 1] < t0 and sw[0, 3] == 250  # switched on cold, before any sample
+        assert sw[-1, 2] == 0  # off at the end
+    # the first sample waits until both are within 2 C of their set points (the model's
+    # temperature at the first strobe, between two 10 ms log lines), and not much longer: 200 ms
+    # before it the hot end (the later of the two) was still short of it
+    at = lambda c, col: np.interp(c, K[:, 0], K[:, col]) / 10  # noqa: E731
+    assert at(t0, 1) >= hot - 2.5 and at(t0, 2) >= bed - 2.5, (at(t0, 1), at(t0, 2))
+    assert at(t0 - 0.2 * CYCLES_PER_US * 1e6, 1) < hot - 2, at(t0 - 0.2 * CYCLES_PER_US * 1e6, 1)
+    assert t0 > 1.0 * CYCLES_PER_US * 1e6  # seconds of waiting (the model: ~3.9 s), not milliseconds
+    # while the part plays, bang-bang holds the hot end near its set point (the model heats at
+    # 50 C/s, the player reads the thermistors every 100 ms: measured 197.1-206.3 C)
+    play = (K[:, 0] > t0) & (K[:, 0] < T[-1, 1])
+    assert np.abs(K[play, 1] / 10 - hot).max() < 10, (K[play, 1].min(), K[play, 1].max())
+    assert ((H[:, 0] == 0) & (H[:, 1] > t0)).sum() >= 4  # it switched while playing
+
+
 @pytest.mark.parametrize("name, elf", [("fivebar_atlas", "mega_stepper_player.elf"),
                                        ("linear_kossel", "mega_stepper_player_kossel.elf")])
 def test_mega_step_counts_equal_the_stream_at_every_sample(build, tmp_path, name, elf):
@@ -144,19 +206,11 @@ def test_mega_step_counts_equal_the_stream_at_every_sample(build, tmp_path, name
     _, counts = read_counts(path)
     code, out = simulate(build, "atmega2560", elf, path)
     assert code == 0 and out["L"] == [f"OK {len(counts)}"], out["L"]
-    T = np.array([[int(x) for x in t.split()] for t in out["T"]])  # sample, cycle, 4 positions
-    assert len(T) == len(counts)
-    rel = counts[:, :4] - counts[0, :4]
-    # at the start of sample j the steps of every sample before it have been issued
-    expect = np.vstack([np.zeros((1, 4), np.int64), rel[:-1]])
-    off = np.nonzero((T[:, 2:] != expect).any(axis=1))[0]
-    assert not len(off), (len(off), off[:5])
+    T = assert_steps_exact(out, counts)
     # the sample clock keeps time: no sample later than 5 ms behind its slot (measured: 0.0 ms on
     # the Atlas, 1.0 ms on the Kossel; with a 4-sample ring 161 and 394 ms, growing with the print)
     period_ms = 1e3 / p.planning.output_rate
     lag_ms = (T[:, 1] - T[0, 1]) / (CYCLES_PER_US * 1000) - period_ms * np.arange(len(T))
     assert lag_ms.max() < 5.0, lag_ms.max()
-    final = np.array([int(x) for x in out["F"][0].split()])
-    assert np.array_equal(final, rel[-1])
     moves = np.diff(counts[:, :3], axis=0)
     assert (moves > 0).any() and (moves < 0).any()  # both directions were exercised

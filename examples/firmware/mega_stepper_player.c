@@ -8,13 +8,14 @@
  *   joint 3  Z: step D46 (PL3), dir D48 (PL1), enable D62 (PK0)
  *   tool     E0: step D26 (PA4), dir D28 (PA6), enable D24 (PA2)
  *   heaters  hot end D10 (PB4) with the thermistor on A13, bed D8 (PH5) with A14
+ *            (DSL_THERM_HOTEND, DSL_THERM_BED: the simulated build uses A5 and A6)
  *   strobe   D13 (PB7, the LED) toggles at every sample (a scope or the simulator counts them)
  *
  * Timer1 interrupts DSL_SUBTICKS times per sample period; dsl_stepper.h spreads each sample's
  * count differences evenly over the period. The machine must be at the stream's first sample
  * (the rest pose, dsl_config.h) when playback starts: home it there first.
  * Heater events switch the heaters bang-bang (2 C hysteresis) from the thermistors (100k NTC,
- * beta 3950, 4.7k pull-up); a wait event holds the sample clock until the heater is within 2 C.
+ * beta 3950, 4.7k pull-up: dsl_thermistor.h); a wait event holds the sample clock until the heater is within 2 C.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -28,6 +29,7 @@
 #define DSL_ERROR_LEN 40
 #include "dsl_player.h"
 #include "dsl_stepper.h"
+#include "dsl_thermistor.h"
 #include DSL_CONFIG
 
 #define AXES 4
@@ -47,23 +49,14 @@ static volatile uint8_t playing, held; /* held: a wait event stops the clock */
 static volatile uint8_t idle;            /* the last sample's steps are all issued and none waits */
 static volatile uint32_t samples_played;
 
-/* NTC 100k, beta 3950, 4.7k pull-up to 5 V, 10-bit ADC: reading at 0, 10, ... 300 C. The
-   reading falls as the temperature rises. */
-static const uint16_t ntc_adc[31] PROGMEM = {
-    1009, 1000, 986, 966, 940, 905, 860, 807, 747, 680, 611, 542, 475, 412, 355, 305, 261, 223, 191, 163,
-    140, 120, 104, 90, 78, 68, 60, 52, 46, 41, 36};
-
-static uint16_t adc_for_celsius_x10(int32_t t10)
-{
-    uint8_t k;
-    int32_t lo, hi;
-    if (t10 <= 0) return 1023;
-    k = (uint8_t)(t10 / 100);
-    if (k >= 30) return pgm_read_word(&ntc_adc[30]);
-    lo = pgm_read_word(&ntc_adc[k]);
-    hi = pgm_read_word(&ntc_adc[k + 1]);
-    return (uint16_t)(lo + (hi - lo) * (t10 - 100 * (int32_t)k) / 100);
-}
+/* The thermistors' ADC channels: A13 and A14 on the RAMPS. simavr 1.6 keeps analog inputs for
+   ADC0..7 only, so the simulated build (make sim) moves them to A5 and A6. */
+#ifndef DSL_THERM_HOTEND
+#define DSL_THERM_HOTEND 13
+#endif
+#ifndef DSL_THERM_BED
+#define DSL_THERM_BED 14
+#endif
 
 static uint16_t adc_read(uint8_t channel)
 {
@@ -78,6 +71,7 @@ static uint16_t adc_read(uint8_t channel)
 /* Heaters: [0] hot end, [1] bed. A set temperature of 0 is off. */
 static uint16_t heater_on_below[2], heater_off_below[2]; /* ADC thresholds; 0: off */
 static uint8_t waiting_for = 0xFF;
+#define HEATER_POLL_TICKS 6250u /* 100 ms of Timer3 (/256): the thermistors are read 10 times a second */
 
 static void heater_set(uint8_t h, int32_t t10)
 {
@@ -86,13 +80,13 @@ static void heater_set(uint8_t h, int32_t t10)
         return;
     }
     /* on while colder than t - 2 C (ADC above), off once hotter than t + 2 C */
-    heater_on_below[h] = adc_for_celsius_x10(t10 - 20);
-    heater_off_below[h] = adc_for_celsius_x10(t10 + 20);
+    heater_on_below[h] = dsl_ntc_adc_for_celsius_x10(t10 - 20);
+    heater_off_below[h] = dsl_ntc_adc_for_celsius_x10(t10 + 20);
 }
 
 static uint8_t heater_update(uint8_t h)
 {
-    uint16_t a = adc_read(h ? 14 : 13);
+    uint16_t a = adc_read(h ? DSL_THERM_BED : DSL_THERM_HOTEND);
     volatile uint8_t *port = h ? &PORTH : &PORTB;
     uint8_t bit = h ? _BV(PH5) : _BV(PB4);
     if (!heater_on_below[h] || a < heater_off_below[h]) *port &= (uint8_t)~bit;
@@ -170,9 +164,11 @@ int main(void)
 {
     int32_t counts[DSL_MAX_CHANNELS];
     uint8_t started = 0, hb = 0, have = 0, k;
-    uint16_t heater_clock = 0;
+    uint16_t heater_last = 0;
 
     pins_init();
+    TCCR3A = 0;
+    TCCR3B = _BV(CS32); /* Timer3 free running at 62.5 kHz: the heaters' clock */
     serial_init();
     dsl_init(&player);
     sei();
@@ -181,7 +177,8 @@ int main(void)
         serial_grant();
         if (!have) have = serial_take(&hb);
         while (have && dsl_feed(&player, &hb, 1) == 1) have = serial_take(&hb);
-        if (++heater_clock == 0 || waiting_for != 0xFF) {
+        if ((uint16_t)(TCNT3 - heater_last) >= HEATER_POLL_TICKS) { /* every 100 ms */
+            heater_last = (uint16_t)(heater_last + HEATER_POLL_TICKS);
             uint8_t ready0 = heater_update(0), ready1 = heater_update(1);
             if (waiting_for != 0xFF && (waiting_for ? ready1 : ready0)) {
                 waiting_for = 0xFF;

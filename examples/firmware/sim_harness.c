@@ -2,26 +2,41 @@
  * sim_harness.c - run an AVR player in simavr (libsimavr), feed it a stream over its UART with
  * the credit flow control of avr_serial.h, and print what its pins did:
  *
- *   sim_harness atmega328p|atmega2560 PLAYER.elf STREAM.dsl [--seconds S]
+ *   sim_harness atmega328p|atmega2560 PLAYER.elf STREAM.dsl [--seconds S] [--thermistors H,B]
  *
  *   P <pin> <rise_cycle> <width_cycles>     every pulse of a watched pin (16 cycles = 1 us)
  *   T <sample> <cycle> <pos1> <pos2> <pos3> <pos4>  the step positions at each sample strobe (Mega)
  *   S <sample> <cycle>                      each sample the Uno plays (its strobe pin)
  *   F <pos1> <pos2> <pos3> <pos4>           the step positions at the end (Mega)
  *   L <line>                                a line the board sent ("OK n" or "ERR ...")
+ *   H <heater> <cycle> <level> <temp x10>   a heater pin switched (Mega: 0 hot end D10, 1 bed D8)
+ *   K <cycle> <hot end x10> <bed x10>       the model's temperatures every 10 ms (Mega)
  *
- * Uno pins watched: the servos D3, D5, D6 as pins 0..2, the sample strobe D13 (B5). Mega: RAMPS step pins counted
- * with their dir pins. (No thermal model: simavr 1.6 keeps analog inputs for ADC0..7 only, and
- * the RAMPS thermistors are on A13 and A14.)
+ * Uno pins watched: the servos D3, D5, D6 as pins 0..2, the sample strobe D13 (B5). Mega: RAMPS
+ * step pins counted with their dir pins, the heater pins, and a thermal model of each heater:
+ *
+ *   dT/dt = rate x (heater on) - loss x (T - 25 C)
+ *   hot end: rate 50 C/s, loss 0.05 /s;  bed: rate 15 C/s, loss 0.02 /s
+ *
+ * (far faster than a real machine, so a wait for 200 C takes seconds of simulated time), solved
+ * exactly between the pin changes. At every ADC conversion the model's temperatures go to the
+ * thermistor inputs as the voltage that reads what dsl_thermistor.h (the player's own table)
+ * says for them. simavr 1.6 keeps analog inputs for ADC0..7 only, while the RAMPS thermistors
+ * are on A13 and A14: the player's simulated build moves them (--thermistors, default 5,6).
  */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include <simavr/avr_adc.h>
 #include <simavr/avr_ioport.h>
 #include <simavr/avr_uart.h>
 #include <simavr/sim_avr.h>
+#include <simavr/sim_cycle_timers.h>
 #include <simavr/sim_elf.h>
+
+#include "dsl_thermistor.h"
 
 static avr_t *avr;
 static unsigned char *stream;
@@ -122,6 +137,56 @@ static void strobe(avr_irq_t *irq, uint32_t value, void *param)
     printf("T %ld %llu %ld %ld %ld %ld\n", strobes++, (unsigned long long)avr->cycle, pos[0], pos[1], pos[2], pos[3]);
 }
 
+/* --- heaters (Mega): the thermal model --- */
+static const double HEAT_RATE[2] = {50.0, 15.0}, HEAT_LOSS[2] = {0.05, 0.02}, AMBIENT = 25.0;
+static double temp[2] = {25.0, 25.0};
+static int heater_on[2];
+static avr_cycle_count_t thermal_cycle;
+static int therm_channel[2] = {5, 6};
+
+static void thermal_advance(void)
+{
+    double dt = (double)(avr->cycle - thermal_cycle) / 16e6;
+    int h;
+    for (h = 0; h < 2; h++) {
+        double steady = AMBIENT + HEAT_RATE[h] * heater_on[h] / HEAT_LOSS[h];
+        temp[h] = steady + (temp[h] - steady) * exp(-HEAT_LOSS[h] * dt);
+    }
+    thermal_cycle = avr->cycle;
+}
+
+static void heater_pin(avr_irq_t *irq, uint32_t value, void *param)
+{
+    int h = (int)(intptr_t)param;
+    (void)irq;
+    if ((value != 0) == heater_on[h]) return;
+    thermal_advance();
+    heater_on[h] = value != 0;
+    printf("H %d %llu %d %ld\n", h, (unsigned long long)avr->cycle, heater_on[h], lround(temp[h] * 10));
+}
+
+/* a conversion starts: put the model's temperatures on the thermistor inputs */
+static void adc_trigger(avr_irq_t *irq, uint32_t value, void *param)
+{
+    int h;
+    (void)irq; (void)value; (void)param;
+    thermal_advance();
+    for (h = 0; h < 2; h++) {
+        uint32_t reading = dsl_ntc_adc_for_celsius_x10((int32_t)lround(temp[h] * 10));
+        /* simavr reads millivolts x 1023 / AVCC: the smallest voltage that reads `reading` */
+        uint32_t mv = (reading * 5000u + 1022u) / 1023u;
+        avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + therm_channel[h]), mv);
+    }
+}
+
+static avr_cycle_count_t thermal_log(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    (void)a; (void)param;
+    thermal_advance();
+    printf("K %llu %ld %ld\n", (unsigned long long)avr->cycle, lround(temp[0] * 10), lround(temp[1] * 10));
+    return when + 160000; /* every 10 ms */
+}
+
 static void watch(char port, int bit, avr_irq_notify_t fn, int param)
 {
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), bit), fn, (void *)(intptr_t)param);
@@ -140,6 +205,13 @@ int main(int argc, char **argv)
     }
     for (a = 4; a < argc; a++)
         if (!strcmp(argv[a], "--seconds") && a + 1 < argc) seconds = atof(argv[++a]);
+        else if (!strcmp(argv[a], "--thermistors") && a + 1 < argc) {
+            if (sscanf(argv[++a], "%d,%d", &therm_channel[0], &therm_channel[1]) != 2 || therm_channel[0] < 0 ||
+                therm_channel[0] > 7 || therm_channel[1] < 0 || therm_channel[1] > 7) {
+                fprintf(stderr, "error: --thermistors takes two ADC channels 0..7 (simavr keeps no others)\n");
+                return 2;
+            }
+        }
     f = fopen(argv[3], "rb");
     if (!f) {
         fprintf(stderr, "error: %s: cannot open\n", argv[3]);
@@ -190,6 +262,10 @@ int main(int argc, char **argv)
         watch('L', 3, step_pin, 2); watch('L', 1, dir_pin, 2);
         watch('A', 4, step_pin, 3); watch('A', 6, dir_pin, 3);
         watch('B', 7, strobe, 0);
+        watch('B', 4, heater_pin, 0);
+        watch('H', 5, heater_pin, 1);
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
+        avr_cycle_timer_register(avr, 160000, thermal_log, NULL);
     }
     while (state != cpu_Done && state != cpu_Crashed && !done && avr->cycle < (avr_cycle_count_t)(seconds * 16e6))
         state = avr_run(avr);

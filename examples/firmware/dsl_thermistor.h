@@ -1,0 +1,40 @@
+/*
+ * dsl_thermistor.h - the RAMPS thermistors: 100k NTC, beta 3950, 4.7k pull-up to 5 V, read by a
+ * 10-bit ADC referenced to AVCC. One table for the Mega player (which switches its heaters from
+ * it) and the simulator harness (whose thermal model turns a temperature into the reading the
+ * player would get). Portable C99; the table lives in flash on AVR.
+ */
+#ifndef DSL_THERMISTOR_H
+#define DSL_THERMISTOR_H
+
+#include <stdint.h>
+
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#define DSL_NTC_READ(p) pgm_read_word(p)
+#else
+#ifndef PROGMEM
+#define PROGMEM
+#endif
+#define DSL_NTC_READ(p) (*(p))
+#endif
+
+/* The reading at 0, 10, ... 300 C; it falls as the temperature rises. */
+static const uint16_t dsl_ntc_adc[31] PROGMEM = {
+    1009, 1000, 986, 966, 940, 905, 860, 807, 747, 680, 611, 542, 475, 412, 355, 305, 261, 223, 191, 163,
+    140, 120, 104, 90, 78, 68, 60, 52, 46, 41, 36};
+
+/* The ADC reading at a temperature in tenths of a degree C (linear between the table's points). */
+static uint16_t dsl_ntc_adc_for_celsius_x10(int32_t t10)
+{
+    uint8_t k;
+    int32_t lo, hi;
+    if (t10 <= 0) return 1023;
+    k = (uint8_t)(t10 / 100);
+    if (k >= 30) return DSL_NTC_READ(&dsl_ntc_adc[30]);
+    lo = DSL_NTC_READ(&dsl_ntc_adc[k]);
+    hi = DSL_NTC_READ(&dsl_ntc_adc[k + 1]);
+    return (uint16_t)(lo + (hi - lo) * (t10 - 100 * (int32_t)k) / 100);
+}
+
+#endif
