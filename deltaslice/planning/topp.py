@@ -64,6 +64,7 @@ MERGE_DEVIATION = 0.25  # of the blend tolerance: what merging may move the path
 EVAL = np.array([0.0, 0.25, 0.5, 0.75, 1.0])  # stage fractions where toppra constrains acceleration
 CHECK = np.linspace(0.0, 1.0, 9)  # stage fractions of the stage-wise limit check
 FD_STEP = 1e-3  # mm: step of the inverse Jacobian's directional derivative
+DERIVATIVE_BLOCK = 32768  # points per inverse-kinematics call in RunPath.derivatives
 CHECK_TOLERANCE = 1e-6  # a stage-wise ratio beyond 1 + this fails the run
 REFINE_PASSES = 3  # times a run's violating stages are split before it fails
 LONG_RUN = 3000  # segments: a longer run is planned in windows (bounded memory)
@@ -135,7 +136,13 @@ class RunPath(AbstractGeometricPath):
 
         q'(s) = Jinv(p) t(s); q''(s) = (d Jinv / ds along t) t + Jinv(p) kappa(s), the
         directional derivative by a central difference of FD_STEP mm in space (the
-        inverse kinematics is smooth across joins; only t and kappa are piece-wise)."""
+        inverse kinematics is smooth across joins; only t and kappa are piece-wise).
+        Evaluated DERIVATIVE_BLOCK points at a time: the Jacobians of a long window would
+        otherwise take hundreds of MB at once."""
+        if len(s) > DERIVATIVE_BLOCK:
+            parts = [self.derivatives(s[i : i + DERIVATIVE_BLOCK], piece[i : i + DERIVATIVE_BLOCK])
+                     for i in range(0, len(s), DERIVATIVE_BLOCK)]
+            return np.concatenate([d for d, _ in parts]), np.concatenate([dd for _, dd in parts])
         p, q = self._ik(s, piece)
         t = self.path.evaluate(s, 1, piece)
         kappa = self.path.evaluate(s, 2, piece)

@@ -89,7 +89,7 @@ class Trajectory:
         if self.duration <= 0:
             return 0.0
         if isinstance(self.pieces, PieceSpool):
-            return float(np.sum(self.pieces.active_times) / self.duration)
+            return float(sum(self.pieces.active_times) / self.duration)
         return float(sum(p.active_time for p in self.pieces) / self.duration)
 
     def piece_counts(self) -> dict:

@@ -1,0 +1,157 @@
+"""Long prints in bounded memory: a long run planned window by window (joined at speed, not at
+rest), and a trajectory whose pieces are spooled to disk.
+
+The windows are made small here (a few hundred segments) so the tests stay fast; the planner's
+defaults are thousands (``deltaslice.planning.topp.LONG_RUN``, ``WINDOW``, ``LOOKAHEAD``).
+"""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from deltaslice import load_printer
+from deltaslice.planning import plan, topp
+from deltaslice.planning.spool import PieceSpool
+from deltaslice.planning.topp import RunSpec, plan_run, run_stage_maxima
+from deltaslice.toolpath import Role, ToolpathBuilder
+
+
+def spiral(n: int, z0: float = 0.3, r: float = 20.0, per_rev: int = 400, pitch: float = 0.2):
+    """A wavy helix of n segments (a spiral vase's wall): points (n+1, 3) mm, filament per segment."""
+    th = np.arange(n + 1) * 2 * np.pi / per_rev
+    rr = r + 0.5 * np.sin(25 * th)
+    pts = np.c_[rr * np.cos(th), rr * np.sin(th), z0 + pitch * th / (2 * np.pi)]
+    e = 0.03 * np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    return pts, e
+
+
+@pytest.fixture
+def small_windows(monkeypatch):
+    monkeypatch.setattr(topp, "LONG_RUN", 300)
+    monkeypatch.setattr(topp, "WINDOW", 200)
+    monkeypatch.setattr(topp, "LOOKAHEAD", 100)
+    monkeypatch.setattr(topp, "LOOKAHEAD_MM", 5.0)
+
+
+def _whole(kin, printer, spec, mode, monkeypatch):
+    with monkeypatch.context() as m:
+        m.setattr(topp, "LONG_RUN", 10**9)
+        return plan_run(kin, printer, spec, mode)
+
+
+@pytest.mark.parametrize("name,mode", [("linear_kossel", "feed"), ("delta_etitc", "machine"), ("fivebar_atlas", "machine")])
+def test_a_long_run_in_windows_joins_at_speed_and_matches_the_whole_run(name, mode, small_windows, monkeypatch):
+    printer = load_printer(name)
+    kin = printer.kinematics()
+    pts, e = spiral(1100)
+    spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
+    windows = plan_run(kin, printer, spec, mode)
+    (whole,) = _whole(kin, printer, spec, mode, monkeypatch)
+    assert len(windows) >= 5
+    # Durations within the planner's optimality budget of the whole run planned at once.
+    total = sum(p.duration for p in windows)
+    assert abs(total / whole.duration - 1) < 1e-3, (total, whole.duration)
+    # The filament is the whole run's (half of each cut segment on either side): the ratio per mm
+    # times the path driven; a cut halves its segment, so the blends next to it may be a hair
+    # shorter, and the path a hair longer.
+    assert sum(p.filament_total for p in windows) == pytest.approx(whole.filament_total, rel=1e-5)
+    # Starts and ends at rest; inside, consecutive windows meet at the same point and speed.
+    assert windows[0].xd[0] == 0 and windows[-1].xd[-1] == 0
+    vmax = printer.limits.velocity[: printer.n_joints]
+    amax = printer.limits.acceleration[: printer.n_joints]
+    for a, b in zip(windows[:-1], windows[1:]):
+        end = a.path.evaluate(np.array([a.S]))[0]
+        start = b.path.evaluate(np.array([0.0]))[0]
+        np.testing.assert_allclose(end, start, atol=1e-9)
+        np.testing.assert_allclose(a.q_end, b.q_start, atol=1e-9)
+        v_end, v_start = a.xd[-1] * a.S, b.xd[0] * b.S
+        assert v_end > 1.0  # not a stop
+        assert v_end == pytest.approx(v_start, rel=1e-12)
+    # Every window keeps every joint's limits on its continuous motion.
+    for p in windows:
+        assert run_stage_maxima(p, kin, vmax, amax).worst <= 1 + 1e-6
+
+
+def test_a_window_that_cannot_start_that_fast_makes_the_previous_one_slow_down(small_windows, monkeypatch):
+    printer = load_printer("linear_kossel")
+    kin = printer.kinematics()
+    pts, e = spiral(900)
+    spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
+    real = topp._plan_polyline
+    calls, refused = [], []
+
+    def strict_third_window(*args, v_start=0.0, cap=None, **kw):
+        # The third window's first plan refuses to start faster than 5 mm/s.
+        calls.append(v_start)
+        if len(calls) == 3:
+            refused.append(v_start)
+            raise topp._StartTooFast(5.0)
+        return real(*args, v_start=v_start, cap=cap, **kw)
+
+    monkeypatch.setattr(topp, "_plan_polyline", strict_third_window)
+    pieces = plan_run(kin, printer, spec, "feed")
+    assert refused and refused[0] > 5.0, "the refusal was never exercised"
+    # The second window was planned again to end at 5 mm/s, and the third starts there.
+    v = [p.xd[-1] * p.S for p in pieces]
+    assert 4.99 < v[1] <= 5.0
+    assert pieces[2].xd[0] * pieces[2].S == pytest.approx(v[1], rel=1e-12)
+    assert sum(p.filament_total for p in pieces) == pytest.approx(sum(p.filament_total for p in _whole(kin, printer, spec, "feed", monkeypatch)), rel=1e-5)
+
+
+def test_window_memory_does_not_grow_with_the_run(small_windows):
+    printer = load_printer("linear_kossel")
+    kin = printer.kinematics()
+    peaks = []
+    for n in (700, 2100):
+        pts, e = spiral(n)
+        spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
+        tracemalloc.start()
+        # iter_run hands out each window's piece as it is planned: keep only the last one
+        for _piece, _done in topp.iter_run(kin, printer, spec, "feed"):
+            pass
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    assert peaks[1] < 1.3 * peaks[0], peaks
+
+
+def _two_layer_spiral_toolpath():
+    b = ToolpathBuilder((0.0, 0.0, 2.0))
+    pts, e = spiral(700)
+    b.new_layer(0.3)
+    b.add(pts[:1], 100, 0, 0, Role.TRAVEL)
+    b.add(pts[1:], 30, e, 1, Role.PERIMETER)
+    b.add([[5.0, 0.0, pts[-1, 2] + 0.2]], 100, -1.0, 0, Role.TRAVEL)
+    b.add([[5.0, 5.0, pts[-1, 2] + 0.2]], 30, 0.2, 1, Role.INFILL)
+    return b.build()
+
+
+def test_a_spooled_trajectory_samples_exactly_as_one_in_memory(small_windows):
+    printer = load_printer("linear_kossel")
+    tp = _two_layer_spiral_toolpath()
+    mem = plan(tp, printer, workers=1, spool=False)
+    disk = plan(tp, printer, workers=1, spool=True)
+    assert isinstance(disk.pieces, PieceSpool) and isinstance(mem.pieces, list)
+    assert len(disk.pieces) == len(mem.pieces) > 5
+    assert disk.duration == mem.duration
+    assert disk.piece_counts() == mem.piece_counts()
+    assert disk.active_fraction == mem.active_fraction
+    assert disk.events == mem.events
+    a, b = mem.samples(), disk.samples()
+    for name in ("t", "q", "e", "tool"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    # read back in any order, not only in sequence
+    for i in (len(mem.pieces) - 1, 0, 3, -2):
+        assert disk.pieces[i].duration == mem.pieces[i].duration
+    with pytest.raises(IndexError):
+        disk.pieces[len(mem.pieces)]
+
+
+def test_plan_refuses_a_spool_that_is_not_a_bool():
+    from deltaslice.errors import DeltasliceError
+
+    printer = load_printer("linear_kossel")
+    with pytest.raises(DeltasliceError, match="spool"):
+        plan(_two_layer_spiral_toolpath(), printer, spool="yes")
