@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import stat
 import tempfile
 import time
 import warnings
@@ -45,20 +47,43 @@ def _same_file(a, b) -> bool:
         return False
 
 
-def check_output(output, inputs=()) -> Path:
-    """Refuse an output before any work: the same file as an input, a missing or read-only
-    directory, a directory. Returns the path written (a symlink's target). Raises OutputError."""
+def _own_fd(path) -> int | None:
+    """The number of this process's file descriptor that ``path`` names (``/dev/stdout``,
+    ``/dev/fd/3``, ``/proc/self/fd/1``, or a link to one), else None. Followed link by link,
+    not with realpath: realpath turns ``/proc/self/fd/1`` into ``pipe:[N]`` or the file behind."""
+    p = os.path.abspath(os.fspath(path))
+    for _ in range(40):
+        directory, name = os.path.split(p)
+        m = re.fullmatch(r"/proc/(self|\d+)/fd", os.path.realpath(directory))
+        if m and name.isdigit() and m.group(1) in ("self", str(os.getpid())):
+            return int(name)
+        if not os.path.islink(p):
+            return None
+        p = os.path.normpath(os.path.join(directory, os.readlink(p)))
+    return None
+
+
+def _resolve_output(output, inputs=()) -> tuple[Path, bool]:
+    """(the path to write, whether it is written directly). Directly: a character or block
+    device, a FIFO, a socket, or one of this process's descriptors (``/dev/stdout`` even when
+    the shell redirected it to a regular file: replacing that file by rename would detach it
+    from the shell's descriptor). The type is read with os.stat (following links) before any
+    realpath, which would turn ``/dev/stdout`` into ``/proc/.../fd/pipe:[N]``."""
     if output is None or not isinstance(output, (str, os.PathLike)) or not str(output):
         raise OutputError(f"output: expected a file path, got {output!r}")
     path = Path(output)
     for src in inputs:
         if src is not None and isinstance(src, (str, os.PathLike)) and _same_file(path, src):
             raise OutputError(f"{output}: is the input file {src}: refusing to overwrite it (choose another -o)")
-    target = Path(os.path.realpath(path))
-    if target.is_dir():
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        st = None  # missing (or a dangling link): created below, through the link
+    if st is not None and stat.S_ISDIR(st.st_mode):
         raise OutputError(f"{output}: is a directory: expected a file path")
-    if target.exists() and not target.is_file():
-        return target  # a device or a pipe: written directly
+    if st is not None and (not stat.S_ISREG(st.st_mode) or _own_fd(path) is not None):
+        return path, True  # a device, a pipe, a socket, or our own descriptor: written directly
+    target = Path(os.path.realpath(path))
     directory = target.parent
     if not directory.is_dir():
         raise OutputError(f"{output}: directory {directory} does not exist")
@@ -66,7 +91,14 @@ def check_output(output, inputs=()) -> Path:
         raise OutputError(f"{output}: directory {directory} is not writable")
     if target.exists() and not os.access(target, os.W_OK):
         raise OutputError(f"{output}: file is read-only")
-    return target
+    return target, False
+
+
+def check_output(output, inputs=()) -> Path:
+    """Refuse an output before any work: the same file as an input, a missing or read-only
+    directory, a directory. Returns the path written (a symlink's target; a device, a pipe or
+    ``/dev/stdout`` as given). Raises OutputError."""
+    return _resolve_output(output, inputs)[0]
 
 
 class _BoundedFile:
@@ -98,10 +130,14 @@ def atomic_output(path, mode: str = "wb", *, max_bytes=None, **open_kwargs):
     pipe (``/dev/null``, ``/dev/stdout``) is written directly, never replaced. ``max_bytes``
     bounds the bytes written (OutputError beyond). OSError (full disk, permissions) becomes
     OutputError naming the path."""
-    target = check_output(path)
-    if target.exists() and not target.is_file():
+    target, direct = _resolve_output(path)
+    if direct:
+        fd = _own_fd(target)
         try:
-            with open(target, mode, **open_kwargs) as f:
+            # our own descriptor is duplicated, not reopened: a socket cannot be reopened by
+            # path, and a file the shell opened for appending keeps its offset
+            with (os.fdopen(os.dup(fd), mode, **open_kwargs) if fd is not None
+                  else open(target, mode, **open_kwargs)) as f:
                 yield _BoundedFile(f, max_bytes, str(path))
         except OSError as exc:
             raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None

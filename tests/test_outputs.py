@@ -133,6 +133,76 @@ def test_a_character_device_is_written_directly_not_replaced(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["null"]
 
 
+def _to_stdout(part, **popen):
+    """``deltaslice PART -o /dev/stdout``: the stream on this process's standard output."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "deltaslice", str(part), "--printer", "delta_etitc", "-o", "/dev/stdout",
+                           "--format", "stream", "--quiet", "--workers", "1"], stderr=subprocess.PIPE, env=env,
+                          timeout=120, **popen)
+
+
+def test_dev_stdout_into_a_pipe_is_written(tmp_path):
+    """``-o /dev/stdout | wc -c``: realpath would name /proc/.../fd/pipe:[N], which cannot be opened."""
+    part = tmp_path / "part.gcode"
+    part.write_text(_square_gcode(1200))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run(f"'{sys.executable}' -m deltaslice part.gcode --printer delta_etitc -o /dev/stdout "
+                       "--format stream --quiet --workers 1 | wc -c", shell=True, cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert int(r.stdout) > 200
+    direct = _to_stdout(part, stdout=subprocess.PIPE)
+    assert direct.returncode == 0, direct.stderr.decode()
+    assert len(direct.stdout) == int(r.stdout)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["part.gcode"]
+
+
+def test_dev_stdout_redirected_to_a_file_writes_through_the_shells_descriptor(tmp_path):
+    """``-o /dev/stdout > f`` and ``>> f``: the file the shell opened is written, not replaced by rename
+    (a rename would detach it from the descriptor and lose what the shell appended before)."""
+    part = tmp_path / "part.gcode"
+    part.write_text(_square_gcode(1200))
+    alone = tmp_path / "alone.dsl"
+    with open(alone, "wb") as f:
+        assert _to_stdout(part, stdout=f).returncode == 0
+    stream = alone.read_bytes()
+    assert len(stream) > 200
+    out = tmp_path / "out.dsl"
+    out.write_bytes(b"header\n")
+    inode = out.stat().st_ino
+    with open(out, "ab") as f:
+        r = _to_stdout(part, stdout=f)
+    assert r.returncode == 0, r.stderr.decode()
+    assert out.stat().st_ino == inode
+    got = out.read_bytes()  # the stream's trailing summary holds timings: same bytes up to them
+    assert got.startswith(b"header\n" + stream[:2000]) and len(got) == len(b"header\n" + stream)
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_dev_stdout_that_is_a_socket_is_written(tmp_path):
+    import socket
+
+    part = tmp_path / "part.gcode"
+    part.write_text(_square_gcode(1200))
+    a, b = socket.socketpair()
+    got = []
+
+    def read():
+        while chunk := a.recv(65536):
+            got.append(chunk)
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    try:
+        r = _to_stdout(part, stdout=b)
+    finally:
+        b.close()
+        reader.join(10)
+        a.close()
+    assert r.returncode == 0, r.stderr.decode()
+    assert len(b"".join(got)) > 200
+
+
 # ---------------------------------------------------------------------------- checked before the work
 
 
