@@ -5,6 +5,9 @@ link, with their credit flow control:
     host  -> board  <= CHUNK bytes  one chunk per credit (the last one may be shorter)
     board -> host   ``OK <n>\\n``    the stream ended intact after n samples
                     ``ERR <msg>\\n`` the board refused or stopped
+                    ``# <text>\\n``  information (the Mega player's ``# heating`` once a second
+                                    while a heater wait holds the stream): ignored, but as any
+                                    byte from the board it restarts the timeout
 
 The host never sends more than it has credit for, so a board with a 2 KB RAM can play a print of
 any length. :func:`send_stream` takes an open serial-like object (``read(n)`` returning ``b""``
@@ -34,8 +37,8 @@ class SendResult:
 def send_stream(data: bytes, port, *, timeout: float = 10.0, progress=None, name: str = "stream") -> SendResult:
     """Send ``data`` (a whole, checked stream) to ``port`` and wait for the board's verdict.
 
-    timeout: seconds without a byte from the board before giving up (a board waiting for its
-    heaters sends nothing for a while: give it time). progress: ``progress(done, total)`` in bytes.
+    timeout: seconds without a byte from the board before giving up (any byte counts: a board
+    waiting for its heaters sends a ``#`` line now and then; one that does not needs a longer timeout). progress: ``progress(done, total)`` in bytes.
     Raises :class:`SendError` on a timeout, a closed port or an ``ERR`` line."""
     t0 = time.monotonic()
     sent, line, last = 0, bytearray(), time.monotonic()

@@ -60,8 +60,9 @@ def build(tmp_path_factory):
 def simulate(build, mcu, elf, stream, seconds=60):
     r = subprocess.run([str(build / "sim_harness"), mcu, str(build / elf), str(stream), "--seconds", str(seconds)],
                        capture_output=True, text=True, timeout=300)
-    lines = [ln.split(" ", 1) for ln in r.stdout.splitlines() if ln[:2] in ("P ", "S ", "T ", "L ", "F ", "H ", "K ")]
-    out = {k: [] for k in "PSTLFHK"}
+    kinds = ("P ", "S ", "T ", "L ", "F ", "H ", "K ", "I ")
+    lines = [ln.split(" ", 1) for ln in r.stdout.splitlines() if ln[:2] in kinds]
+    out = {k: [] for k in "PSTLFHKI"}
     for k, rest in lines:
         out[k].append(rest)
     return r.returncode, out
@@ -193,6 +194,11 @@ def test_mega_heaters_hold_the_first_sample_until_hot(build, atlas_stream):
     play = (K[:, 0] > t0) & (K[:, 0] < T[-1, 1])
     assert np.abs(K[play, 1] / 10 - hot).max() < 10, (K[play, 1].min(), K[play, 1].max())
     assert ((H[:, 0] == 0) & (H[:, 1] > t0)).sum() >= 4  # it switched while playing
+    # meanwhile the board says "# heating" about once a second (deltaslice send's timeout is 10 s)
+    info = [i.split(" ", 1) for i in out["I"]]
+    assert info and {text for _, text in info} == {"# heating"}
+    beats = np.array([int(c) for c, _ in info] + [t0]) / (CYCLES_PER_US * 1e6)
+    assert beats[0] < 1.2 and np.diff(beats).max() < 1.2 and int(beats[-2] * CYCLES_PER_US * 1e6) < t0, beats
 
 
 @pytest.mark.parametrize("name, elf", [("fivebar_atlas", "mega_stepper_player.elf"),

@@ -23,9 +23,11 @@ serial = pytest.importorskip("serial")
 class FakeBoard(threading.Thread):
     """A board with a 128-byte receive buffer that drains slowly, granting a credit per free chunk;
     ``mode``: "ok" (answers OK <samples> after the last byte), "err" (ERR after err_after bytes),
-    "silent" (never answers)."""
+    "silent" (never answers). ``hold``: (after_bytes, seconds, keepalive) stops taking bytes and
+    granting credits once after_bytes have arrived, for seconds, as the Mega player does during a
+    heater wait, sending its "# heating" line every keepalive seconds (None: silent)."""
 
-    def __init__(self, expected: int, mode="ok", err_after=0, samples=1234):
+    def __init__(self, expected: int, mode="ok", err_after=0, samples=1234, hold=None):
         super().__init__(daemon=True)
         self.master, slave = os.openpty()
         tty.setraw(slave)
@@ -35,6 +37,8 @@ class FakeBoard(threading.Thread):
         self.received = bytearray()
         self.max_outstanding = 0
         self.stop = False
+        self.hold = hold
+        self.keepalives = 0
 
     def run(self):
         # like an Arduino reset by the port opening (DTR): silent while it boots, so the host has
@@ -46,6 +50,17 @@ class FakeBoard(threading.Thread):
             if self.mode == "silent":
                 time.sleep(0.01)
                 continue
+            if self.hold and len(self.received) >= self.hold[0]:
+                _, seconds, keepalive = self.hold
+                self.hold = None
+                end = time.monotonic() + seconds
+                while time.monotonic() < end:
+                    if keepalive:
+                        time.sleep(min(keepalive, max(0.0, end - time.monotonic())))
+                        os.write(self.master, b"# heating\n")
+                        self.keepalives += 1
+                    else:
+                        time.sleep(0.01)
             while buffered + credits * CHUNK + CHUNK <= 128:
                 os.write(self.master, b">")
                 credits += 1
@@ -123,3 +138,21 @@ def test_wrong_printer_and_missing_port(stream):
         send_file(stream, "/dev/does-not-exist", printer="linear_kossel")
     with pytest.raises(SendError, match="cannot open the serial port"):
         send_file(stream, "/dev/does-not-exist")
+
+
+def test_heater_wait_keepalive_keeps_the_sender_waiting(stream):
+    # the Mega player holds the stream during a heater wait (tens of seconds on a machine) and
+    # says "# heating" once a second: send ignores the line but takes it as a sign of life
+    data = stream.read_bytes()
+    board = FakeBoard(len(data), hold=(600, 2.5, 0.5))
+    board.start()
+    result = send_file(stream, board.path, timeout=1.0)
+    board.join(5)
+    assert bytes(board.received) == data and result.samples == 1234
+    assert board.keepalives >= 4
+    # the same wait without the keep-alive is taken for a dead board
+    board = FakeBoard(len(data), hold=(600, 2.5, None))
+    board.start()
+    with pytest.raises(SendError, match=r"no answer from the board for 1 s after \d+ of"):
+        send_file(stream, board.path, timeout=1.0)
+    board.stop = True

@@ -6,6 +6,8 @@
  *   host  -> board <= 64 bytes    one chunk per credit (DSL_CHUNK; the last one may be shorter)
  *   board -> host  "OK <n>\n"     the stream ended intact after n samples
  *                  "ERR <msg>\n"  the stream is damaged or meant for another printer; the player stopped
+ *                  "# <text>\n"   information outside the protocol ("# heating" once a second while a
+ *                                 heater wait holds the stream): the host ignores it, but it is not silence
  *
  * The ring holds two chunks, so the host can send the next chunk while the board decodes the
  * previous one; a credit is sent only for space that is free, so nothing is ever dropped.

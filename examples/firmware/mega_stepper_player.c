@@ -15,7 +15,9 @@
  * count differences evenly over the period. The machine must be at the stream's first sample
  * (the rest pose, dsl_config.h) when playback starts: home it there first.
  * Heater events switch the heaters bang-bang (2 C hysteresis) from the thermistors (100k NTC,
- * beta 3950, 4.7k pull-up: dsl_thermistor.h); a wait event holds the sample clock until the heater is within 2 C.
+ * beta 3950, 4.7k pull-up: dsl_thermistor.h), read every 100 ms; a wait event holds the sample
+ * clock until the heater is within 2 C, and the board sends "# heating" once a second meanwhile
+ * (a keep-alive outside the serial protocol: the host ignores it but hears the board is alive).
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -165,6 +167,7 @@ int main(void)
     int32_t counts[DSL_MAX_CHANNELS];
     uint8_t started = 0, hb = 0, have = 0, k;
     uint16_t heater_last = 0;
+    uint8_t keepalive = 0; /* heater polls (100 ms) since the last keep-alive line */
 
     pins_init();
     TCCR3A = 0;
@@ -180,9 +183,16 @@ int main(void)
         if ((uint16_t)(TCNT3 - heater_last) >= HEATER_POLL_TICKS) { /* every 100 ms */
             heater_last = (uint16_t)(heater_last + HEATER_POLL_TICKS);
             uint8_t ready0 = heater_update(0), ready1 = heater_update(1);
-            if (waiting_for != 0xFF && (waiting_for ? ready1 : ready0)) {
-                waiting_for = 0xFF;
+            if (waiting_for == 0xFF) {
+                keepalive = 0;
+            } else if (waiting_for ? ready1 : ready0) {
+                waiting_for = 0xFF; /* (a wait right after this one goes on counting) */
                 held = 0;
+            } else if (++keepalive >= 10) {
+                /* a wait lasts tens of seconds: say so once a second, so the host (deltaslice send,
+                   which ignores lines outside the protocol) does not take the silence for a dead board */
+                keepalive = 0;
+                serial_puts_P(PSTR("# heating\n"));
             }
         }
         if (!started) {

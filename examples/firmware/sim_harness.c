@@ -8,7 +8,8 @@
  *   T <sample> <cycle> <pos1> <pos2> <pos3> <pos4>  the step positions at each sample strobe (Mega)
  *   S <sample> <cycle>                      each sample the Uno plays (its strobe pin)
  *   F <pos1> <pos2> <pos3> <pos4>           the step positions at the end (Mega)
- *   L <line>                                a line the board sent ("OK n" or "ERR ...")
+ *   L <line>                                the board's verdict line ("OK n" or "ERR ...")
+ *   I <cycle> <line>                        an information line ("# ...", e.g. "# heating")
  *   H <heater> <cycle> <level> <temp x10>   a heater pin switched (Mega: 0 hot end D10, 1 bed D8)
  *   K <cycle> <hot end x10> <bed x10>       the model's temperatures every 10 ms (Mega)
  *
@@ -62,9 +63,13 @@ static void uart_out(avr_irq_t *irq, uint32_t value, void *param)
     }
     if (value == '\n') {
         line[line_len] = 0;
-        printf("L %s\n", line);
+        if (line[0] == '#') { /* information, not the verdict */
+            printf("I %llu %s\n", (unsigned long long)avr->cycle, line);
+        } else {
+            printf("L %s\n", line);
+            done = 1;
+        }
         line_len = 0;
-        done = 1;
     } else if (line_len < sizeof line - 1) {
         line[line_len++] = (char)value;
     }
