@@ -1,7 +1,8 @@
-"""The Dynamixel and DC-motor players (examples/firmware), built for the host and fed compiled
+"""The Dynamixel, DC-motor and UCB players (examples/firmware), built for the host and fed compiled
 streams: the bus bytes checked byte for byte against the protocol's documented layout written
-here independently, the laser following the tool channel, and the PID driving a simulated gear
-motor along a stream within a stated error."""
+here independently, the laser following the tool channel, the PID driving a simulated gear
+motor along a stream within a stated error, and the UCB's power-up step (potentiometers to the
+rest pose) and step playback counted pulse by pulse."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 from trajectories import ROOT, blocks, printer, realistic
 
-from deltaslice.pipeline import read_counts, write_samples
+from deltaslice.pipeline import compile_part, read_counts, write_samples
 
 FIRMWARE = ROOT / "examples" / "firmware"
 PID_FOLLOWING_BOUND = 3  # counts (0.72 deg of the UADY's output shaft)
@@ -132,3 +133,35 @@ def test_pid_saturates_without_windup(build):
     assert (duty[1:200] == 255).all() and np.abs(duty).max() <= 255
     assert pos.max() - 1000 <= 8, pos.max()  # 13 counts when it integrates while saturated
     assert np.abs(pos[-100:] - 1000).max() <= 1
+
+
+@pytest.fixture(scope="module")
+def ucb_stream(tmp_path_factory):
+    import trimesh
+    from meshes import write
+
+    d = tmp_path_factory.mktemp("ucb")
+    write(trimesh.creation.box((5, 5, 0.5)), d / "pad.stl")
+    compile_part(d / "pad.stl", printer("delta_ucb"), output=d / "pad.dsl", workers=1)
+    return d / "pad.dsl"
+
+
+@pytest.mark.parametrize("readings, steps", [((1790, 1810, 2000), -800), ((3200, 3160, 3160), 0)])
+def test_ucb_steps_from_the_pots_to_rest_then_plays_the_stream(build, ucb_stream, readings, steps):
+    # the UCB document's calibration: 1790/1810/2000 are 90 deg (800 counts) on joints 1/2/3,
+    # 3200/3160/3160 are 0 deg, the rest pose
+    _, counts = read_counts(ucb_stream)
+    r = subprocess.run([str(build / "ucb_stepper_player"), str(ucb_stream), *map(str, readings)],
+                       capture_output=True, text=True, check=True)
+    info = [ln.split()[1:] for ln in r.stdout.splitlines() if ln.startswith("#")]
+    sensors = [[int(x) for x in i[1:]] for i in info if i[0] == "sensor"]
+    assert [s[3] for s in sensors] == [steps] * 3
+    home = next([int(x) for x in i[1:]] for i in info if i[0] == "home")
+    assert home[0] == -(-abs(steps) // 31)  # 31 steps per axis per period at most
+    assert home[1:] == list(counts[0, :3])  # the stream starts at rest, where the power-up move ends
+    out = np.loadtxt([ln for ln in r.stdout.splitlines() if not ln.startswith("#")], dtype=np.int64)
+    assert len(out) == len(counts) and np.array_equal(out[:, 0], np.arange(len(counts)))
+    # the pulses counted at the end of every sample's period take each axis to the sample's counts
+    assert np.array_equal(out[:, 1:], counts[:, :4])
+    assert next(i for i in info if i[0] == "overruns") == ["overruns", "0"]
+    assert (np.diff(counts[:, :3], axis=0) != 0).any()
