@@ -23,11 +23,13 @@ typedef struct {
 } dc_pid_gains;
 
 /* The UADY's motors (12 V, 34:1, 1496 counts per output turn), tuned on the simulated motor of
-   dc_pid_player.c at 1 kHz: Kp 12 duty per count (full duty at a 21-count error), Ki 0.25 duty
-   per count per sample (clamped at 128 duty), Kd 40 duty per count of motion per sample, and a
-   feed-forward of 30 duty per count per sample of setpoint motion (a quarter of what the unloaded
-   motor needs: 255 duty turns it 2.1 counts a sample; the loop does the rest). */
-#define DC_PID_UADY_GAINS {12 * 256, 64, 40 * 256, 30 * 256, 255, 128 * 256}
+   dc_pid_player.c at 1 kHz along a compiled part (the move from rest, the layer, the park):
+   Kp 16 duty per count (full duty at a 16-count error), Ki 0.5 duty per count per sample
+   (clamped at 128 duty), Kd 50 duty per count of motion per sample, and a feed-forward of 60 duty
+   per count per sample of setpoint motion (half of what the unloaded motor needs: 255 duty turns
+   it 2.1 counts a sample; the loop does the rest). Following error: 2 counts at most (the gains
+   before, 12 / 0.25 / 40 / 30, reached 4 counts where the move from rest breaks away). */
+#define DC_PID_UADY_GAINS {16 * 256, 128, 50 * 256, 60 * 256, 255, 128 * 256}
 
 typedef struct {
     dc_pid_gains g;
