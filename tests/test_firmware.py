@@ -4,8 +4,10 @@ exactly what the Python decoder prints, on good, corrupt and truncated streams."
 from __future__ import annotations
 
 import io
+import os
 import shutil
 import subprocess
+import sys
 
 import pytest
 from streamtools import record_offsets
@@ -20,10 +22,18 @@ FIRMWARE = ROOT / "examples" / "firmware"
 CC = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
 
 
+def require_compiler():
+    """Skip without a C compiler, except under CI (env CI set, as .ci/run sets it), where it fails."""
+    if CC is None:
+        why = "no C compiler (cc, gcc or clang) on PATH: cannot build examples/firmware/dsl_player_host.c"
+        if os.environ.get("CI"):
+            pytest.fail(f"{why} (under CI)")
+        pytest.skip(why)
+
+
 @pytest.fixture(scope="module")
 def players(tmp_path_factory):
-    if CC is None:
-        pytest.skip("no C compiler (cc, gcc or clang) on PATH: cannot build examples/firmware/dsl_player_host.c")
+    require_compiler()
     d = tmp_path_factory.mktemp("player")
     out = {}
     for buffers in (1, 2):
@@ -61,6 +71,23 @@ def python_decode(path):
 
 def run(exe, path, chunk=4096):
     return subprocess.run([str(exe), str(path), "--chunk", str(chunk)], capture_output=True, text=True)
+
+
+def test_missing_compiler_fails_under_ci_and_skips_elsewhere(monkeypatch):
+    monkeypatch.setattr(sys.modules[__name__], "CC", None)
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="no C compiler"):
+        require_compiler()
+    monkeypatch.delenv("CI")
+    with pytest.raises(pytest.skip.Exception):
+        require_compiler()
+
+
+def test_ci_script_sets_ci_before_the_tests():
+    # the firmware tests fail rather than skip only when CI is set: .ci/run must set it itself
+    script = (ROOT / ".ci" / "run").read_text()
+    assert "export CI=${CI:-true}" in script
+    assert script.index("export CI=${CI:-true}") < script.index("python -m pytest")
 
 
 @pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel"])
