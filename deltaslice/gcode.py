@@ -12,6 +12,7 @@ role comments. Writing then reading gives back the same Toolpath.
 from __future__ import annotations
 
 import math
+import os
 import re
 from array import array
 from collections import Counter
@@ -319,6 +320,8 @@ def read_gcode(path, *, printer=None, echo=None, center=False) -> Toolpath:
     dialect, settings that differ). center: move the part's footprint (its working
     moves) to the bed centre. Raises :class:`GcodeError` naming the line on bad input.
     """
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise GcodeError(f"read_gcode: path: expected a file path, got {type(path).__name__} {path!r:.60}")
     path = Path(path)
     shown = str(path)
     try:
@@ -399,6 +402,9 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
     laser_seen = False
     e_words = False
     bare_words = False
+    # Slic3r's no-extrusion flavour (see below): 0 nothing retracted; 1 a bare number lowered the
+    # register (a retraction, maybe still going on); 2 then a move without a bare number (the travel)
+    bare_retracted = 0
     role_comment = None
     layer_idx = -1  # from comments
     layer_z_comment: dict[int, float] = {}
@@ -523,19 +529,36 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
                     raise GcodeError(f"{where}: position {target} is not a finite coordinate")
                 de = 0.0
                 bare = "bare" in params
+                moved = target != pos
                 if "E" in params:
                     e_words = e_words or not bare
                     bare_words = bare_words or bare
                     v = params["E"] * unit
-                    if abs_e:
+                    if abs_e and bare and bare_retracted == 2 and not moved and v > 0:
+                        # Slic3r 1.3 resets its E register to 0 after every retraction (GCode::retract
+                        # calls reset_e) but in the no-extrusion flavour writes no G92 E0 for it. The
+                        # standing number after a retraction and its travel is therefore the unretract
+                        # measured from 0: "-2, 2" is 2 mm back and 2 mm forward, not 2 back and 4
+                        # forward (read as a difference, the first unretract of a job pushes 2 mm of
+                        # extra filament). Read from 0 the amount is exactly Slic3r's: the retracted
+                        # length plus its retract_restart_extra. A standing number before the travel
+                        # still belongs to the retraction (the rest of a wipe) and is a difference.
+                        # Work moves keep the register constant (Slic3r sets e_per_mm to 0 without an
+                        # extrusion axis), so the retractions themselves read right as differences.
+                        de = v
+                    elif abs_e:
                         de = v - e_reg
-                        e_reg = v
                     else:
                         de = v
-                        e_reg += v
+                    e_reg = v if abs_e else e_reg + v
+                    if bare and de < 0:
+                        bare_retracted = 1
+                    elif bare and de > 0 and not moved:
+                        bare_retracted = 0
                     if not math.isfinite(de) or abs(de) > 1e12:
                         raise GcodeError(f"{where}: extrusion {de:g} mm is not a finite amount")
-                moved = target != pos
+                if bare_retracted == 1 and moved and not bare:
+                    bare_retracted = 2
                 arc = cmd in ("G2", "G3")
                 if not moved and de == 0.0 and not (arc and ("I" in params or "J" in params)):
                     if not any(a in params for a in "XYZ"):
@@ -695,7 +718,9 @@ def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_word
     * E words (the common case): a move that goes somewhere and pushes filament works.
     * Slic3r's no-extrusion flavour writes the E register without its letter; its amounts do
       not change along working moves, so a move carrying the bare number works and is given the
-      printer's flow model (:func:`_flow_model_e`); standing bare numbers stay retracts.
+      printer's flow model (:func:`_flow_model_e`); standing bare numbers stay retracts and
+      unretracts (read from the register Slic3r resets after each retraction, see the parser),
+      moving ones that lower the register are wipes (travels).
     * No E at all (hand-written paths, CNC-style files): G1/G2/G3 moves in x-y work, G0 travel.
     * A laser printer: with M3/M4 the power is S / s_max while G1/G2/G3 move; without them the
       E or G1 rules above switch the laser on at full power.
@@ -708,9 +733,13 @@ def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_word
         working = moved & (kind >= 1) & (frac > 0)
         return np.zeros(len(e)), np.where(working, frac, 0.0), working, ""
     if bare_words and not e_words:
-        working = moved_xy & (kind == 3)
+        # a bare-number move that lowers the register is a wipe (Slic3r's retraction while it
+        # travels back over the perimeter it just printed): a travel with its retraction, not work
+        working = moved_xy & (kind == 3) & (e >= 0)
         note = (f"{_SLIC3R_NO_EXTRUSION}: E values without their letter; moves carrying one are work moves"
-                + (" extruded with the printer's own flow model" if not laser else " with the laser on"))
+                + (" extruded with the printer's own flow model" if not laser else " with the laser on")
+                + ", those lowering it wipes; each unretraction is read from 0 (Slic3r resets its E register "
+                "after a retraction without writing G92 E0)")
     elif not e_words and not bare_words:
         working = moved_xy & (kind >= 1)
         note = ("no E words: G1/G2/G3 moves are work moves "

@@ -52,9 +52,34 @@ G1 X0 Y0 F7800
     s = etitc.slicing
     per_mm = filament_per_mm(s.first_layer_width, 0.5, etitc.tool.filament_area, s.extrusion_multiplier)
     assert np.allclose(tp.e[work], tp.lengths[work] * per_mm)
-    # standing bare numbers stay retracts (absolute register: 0 -> -2 -> 2 -> 0)
+    # standing bare numbers stay retracts: Slic3r resets its register to 0 after each retraction
+    # without a G92, so "-2, 2, 0" is 2 mm back, 2 forward, 2 back (not 4 forward: 2 mm too much)
     retract = tp.role == Role.RETRACT
-    assert tp.e[retract].tolist() == pytest.approx([-2.0, 4.0, -2.0])
+    assert tp.e[retract].tolist() == pytest.approx([-2.0, 2.0, -2.0])
+
+
+def test_slic3r_no_extrusion_wipe_and_restart_extra():
+    # Slic3r --wipe --retract-restart-extra 0.5: the retraction partly while moving back over the
+    # perimeter (a travel, not work), the rest standing; the unretract is 2 + 0.5 from the reset 0
+    etitc = printer("delta_etitc")
+    text = """G1 Z0.35 F7800.000
+G1 -2.00000 F2400.00000
+G1 X10 Y0 F7800.000
+G1 2.50000 F2400.00000
+G1 X20 Y0 2.50000
+G1 X20 Y10 2.50000
+G1 X20 Y4 1.63620
+G1 X20 Y2 0.60000
+G1 0.50000 F2400.00000
+G1 X0 Y0 F7800.000
+G1 2.50000 F2400.00000
+G1 X0 Y10 2.50000
+"""
+    tp, _ = parse(text, etitc)
+    assert tp.working.tolist() == [False, False, False, False, True, True, False, False, False, False, False, True]
+    assert tp.e[~tp.working].tolist() == pytest.approx([0, -2, 0, 2.5, -0.8638, -1.0362, -0.1, 0, 2.5])
+    wipe = ~tp.working & (tp.lengths > 0) & (tp.e < 0)
+    assert wipe.sum() == 2 and (tp.tool[wipe] == 0).all() and (tp.role[wipe] == Role.TRAVEL).all()
 
 
 def test_file_without_e_words_g1_works_g0_travels():

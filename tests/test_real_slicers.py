@@ -4,6 +4,7 @@ compiled and round-tripped. Nothing generated is kept."""
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 
@@ -16,6 +17,7 @@ from deltaslice.errors import UnreachableError
 from deltaslice.gcode import read_gcode
 from deltaslice.pipeline import write_gcode
 from deltaslice.pipeline import compile_part
+from deltaslice.toolpath import Role
 
 SIDE = 12.0
 
@@ -68,6 +70,13 @@ def test_slic3r_no_extrusion_prints_the_whole_outline_on_etitc(slic3r_no_extrusi
     assert any("no-extrusion" in n for n in notes)
     assert tp.working.sum() == len(bare)
     assert (tp.e[tp.working] > 0).all()
+    # retractions and unretractions of the file's own length: Slic3r resets its register after each
+    # retraction without a G92, so the first unretract is not 4 mm after a 2 mm retraction
+    length = float(re.search(r"^; retract_length = ([\d.]+)", text, re.M).group(1))
+    moves = tp.e[tp.role == Role.RETRACT]
+    assert length > 0 and len(moves) >= 4
+    assert np.allclose(np.abs(moves), length) and np.allclose(moves[::2], -length)
+    assert np.cumsum(moves).max() <= 1e-9 and np.cumsum(moves).min() >= -length - 1e-9
     out = tmp_path / "s3.csv"
     compile_part(slic3r_no_extrusion, etitc, output=str(out), center=True, workers=1)
     _meta, s = read_output(out)
