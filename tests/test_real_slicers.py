@@ -1,9 +1,11 @@
 """Real G-code from real slicers: parts built here, sliced by Slic3r 1.3 and PrusaSlicer (skipped
-with a message when they are not installed: ``apt-get install slic3r prusa-slicer``), read,
+with a message when they are not installed: ``apt-get install slic3r prusa-slicer``; under CI,
+env CI set, they fail instead: .ci/run installs them), read,
 compiled and round-tripped. Nothing generated is kept."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -23,10 +25,24 @@ SIDE = 12.0
 
 
 def _need(binary: str):
+    """The slicer's executable; a skip where it is missing, a failure under CI (env CI set, as
+    .ci/run sets it), where .ci/run installs it and a skip would hide a broken set-up."""
     exe = shutil.which(binary)
     if exe is None:
+        if os.environ.get("CI"):
+            pytest.fail(f"{binary} missing under CI: .ci/run installs the Debian packages (slic3r prusa-slicer)")
         pytest.skip(f"{binary} is not installed (apt-get install -y slic3r prusa-slicer): real-slicer test skipped")
     return exe
+
+
+def test_a_missing_slicer_skips_but_fails_under_ci(monkeypatch):
+    monkeypatch.setattr(shutil, "which", lambda _name: None)
+    monkeypatch.delenv("CI", raising=False)
+    with pytest.raises(pytest.skip.Exception, match="not installed"):
+        _need("slic3r")
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="missing under CI"):
+        _need("prusa-slicer")
 
 
 @pytest.fixture(scope="module")
