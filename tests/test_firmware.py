@@ -234,3 +234,19 @@ def test_host_player_refuses_bad_event_records(players, event_stream, tmp_path, 
         assert r.returncode == 1, (how, r.stderr)
         assert r.stdout == ref, how  # the samples and events before the bad record, nothing after
         assert f"byte offset {off}" in r.stderr and f"byte offset {off}" in err, (r.stderr, err)
+
+
+def test_bring_up_page_covers_every_machine():
+    # docs/bring-up.md: per source machine, the player, its wiring, the rest pose, the direction
+    # check and a first test (numbers the documents do not give are marked assumed)
+    text = (ROOT / "docs" / "bring-up.md").read_text()
+    sections = {s.split(":", 1)[0]: s for s in text.split("\n## ")[1:]}
+    for machine in ("ETITC", "Atlas", "Kossel", "UCB", "UADY", "ESPE"):
+        body = sections[machine]
+        for item in ("Player", "Wiring", "Direction", "First test"):
+            assert f"- **{item}" in body, (machine, item)
+        assert "- **Rest" in body, machine
+    for machine in ("Kossel", "UCB", "UADY", "ESPE"):
+        assert "assumed" in sections[machine], machine
+    assert "- **Calibration" in sections["Kossel"] and "- **Before a first" in sections["Kossel"]
+    assert "- **Before a first" in sections["UADY"]
