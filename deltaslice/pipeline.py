@@ -323,7 +323,9 @@ def write_output(trajectory, output, fmt: str | None = None, watch=None, *, max_
 
 def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: dict | None = None,
                   max_bytes=MAX_BYTES, events=()) -> int:
-    """Write Samples blocks for ``printer`` to ``output`` as ``fmt``, atomically. Returns bytes written.
+    """Write Samples blocks (or a Trajectory planned for ``printer``) for ``printer`` to ``output``
+    as ``fmt``, atomically. Returns bytes written. Blocks with another joint count, or a trajectory
+    planned for another printer, are refused (see ``emit.write_samples``).
     events: ``(sample_index, kind, value)`` (see ``emit.write_samples``)."""
     from .emit import write_samples as encode
 
@@ -348,6 +350,7 @@ def read_output(path):
     """(metadata, Samples) of a written setpoints CSV or binary stream."""
     from .emit import read_output as decode
 
+    _check_path(path, "read_output: path")
     try:
         data = Path(path).read_bytes()
     except OSError as exc:

@@ -18,6 +18,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import DeltasliceError
+
+
+def _numbers(name, value) -> np.ndarray:
+    """``value`` as float64; DeltasliceError naming ``Samples.name`` for None, strings, complex
+    numbers (non-finite values are kept: verify is what fails them)."""
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise DeltasliceError(f"Samples.{name}: expected an array of numbers: {exc}") from None
+    if raw.dtype.kind not in "biuf":
+        raise DeltasliceError(f"Samples.{name}: expected an array of real numbers, got {type(value).__name__} "
+                              f"({raw.dtype} values)")
+    return np.array(raw, dtype=float) if raw.dtype != np.float64 else raw
+
 
 @dataclass(frozen=True)
 class Samples:
@@ -27,15 +42,17 @@ class Samples:
     tool: np.ndarray
 
     def __post_init__(self):
-        n = len(self.t)
-        for name in ("t", "e", "tool"):
-            arr = np.asarray(getattr(self, name), dtype=float).reshape(-1)
+        t = _numbers("t", self.t).reshape(-1)
+        n = len(t)
+        object.__setattr__(self, "t", t)
+        for name in ("e", "tool"):
+            arr = _numbers(name, getattr(self, name)).reshape(-1)
             if len(arr) != n:
-                raise ValueError(f"Samples.{name}: expected {n} values, got {len(arr)}")
+                raise DeltasliceError(f"Samples.{name}: expected {n} values (one per time in t), got {len(arr)}")
             object.__setattr__(self, name, arr)
-        q = np.asarray(self.q, dtype=float)
+        q = _numbers("q", self.q)
         if q.ndim != 2 or len(q) != n:
-            raise ValueError(f"Samples.q: expected shape ({n}, J), got {q.shape}")
+            raise DeltasliceError(f"Samples.q: expected shape ({n}, J) (a row per time in t), got {q.shape}")
         object.__setattr__(self, "q", q)
 
     def __len__(self) -> int:

@@ -160,6 +160,8 @@ class Toolpath:
         ev = ev.copy()
         ev.setflags(write=False)
         object.__setattr__(self, "events", ev)
+        if not np.all(np.isfinite(self.start)):
+            raise DeltasliceError(f"Toolpath.start: {self.start.tolist()}: expected a finite point (x, y, z), mm")
         if n:
             if not np.all(np.isfinite(self.xyz)) or not np.all(np.isfinite(self.e)):
                 raise DeltasliceError("Toolpath: non-finite coordinate or extrusion")
@@ -303,7 +305,10 @@ class ToolpathBuilder:
     """
 
     def __init__(self, start=(0.0, 0.0, 0.0)):
-        self.start = np.asarray(start, dtype=float)
+        start = _column("ToolpathBuilder: start", start, np.float64)
+        if start.shape != (3,) or not np.all(np.isfinite(start)):
+            raise DeltasliceError(f"ToolpathBuilder: start = {start.tolist()}: expected a finite point (x, y, z), mm")
+        self.start = start
         self.pos = self.start.copy()
         self._chunks: list[tuple] = []
         self._events: list[tuple] = []

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +18,9 @@ from deltaslice.cli import main
 from deltaslice.emit.stream import MAGIC, parse_header
 from deltaslice.errors import PrinterFileError, StreamError, UnreachableError
 from deltaslice.machine import load_printer
-from deltaslice.pipeline import compile_part, load_toolpath, verify_output, write_output, write_samples
+from deltaslice.emit import write_trajectory
+from deltaslice.gcode import read_gcode
+from deltaslice.pipeline import compile_part, load_toolpath, read_output, verify_output, write_output, write_samples
 from deltaslice.planning import plan
 from deltaslice.samples import Samples
 from deltaslice.toolpath import Role, Toolpath, ToolpathBuilder
@@ -218,7 +221,51 @@ BAD_CALLS = {
         Samples(np.zeros(2), np.zeros((2, 3)), np.zeros(2), np.zeros(2)), printer("delta_etitc"), rate=0, fmt="csv"),
     "verify_samples(printer=path)": lambda: verify_samples(
         Samples(np.zeros(2), np.zeros((2, 3)), np.zeros(2), np.zeros(2)), ETITC, rate=1000, fmt="csv"),
+    # the readers, Samples, writers and starts (what each message must name after the colon)
+    "read_gcode(None)": lambda: read_gcode(None),
+    "read_gcode(123)": lambda: read_gcode(123),
+    "read_output(None)": lambda: read_output(None),
+    "write_trajectory(traj, None, 'csv')": lambda: write_trajectory(_planned(), None, "csv"),
+    "write_trajectory(traj, text file, 'csv')": lambda: write_trajectory(_planned(), io.StringIO(), "csv"),
+    "write_trajectory(None, f, 'csv')": lambda: write_trajectory(None, io.BytesIO(), "csv"),
+    "Samples(None, ...)": lambda: Samples(None, None, None, None),
+    "Samples e shorter than t": lambda: Samples(np.zeros(3), np.zeros((3, 3)), np.zeros(2), np.zeros(3)),
+    "Samples q rows not t": lambda: Samples(np.zeros(3), np.zeros((2, 3)), np.zeros(3), np.zeros(3)),
+    "Samples tool strings": lambda: Samples(np.zeros(2), np.zeros((2, 3)), np.zeros(2), ["a", "b"]),
+    "Toolpath(start=[nan, 0, 0])": lambda: _tp(start=np.array([np.nan, 0.0, 0.0])),
+    "empty Toolpath(start=[nan, 0, 0])": lambda: Toolpath.empty(start=(np.nan, 0.0, 0.0)),
+    "ToolpathBuilder((nan, 0, 0))": lambda: ToolpathBuilder((np.nan, 0.0, 0.0)),
+    "ToolpathBuilder((1, 2))": lambda: ToolpathBuilder((1.0, 2.0)),
+    "write_samples(etitc trajectory, ucb)": lambda: write_samples(
+        _planned(), printer("delta_ucb"), "/tmp/deltaslice_strict_never.dsl", fmt="stream", rate=1000.0),
+    "write_samples(2-joint blocks, etitc)": lambda: write_samples(
+        [Samples(np.zeros(2), np.zeros((2, 2)), np.zeros(2), np.zeros(2))], printer("delta_etitc"),
+        "/tmp/deltaslice_strict_never.dsl", fmt="stream", rate=1000.0),
+    "write_samples(None, etitc)": lambda: write_samples(
+        None, printer("delta_etitc"), "/tmp/deltaslice_strict_never.csv", fmt="csv", rate=1000.0),
 }
+
+# the argument each message names (the rest name theirs too; these are checked word for word)
+NAMED = {
+    "read_gcode(None)": "path", "read_gcode(123)": "path", "read_output(None)": "path",
+    "write_trajectory(traj, None, 'csv')": "f:", "write_trajectory(traj, text file, 'csv')": "f:",
+    "write_trajectory(None, f, 'csv')": "trajectory", "Samples(None, ...)": "Samples.t",
+    "Samples e shorter than t": "Samples.e", "Samples q rows not t": "Samples.q", "Samples tool strings": "Samples.tool",
+    "Toolpath(start=[nan, 0, 0])": "start", "empty Toolpath(start=[nan, 0, 0])": "start",
+    "ToolpathBuilder((nan, 0, 0))": "start", "ToolpathBuilder((1, 2))": "start",
+    "write_samples(etitc trajectory, ucb)": "delta_ucb", "write_samples(2-joint blocks, etitc)": "joints",
+    "write_samples(None, etitc)": "blocks",
+}
+
+
+_PLANNED = {}
+
+
+def _planned():
+    """A trajectory planned for delta_etitc (planned once)."""
+    if "t" not in _PLANNED:
+        _PLANNED["t"] = plan(_add(), printer("delta_etitc"), workers=1)
+    return _PLANNED["t"]
 
 
 @pytest.mark.parametrize("case", list(BAD_CALLS))
@@ -226,6 +273,9 @@ def test_bad_library_calls_raise_the_family_naming_the_argument(case):
     with pytest.raises(DeltasliceError) as err:
         BAD_CALLS[case]()
     assert str(err.value), case
+    if case in NAMED:
+        assert NAMED[case] in str(err.value), str(err.value)
+    assert not list(Path("/tmp").glob("deltaslice_strict_never*")), "a refused call wrote its output"
 
 
 def test_numpy_scalars_are_numbers(tmp_path):
@@ -277,3 +327,12 @@ def test_verify_toolpath_takes_the_placement_options(tmp_path):
     centred = _verify_cli(out, "--toolpath", str(part), "--set", "slicing.layer_height=0.5",
                           "--set", "slicing.first_layer_height=0.5")
     assert centred.exit_code == 3 and "deviation" in centred.output
+
+
+def test_write_samples_takes_a_trajectory_planned_for_the_printer(tmp_path):
+    traj = _planned()
+    out = tmp_path / "x.dsl"
+    size = write_samples(traj, printer("delta_etitc"), out, fmt="stream", rate=1000.0)
+    meta, back = read_output(out)
+    assert size == out.stat().st_size and meta["printer"] == "delta_etitc"
+    assert len(back) == int(np.ceil(traj.duration * 1000.0 - 1e-9)) + 1
