@@ -841,7 +841,7 @@ def _compare_source(source, printer, e, kind, shown, echo, center) -> np.ndarray
         other_size = any(abs(a - m) > max(1.0, 0.01 * m) for a, m in ((sx, wx), (sy, wy)))
         off_centre = math.hypot(cx, cy) > 1.0
         if other_size or off_centre:
-            what = (["a bed of another size: the part keeps its size and must fit this one"] if other_size else []) + (
+            what = (["a bed of another size (the part keeps its size and must fit this one)"] if other_size else []) + (
                 ["--center moves the part to this bed's centre"] if off_centre and not center else [])
             say(f"{shown}: sliced for a {sx:g} x {sy:g} mm bed centred at ({cx:g}, {cy:g}); {printer.name}'s bed is "
                 f"{mine} centred at (0, 0)" + (": " + "; ".join(what) if what else ""))

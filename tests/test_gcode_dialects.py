@@ -303,6 +303,33 @@ def test_cura_settings_block():
     assert any("220 x 220 mm bed" in n for n in notes)
 
 
+def test_bed_of_another_size_centred_at_zero_gets_a_note():
+    etitc = printer("delta_etitc")  # a round bed, radius 80 mm
+    body = "G1 X0 Y0 Z0.2 F600\nG1 X10 Y0 E1\n"
+    square = "; bed_shape = -100x-100,100x-100,100x100,-100x100\n"
+    _tp, notes = parse(body + square, etitc)
+    bed = [n for n in notes if "mm bed" in n]
+    assert len(bed) == 1 and "200 x 200 mm bed centred at (0, 0)" in bed[0] and "radius 80 mm" in bed[0]
+    assert "another size" in bed[0] and "--center" not in bed[0]  # centring would not change anything
+    # PrusaSlicer's polygon of a round bed the printer's size: no note
+    ring = ",".join(f"{80 * math.cos(a):.4f}x{80 * math.sin(a):.4f}" for a in np.linspace(0, 2 * np.pi, 64, endpoint=False))
+    _tp, notes = parse(body + f"; bed_shape = {ring}\n", etitc)
+    assert not any("mm bed" in n for n in notes)
+    # Cura: machine width and depth, centred at zero
+    cura = (';SETTING_3 {"global_quality": "[general]\\\\nversion = 4\\\\n[values]\\\\nmachine_width = 300\\\\n'
+            'machine_depth = 200\\\\nmachine_center_is_zero = True\\\\n"}\n')
+    _tp, notes = parse(body + cura, etitc)
+    assert any("300 x 200 mm bed centred at (0, 0)" in n and "another size" in n for n in notes)
+    # a rectangular printer bed of the same size: no note
+    atlas = printer("fivebar_atlas")
+    hx, hy = atlas.bed.size_x / 2, atlas.bed.size_y / 2
+    assert atlas.bed.shape == "rectangle"
+    _tp, notes = parse(body + f"; bed_shape = {-hx}x{-hy},{hx}x{-hy},{hx}x{hy},{-hx}x{hy}\n", atlas)
+    assert not any("mm bed" in n for n in notes)
+    _tp, notes = parse(body + f"; bed_shape = {-hx - 20}x{-hy},{hx + 20}x{-hy},{hx + 20}x{hy},{-hx - 20}x{hy}\n", atlas)
+    assert any(f"{2 * hx + 40:g} x {2 * hy:g} mm bed" in n and "another size" in n for n in notes)
+
+
 def test_center_moves_the_footprint_and_the_unreachable_message_says_so():
     etitc = printer("delta_etitc")
     text = "G1 X0 Y0 Z5 F600\nG1 X100 Y100 Z0.3\nG1 X110 Y100 E1\nG1 X110 Y110 E2\nG1 X0 Y200 Z10\n"
