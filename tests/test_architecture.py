@@ -144,3 +144,14 @@ def test_every_planner_returns_pieces(any_printer):
         for a, c in zip(traj.pieces[:-1], traj.pieces[1:]):
             assert a.q_end is not None and c.q_start is not None
             assert abs(a.q_end - c.q_start).max() < 1e-6, (planner, a.kind, c.kind)
+
+
+def test_the_module_table_lists_every_file():
+    """docs/architecture.md's module table has one row per ``deltaslice/**/*.py``, no more, no less."""
+    text = (PKG.parent / "docs" / "architecture.md").read_text()
+    table = text.split("\n## Modules\n", 1)[1].split("\n## ", 1)[0]
+    rows = re.findall(r"^\| `([^`]+)` \|", table, re.M)
+    files = sorted(str(p.relative_to(PKG)) for p in PKG.rglob("*.py"))
+    assert len(rows) == len(set(rows)), "a module has two rows"
+    assert sorted(rows) == files, (f"missing rows: {sorted(set(files) - set(rows))}; "
+                                   f"rows of no file: {sorted(set(rows) - set(files))}")

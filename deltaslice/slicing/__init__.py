@@ -1,9 +1,13 @@
 """Slicing: a :class:`~deltaslice.mesh.Mesh` in, a layered :class:`~deltaslice.toolpath.Toolpath` out.
 
-One module per concern: :mod:`.layers` (heights, manifold3d cross-sections),
-:mod:`.perimeters` (inward offsets, seams), :mod:`.infill` (solid regions from
-neighbouring layers, rectilinear lines), :mod:`.ordering` (path order, travels,
-retracts), :mod:`.extrusion` (filament amounts, feeds), :mod:`.skirt`.
+:func:`slice_mesh` (:mod:`.slicer`) takes the mesh, the slicing settings and the tool, layer by
+layer. One module per concern: :mod:`.layers` (layer heights), :mod:`.sections` (per-layer
+cross-sections: manifold3d for a closed part, open meshes cut triangle by triangle and closed),
+:mod:`.perimeters` (inward offsets, seams, overhangs), :mod:`.gapfill` (gap fill and thin walls
+along the medial axis), :mod:`.bridges` (solid regions over air, lines across the span),
+:mod:`.infill` (solid regions from neighbouring layers, rectilinear lines), :mod:`.skirt`,
+:mod:`.ordering` (path order, travels, retracts), :mod:`.extrusion` (filament amounts, feeds),
+:mod:`.heaters` (hot-end and bed set-and-wait events at the start).
 """
 
 from .slicer import slice_mesh
