@@ -703,7 +703,7 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
         layer, layer_z = _layers_from_z(xyz[:, 2], working)
     if not e_words and printer is not None and printer.tool.channel_kind != "laser":
         e = _flow_model_e(printer, xyz, starts, working, layer, layer_z, e)
-    e = _compare_source(source, printer, e, kind, shown, echo, center)
+    e = _compare_source(source, printer, e, kind, moved, shown, echo, center)
     tp = Toolpath(start, xyz, feed_a, e, tool, role, layer, layer_z, make_events(events))
     if center:
         tp, shift = centred(tp)
@@ -814,9 +814,10 @@ def _source_machine(settings: dict, cura: list[str]) -> dict:
     return out
 
 
-def _compare_source(source, printer, e, kind, shown, echo, center) -> np.ndarray:
+def _compare_source(source, printer, e, kind, moved, shown, echo, center) -> np.ndarray:
     """Warn where the file's machine differs from ``printer``; rescale E (written with E words)
-    for another filament diameter so the same volume of plastic is extruded."""
+    for another filament diameter so the same volume of plastic is extruded, retractions kept
+    at their length (:func:`_rescale_filament`)."""
     if printer is None or printer.tool.channel_kind == "laser" or not source:
         return e
     tool = printer.tool
@@ -824,9 +825,11 @@ def _compare_source(source, printer, e, kind, shown, echo, center) -> np.ndarray
     fd = source.get("filament_diameter")
     if fd and abs(fd - tool.filament_diameter) > 0.01 * tool.filament_diameter:
         ratio = (fd / tool.filament_diameter) ** 2
-        e = np.where(kind == 2, e * ratio, e)
+        e = _rescale_filament(e, kind == 2, moved, ratio)
         say(f"{shown}: sliced for {fd:g} mm filament, {printer.name} uses {tool.filament_diameter:g} mm: "
-            f"E values rescaled by the area ratio {ratio:.4f} so the same volume of plastic is extruded")
+            f"E values rescaled by the area ratio {ratio:.4f} so the same volume of plastic is extruded; "
+            "retractions and the unretractions that undo them kept at their length (mm of filament pulled "
+            "back and pushed again, not a volume)")
     nz = source.get("nozzle_diameter")
     if nz and abs(nz - tool.nozzle_diameter) > 1e-6:
         say(f"{shown}: sliced for a {nz:g} mm nozzle, {printer.name} has {tool.nozzle_diameter:g} mm: "
@@ -846,6 +849,28 @@ def _compare_source(source, printer, e, kind, shown, echo, center) -> np.ndarray
             say(f"{shown}: sliced for a {sx:g} x {sy:g} mm bed centred at ({cx:g}, {cy:g}); {printer.name}'s bed is "
                 f"{mine} centred at (0, 0)" + (": " + "; ".join(what) if what else ""))
     return e
+
+
+def _rescale_filament(e, written, moved, ratio) -> np.ndarray:
+    """E of the moves ``written`` (with E words) for a filament of area ``ratio`` times the file's.
+
+    Filament pushed along a move is plastic laid down: a volume, scaled by the area ratio. A
+    retraction is not: it pulls a length of filament back to relieve the melt chamber, and the
+    file's slicer chose that length for the drive and hot end, not for a volume (scaled, 2 mm
+    becomes 0.68 mm on a 3 mm printer and barely relieves anything). So negative amounts (standing
+    retractions and wipes) keep their length, and so does the standing push that undoes them; only
+    what a standing push adds beyond what is retracted (a prime, a restart extra) is plastic, scaled.
+    """
+    out = np.where(written & moved & (e > 0), e * ratio, e)
+    retracted = 0.0
+    for i in np.flatnonzero(written & ((e < 0) | (~moved & (e > 0)))):
+        if e[i] < 0:
+            retracted -= e[i]
+        else:
+            back = min(e[i], retracted)
+            retracted -= back
+            out[i] = back + (e[i] - back) * ratio
+    return out
 
 
 def _layers_from_z(z: np.ndarray, working: np.ndarray):

@@ -280,17 +280,20 @@ PRUSA_TAIL = """
 
 def test_settings_block_warns_and_rescales_filament():
     etitc = printer("delta_etitc")
-    body = "M83\nG1 X100 Y100 Z0.2 F600\nG1 X110 Y100 E1.0\nG1 E-0.8\n"
+    body = "M83\nG1 X100 Y100 Z0.2 F600\nG1 X110 Y100 E1.0\nG1 E-0.8\nG1 X120 Y100\nG1 E1.0\nG1 X130 Y100 E1.0\n"
     tp, notes = parse(body + PRUSA_TAIL, etitc)
     ratio = (1.75 / 3.0) ** 2
-    assert tp.e.tolist() == pytest.approx([0.0, ratio, -0.8 * ratio])
-    assert any("1.75 mm filament" in n and "rescaled" in n and f"{ratio:.4f}" in n for n in notes)
+    # extrusion rescaled (a volume); the retraction and the unretraction that undoes it keep their
+    # length, only the 0.2 mm the unretraction adds beyond it (a restart extra) is plastic, rescaled
+    assert tp.e.tolist() == pytest.approx([0.0, ratio, -0.8, 0.0, 0.8 + 0.2 * ratio, ratio])
+    assert any("1.75 mm filament" in n and "rescaled" in n and f"{ratio:.4f}" in n
+               and "retractions" in n and "kept at their length" in n for n in notes)
     assert any("0.4 mm nozzle" in n for n in notes)
     assert any("250 x 210 mm bed" in n and "--center" in n for n in notes)
     # the same file for a 1.75 mm printer: no rescaling, no filament note
     kossel = printer("linear_kossel")
     tp2, notes2 = parse(body + PRUSA_TAIL, kossel)
-    assert tp2.e.tolist() == pytest.approx([0.0, 1.0, -0.8]) and not any("filament" in n for n in notes2)
+    assert tp2.e.tolist() == pytest.approx([0.0, 1.0, -0.8, 0.0, 1.0, 1.0]) and not any("filament" in n for n in notes2)
 
 
 def test_cura_settings_block():

@@ -130,6 +130,12 @@ def test_prusaslicer_defaults_filament_warning_and_centring(prusa_defaults, tmp_
         compile_part(prusa_defaults, etitc, output=str(tmp_path / "x.csv"), workers=1)
     raw = read_gcode(prusa_defaults)  # no printer: E as written
     assert tp.e[tp.working].sum() == pytest.approx(raw.e[raw.working].sum() * (1.75 / 3.0) ** 2, rel=1e-9)
+    # retractions keep their length (PrusaSlicer's retract_length), not rescaled as a volume
+    length = float(re.search(r"^; retract_length = ([\d.]+)", prusa_defaults.read_text(), re.M).group(1))
+    standing = tp.role == Role.RETRACT
+    assert length > 0 and standing.sum() >= 4 and np.array_equal(tp.e[standing], raw.e[standing])
+    assert np.allclose(np.abs(tp.e[standing]), length)
+    assert any("kept at their length" in n for n in notes)
     # hot-end temperatures reach the CSV and the stream
     temps = [float(ln.split("S")[1].split()[0]) for ln in prusa_defaults.read_text().splitlines()
              if ln.startswith(("M104 S", "M109 S"))]
