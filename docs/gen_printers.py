@@ -2,6 +2,8 @@
 source, and the list of assumed numbers, from the files' [sources] tables.
 
     python docs/gen_printers.py > docs/printer-sources.md
+
+tests/test_printer_docs.py fails when the file is stale.
 """
 
 from __future__ import annotations
@@ -37,7 +39,20 @@ def show(value) -> str:
     return str(value)
 
 
-def main(out=sys.stdout) -> None:
+def render() -> str:
+    """The whole of docs/printer-sources.md (tests/test_printer_docs.py checks the file is this)."""
+    import io
+
+    buf = io.StringIO()
+    write(buf)
+    return buf.getvalue()
+
+
+def main() -> None:
+    sys.stdout.write(render())
+
+
+def write(out) -> None:
     files = sorted((ROOT / "printers").glob("*.toml"))
     w = out.write
     w("# Printer files: every number and its source\n\n")

@@ -72,6 +72,42 @@ def test_the_printer_file_reference_is_generated_from_the_reader():
                     assert f"| `{key}` |" in text, (name, section, key)
 
 
+def _sources_generator():
+    spec = importlib.util.spec_from_file_location("gen_printers", ROOT / "docs" / "gen_printers.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_printer_sources_table_is_generated_from_the_files():
+    text = _sources_generator().render()
+    assert (ROOT / "docs" / "printer-sources.md").read_text() == text, (
+        "docs/printer-sources.md is stale: python docs/gen_printers.py > docs/printer-sources.md")
+
+
+def test_the_printers_page_agrees_with_the_sources_and_cites_documents_by_title():
+    """docs/printers.md (written by hand) quotes the generated counts, names no local path, and says
+    what the documents do not: the ESPE servo model and the Atlas working mode are assumed."""
+    page = (ROOT / "docs" / "printers.md").read_text()
+    assert "/work/" not in page and "seeds" not in page and "reference/machines.md" not in page
+    summary = _sources_generator().render().split("## Summary", 1)[1]
+    for name, source, _derived, fitted, _chosen, assumed in re.findall(
+            r"^\| (\w+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \| (\d+) \|$", summary, re.M):
+        m = re.search(rf"^- \*\*{name}\*\* \((\d+) assumed", page, re.M)
+        assert m and m.group(1) == assumed, (name, assumed)
+        if name == "delta_etitc":
+            assert f"{source} from the thesis" in page
+        if int(fitted):
+            assert f"{assumed} assumed, {fitted} fitted" in page
+    rows = {}  # the first table's row per printer: the summary
+    for r in page.splitlines():
+        if r.startswith("| delta_") or r.startswith("| fivebar"):
+            rows.setdefault(r.split("|")[1].strip(), r)
+    assert "AX-12 assumed" in rows["delta_espe_laser"] and "Dynamixel AX-12," not in rows["delta_espe_laser"]
+    atlas = rows["fivebar_atlas"]
+    assert "working mode assumed" in atlas and "paper's CODO2 = +1" in atlas and "CODO2 = -1" not in atlas
+
+
 def test_the_custom_delta_guide_covers_the_rotary_delta_keys():
     guide = (ROOT / "docs" / "custom-delta.md").read_text()
     for key in ("base_radius", "platform_radius", "upper_arm", "forearm", "shoulder_height", "tool_offset",
