@@ -269,6 +269,26 @@ def test_builder_events_and_laser_round_trip(tmp_path):
     assert back.equals(tp) and back.tool.tolist() == [0.0, 0.4]
 
 
+def test_laser_doc_states_the_s_word_the_writer_writes():
+    # an engraving (no M3/M4 events of its own): the writer puts M4 S0 ... M5 around the run and
+    # S = power x [tool] s_max on its moves (GRBL's $30), not x power_counts (the PWM steps)
+    from conftest import ROOT
+
+    from deltaslice.gcode import gcode_text
+
+    laser = printer("delta_espe_laser")
+    assert laser.tool.s_max != laser.tool.power_counts
+    b = ToolpathBuilder()
+    b.new_layer(0.0)
+    b.add([[5, 0, 0], [5, 5, 0], [0, 5, 0]], 20.0, 0.0, [0.0, 0.5, 0.25],
+          [Role.TRAVEL, Role.LASER_DYNAMIC, Role.LASER_DYNAMIC])
+    text = gcode_text(b.build(), laser)
+    s_words = [w for ln in text.splitlines() if ln.startswith("G1") for w in ln.split() if w.startswith("S")]
+    assert s_words == [f"S{round(0.5 * laser.tool.s_max)}", f"S{round(0.25 * laser.tool.s_max)}"]
+    doc = (ROOT / "docs" / "laser.md").read_text()
+    assert "S<power x [tool] s_max>" in doc and "power_counts>" not in doc
+
+
 # --------------------------------------------------------------------------- another machine's file
 
 PRUSA_TAIL = """
