@@ -112,8 +112,7 @@ def gcode_text(toolpath: Toolpath, printer=None) -> str:
         if mode_events:
             # GRBL power words on working moves, so M3/M4 jobs read back with their power
             s_max = getattr(getattr(printer, "tool", None), "s_max", 1000.0)
-            max_power = getattr(getattr(printer, "tool", None), "max_power", 1.0)
-            laser_s = np.char.mod("%.4f", tp.tool / max_power * s_max)
+            laser_s = np.char.mod("%.4f", tp.tool * s_max)  # tool: a fraction of full power
         for i in range(n):
             if i in ev_at:
                 lines.extend(ev_at[i])
@@ -729,7 +728,8 @@ def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_word
     note = ""
     if laser and laser_seen:
         s_max = getattr(printer.tool, "s_max", 1000.0)
-        frac = np.clip(power / s_max, 0.0, 1.0) * printer.tool.max_power
+        # the tool channel is a fraction of full power (0..1); max_power (W) is reported only
+        frac = np.clip(power / s_max, 0.0, 1.0)
         working = moved & (kind >= 1) & (frac > 0)
         return np.zeros(len(e)), np.where(working, frac, 0.0), working, ""
     if bare_words and not e_words:
@@ -748,7 +748,7 @@ def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_word
                 + ", G0 moves are travels")
     else:
         working = moved & (e > 0)
-    tool = working.astype(float) * (printer.tool.max_power if laser else 1.0)
+    tool = working.astype(float)  # full extrusion, or full laser power (a fraction, not watts)
     if laser:
         e = np.zeros(len(e))
     elif bare_words and not e_words:

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from deltaslice.errors import GcodeError, UnreachableError
-from deltaslice.gcode import ARC_TOLERANCE, parse_gcode, read_gcode
+from deltaslice.gcode import ARC_TOLERANCE, gcode_text, parse_gcode, read_gcode
 from deltaslice.pipeline import write_gcode
 from deltaslice.planning import check_reachable, plan
 from deltaslice.slicing.extrusion import filament_per_mm
@@ -121,6 +121,13 @@ G1 X-10 Y-10
     small = dataclasses.replace(laser, tool=dataclasses.replace(laser.tool, s_max=255.0))
     tp2, _ = parse("M3 S255\nG1 X5 Y0 F600\n", small)
     assert tp2.tool.tolist() == [1.0]
+    # the tool channel is a fraction of full power whatever the laser's watts (max_power is
+    # reported only): a 5 W laser at S500 is at 0.5, and without M3/M4 at 1.0; both write back
+    strong = dataclasses.replace(laser, tool=dataclasses.replace(laser.tool, max_power=5.0))
+    tp4, _ = parse("M3 S500\nG1 X5 Y0 F600\n", strong)
+    assert tp4.tool.tolist() == [0.5]
+    assert parse("G1 X5 Y0 F600\n", strong)[0].tool.tolist() == [1.0]
+    assert parse(gcode_text(tp4, strong), strong)[0].tool.tolist() == [0.5]
     # on an extruder the laser words are only events
     tp3, _ = parse("M3 S255\nG1 X5 Y0 E1 F600\n", printer("delta_etitc"))
     assert tp3.tool.tolist() == [1.0] and tp3.events["kind"].tolist() == [EventKind.LASER_MODE]
@@ -273,8 +280,6 @@ def test_laser_doc_states_the_s_word_the_writer_writes():
     # an engraving (no M3/M4 events of its own): the writer puts M4 S0 ... M5 around the run and
     # S = power x [tool] s_max on its moves (GRBL's $30), not x power_counts (the PWM steps)
     from conftest import ROOT
-
-    from deltaslice.gcode import gcode_text
 
     laser = printer("delta_espe_laser")
     assert laser.tool.s_max != laser.tool.power_counts
