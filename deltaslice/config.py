@@ -60,10 +60,16 @@ class _Stop(PrinterFileError):
 class Problems:
     """The problems of one printer file, collected across its sections."""
 
-    def __init__(self, path: str):
+    def __init__(self, path: str, overridden=()):
         self.path = path
         self.items: list[tuple[str, str | None, str, bool]] = []  # (section, key, message, is_missing)
         self.suggested: set[tuple[str, str]] = set()
+        # (section, key) set on the command line (--set section.key=value): their problems are
+        # reported as the --set's, not as the file's
+        self.overridden: set[tuple[str, str]] = {tuple(k) for k in overridden}
+
+    def is_overridden(self, section, key) -> bool:
+        return key is not None and (section, key) in self.overridden
 
     def add(self, section, key, message, missing=False):
         if key is not None and any(s == section and k == key for s, k, _m, _x in self.items):
@@ -75,6 +81,11 @@ class Problems:
 
     def raise_if_any(self) -> None:
         msgs = self.messages()
+        if msgs and all(self.is_overridden(s, k) for s, k, _m, _x in self.items):  # the command line's, not the file's
+            if len(msgs) == 1:
+                raise PrinterFileError(f"{msgs[0]} (printer file {self.path})")
+            raise PrinterFileError(f"{len(msgs)} problems with --set (printer file {self.path}):\n"
+                                   + "\n".join(f"  {m}" for m in msgs))
         if len(msgs) == 1:
             raise PrinterFileError(f"{self.path}: {msgs[0]}")
         if msgs:
@@ -95,6 +106,8 @@ class Section:
             self.fail(None, data, "a table")
 
     def _where(self, key: str | None) -> str:
+        if self.problems is not None and self.problems.is_overridden(self.name, key):
+            return f"--set {self.name}.{key}"
         return f"[{self.name}]" if key is None else f"[{self.name}] {key}"
 
     def fail(self, key, value, expected):
@@ -215,6 +228,8 @@ class Section:
             close = difflib.get_close_matches(key, valid, n=1, cutoff=0.6)
             hint = f": did you mean {close[0]!r}?" if close else ""
             message = f"[{self.name}] unknown key {key!r}{hint} (expected one of {', '.join(valid)})"
+            if self.problems is not None and self.problems.is_overridden(self.name, key):
+                message = f"--set {self.name}.{key}: no key {key!r} in [{self.name}]{hint} (expected one of {', '.join(valid)})"
             if self.problems is None:
                 raise PrinterFileError(f"{self.path}: {message}")
             self.problems.add(self.name, key, message)

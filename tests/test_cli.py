@@ -118,12 +118,19 @@ def test_set_overrides_are_validated_like_the_file(tmp_path):
     r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicing.layer_height=0.3", "-o", out, "--quiet")
     assert r.exit_code == 0, r.output
     assert int(re.search(r"(\d+) layers", r.output).group(1)) > default_layers * 1.25
+    # a --set's problem is the command line's: named as the --set, not as the printer file's key
     r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicing.layer_height=-1", "-o", out, "--quiet")
-    assert r.exit_code == 1 and "[slicing] layer_height = -1" in r.stderr
+    assert r.exit_code == 1 and r.stderr.startswith("error: --set slicing.layer_height = -1.0: expected a number > 0")
+    assert "[slicing] layer_height" not in r.stderr
     r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicing.layer_hieght=0.3", "-o", out, "--quiet")
-    assert r.exit_code == 1 and "did you mean 'layer_height'" in r.stderr
+    assert r.exit_code == 1 and r.stderr.startswith("error: --set slicing.layer_hieght: ")
+    assert "did you mean 'layer_height'" in r.stderr and "unknown key" not in r.stderr
     r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicin.layer_height=0.3", "-o", out, "--quiet")
-    assert r.exit_code == 1 and "did you mean 'slicing'" in r.stderr
+    assert r.exit_code == 1 and r.stderr.startswith("error: --set slicin.layer_height: ") and "did you mean 'slicing'" in r.stderr
+    r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "slicing.layer_height=-1", "--set", "bed.radius=0",
+             "-o", out, "--quiet")
+    assert r.exit_code == 1 and r.stderr.startswith("error: 2 problems with --set")
+    assert "--set bed.radius = 0" in r.stderr and "--set slicing.layer_height = -1.0" in r.stderr
     r = _run("slice", CUBE, "--printer", "delta_etitc", "--set", "layer_height", "-o", out, "--quiet")
     assert r.exit_code == 2
 

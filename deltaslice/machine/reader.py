@@ -237,14 +237,14 @@ def apply_overrides(data: dict, overrides, path: str) -> dict:
     for dotted, value in dict(overrides or {}).items():
         section, _, key = str(dotted).partition(".")
         if not section or not key or "." in key:
-            raise PrinterFileError(f"{path}: override {dotted!r}: expected section.key=value (e.g. slicing.layer_height=0.3)")
+            raise PrinterFileError(f"--set {dotted}: expected section.key=value (e.g. slicing.layer_height=0.3)")
         if section not in SECTIONS:
             close = difflib.get_close_matches(section, SECTIONS, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise PrinterFileError(f"{path}: override {dotted!r}: no section [{section}]{hint}: expected one of {', '.join(SECTIONS)}")
+            raise PrinterFileError(f"--set {dotted}: no section [{section}]{hint}: expected one of {', '.join(SECTIONS)}")
         table = out.setdefault(section, {})
         if not isinstance(table, dict):
-            raise PrinterFileError(f"{path}: [{section}] expected a table")
+            raise PrinterFileError(f"{path}: [{section}] expected a table (setting --set {dotted})")
         table[key] = value
     return out
 
@@ -270,16 +270,18 @@ def load_printer(path: str | Path, overrides: dict | None = None) -> Printer:
         raise PrinterFileError(f"{shown}: not valid TOML: {exc}") from None
     if overrides:
         data = apply_overrides(data, overrides, shown)
-    return printer_from_dict(data, shown)
+    return printer_from_dict(data, shown, overridden=[str(k).split(".", 1) for k in dict(overrides or {})])
 
 
-def printer_from_dict(data: dict, path: str = "<printer>") -> Printer:
+def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=()) -> Printer:
     """Validate an already-parsed printer description (same rules as :func:`load_printer`).
 
-    Every section is read even after a problem, and one PrinterFileError lists them all."""
+    Every section is read even after a problem, and one PrinterFileError lists them all.
+    overridden: ``(section, key)`` pairs set by ``--set``, whose problems are reported as the
+    ``--set``'s rather than the file's."""
     if not isinstance(data, dict):
         raise PrinterFileError(f"{path}: expected a table of sections, got {type(data).__name__}")
-    problems = Problems(str(path))
+    problems = Problems(str(path), overridden)
 
     def section(name, default=MISSING):
         raw = data.get(name, {} if default is not MISSING else None)
