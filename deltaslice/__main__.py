@@ -2,8 +2,13 @@
 
 from . import interrupt
 
-interrupt.install()  # before the heavy imports below: Ctrl-C during them must not be lost
+# before the imports below: a Ctrl-C while they run (click, the command definitions) exits at
+# once with the one interrupt line and status 130, not a traceback from inside an import
+interrupt.install(at_once=True)
 
-from .cli import run  # noqa: E402
+try:
+    from .cli import run
+except KeyboardInterrupt:  # pragma: no cover - the handler above exits first
+    interrupt.exit_now()
 
 run()

@@ -19,7 +19,10 @@ from __future__ import annotations
 
 from . import interrupt
 
-interrupt.install()  # before click, numpy, trimesh: a Ctrl-C during the imports is not lost
+# Until this module is defined, Ctrl-C exits at once with the one line and status 130 (a
+# KeyboardInterrupt raised inside click's import would print a traceback); the console script
+# imports this module first. Its end installs the recording handler the commands run under.
+interrupt.install(at_once=True)
 
 import json  # noqa: E402
 import os  # noqa: E402
@@ -466,6 +469,8 @@ def run():
             os._exit(EXIT_INTERRUPTED)
         raise
 
+
+interrupt.install()  # this module is defined: from here on Ctrl-C is recorded and stops the work cleanly
 
 if __name__ == "__main__":  # pragma: no cover
     run()

@@ -30,11 +30,27 @@ def _handler(signum, frame):
     raise KeyboardInterrupt
 
 
-def install() -> None:
-    """Route SIGINT through the recording handler (main thread only; a no-op elsewhere)."""
+def exit_now() -> None:
+    """Print the one interrupt line and leave with status 130 at once (no traceback, no cleanup:
+    nothing has been written yet)."""
+    sys.stderr.write(MESSAGE + "\n")
+    sys.stderr.flush()
+    os._exit(EXIT_INTERRUPTED)
+
+
+def _exit_handler(signum, frame):
+    exit_now()
+
+
+def install(at_once: bool = False) -> None:
+    """Route SIGINT through the recording handler (main thread only; a no-op elsewhere).
+
+    at_once: exit at once instead (:func:`exit_now`), for the command line's own imports
+    (``from .cli import run``, click's import), where a KeyboardInterrupt would surface as a
+    traceback from inside an import and nothing is written yet."""
     if threading.current_thread() is not threading.main_thread():
         return
-    signal.signal(signal.SIGINT, _handler)
+    signal.signal(signal.SIGINT, _exit_handler if at_once else _handler)
     _state["installed"] = True
 
 

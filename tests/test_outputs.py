@@ -311,3 +311,37 @@ def test_ctrl_c_at_any_moment_keeps_the_previous_output(tmp_path, delay):
     assert stderr.decode().strip().count("\n") == 0 and "interrupted" in stderr.decode(), stderr.decode()
     assert out.read_bytes() == b"previous output"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cube.dsl", "cube.stl"]
+
+
+_SIGINT_DURING_IMPORT = """
+import importlib.abc, os, runpy, signal, sys
+
+class SigintOnImport(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name == {target!r}:
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)  # handled at the next bytecode: inside this import
+        return None
+
+sys.meta_path.insert(0, SigintOnImport())
+sys.argv = ["deltaslice", "printers"]
+if {entry!r} == "module":
+    runpy.run_module("deltaslice", run_name="__main__", alter_sys=True)
+else:
+    from deltaslice.cli import run  # what the deltaslice console script does
+    run()
+"""
+
+
+@pytest.mark.parametrize("entry", ["module", "console script"])
+@pytest.mark.parametrize("target", ["click", "click.core", "deltaslice.report"])
+def test_ctrl_c_while_the_cli_imports_is_one_line_and_130(entry, target):
+    """SIGINT raised inside ``from .cli import run`` (click's import, the CLI's own): the one
+    interrupt line and exit 130, not a KeyboardInterrupt traceback from inside the import."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    code = _SIGINT_DURING_IMPORT.format(target=target, entry=entry)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert r.returncode == 130 and r.stderr.strip() == "interrupted: no output written (any previous output is unchanged)", (
+        r.returncode, r.stderr)
+    assert r.stdout == ""
