@@ -27,6 +27,8 @@ from .toolpath import EventKind, Role, Toolpath, centred, make_events
 ARC_TOLERANCE = 0.01
 #: Feed used before the file sets one (mm/s) when no printer is given.
 DEFAULT_FEED = 50.0
+#: Lines between progress reports (a 60 MB spiral vase has 1.5 M).
+PROGRESS_LINES = 50_000
 
 # Role <-> comment names (PrusaSlicer/Slic3r first, then Cura).
 _ROLE_NAMES = {
@@ -310,14 +312,15 @@ def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str):
     return pts
 
 
-def read_gcode(path, *, printer=None, echo=None, center=False) -> Toolpath:
+def read_gcode(path, *, printer=None, echo=None, center=False, progress=None) -> Toolpath:
     """Read a G-code file into a Toolpath (bed frame = the file's frame, mm).
 
     printer: optional; gives the feed used before the file sets one, the flow model for
     files without extrusion amounts, the laser's S scale, and the machine the file's own
     settings are compared with. echo: ``callable(str)`` receiving notes (skipped commands,
     dialect, settings that differ). center: move the part's footprint (its working
-    moves) to the bed centre. Raises :class:`GcodeError` naming the line on bad input.
+    moves) to the bed centre. progress: callable(lines read, lines) or None.
+    Raises :class:`GcodeError` naming the line on bad input.
     """
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         raise GcodeError(f"read_gcode: path: expected a file path, got {type(path).__name__} {path!r:.60}")
@@ -335,7 +338,7 @@ def read_gcode(path, *, printer=None, echo=None, center=False) -> Toolpath:
         line_no = raw[: exc.start].count(b"\n") + 1
         raise GcodeError(f"{shown}:{line_no}: not text (byte {exc.start}): expected G-code") from None
     del raw  # a large file is held once, as text
-    return parse_gcode(text, name=shown, printer=printer, echo=echo, center=center)
+    return parse_gcode(text, name=shown, printer=printer, echo=echo, center=center, progress=progress)
 
 
 def _words(s: str, where: str, line: str) -> list[tuple[str, str | None]]:
@@ -381,8 +384,8 @@ def _params(words, where: str, allowed: str | None) -> dict[str, float]:
     return out
 
 
-def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, center=False) -> Toolpath:
-    """Parse G-code text (see :func:`read_gcode`)."""
+def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, center=False, progress=None) -> Toolpath:
+    """Parse G-code text (see :func:`read_gcode`). progress: callable(lines done, lines) or None."""
     shown = name
     default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") else DEFAULT_FEED
     prusa_layers = ";LAYER_CHANGE" in text
@@ -422,7 +425,12 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
     skipped: Counter = Counter()
     started = False
 
+    n_lines = text.count("\n") + 1
+    if progress is not None and not callable(progress):
+        raise GcodeError(f"{shown}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
     for line_no, line in enumerate(text.split("\n"), 1):
+        if progress is not None and line_no % PROGRESS_LINES == 0:
+            progress(line_no, n_lines)
         s = line.strip()
         if not s:
             continue
@@ -659,6 +667,8 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
         total = sum(skipped.values())
         detail = ", ".join(f"{c} x{k}" for c, k in skipped.most_common(8))
         echo(f"{shown}: skipped {total} commands that do not move the tool ({detail})")
+    if progress is not None:
+        progress(n_lines, n_lines)
     n = len(xs)
     if n == 0:
         raise GcodeError(f"{shown}: no moves found (expected G0/G1/G2/G3 lines)")

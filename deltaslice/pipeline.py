@@ -22,7 +22,7 @@ import numpy as np
 
 from . import interrupt
 from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError
-from .formats import format_for, part_kind
+from .formats import format_for, holds_samples, part_kind
 from .machine import LimitMonitor, Printer, load_printer
 from .machine.limits import TOLERANCE
 from .progress import stderr_progress
@@ -198,7 +198,7 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     if kind == "gcode":
         from .gcode import read_gcode
 
-        return read_gcode(part, printer=printer, echo=echo, center=center)
+        return read_gcode(part, printer=printer, echo=echo, center=center, progress=progress)
     if kind == "image":
         from .engrave import engrave as engrave_image
 
@@ -393,7 +393,9 @@ def compile_part(
     check_output(output, inputs=[part, getattr(printer, "path", printer)])
     printer = _printer(printer)
     t0 = time.perf_counter()
-    toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
+    stage = ("reading G-code", "lines") if part_kind(part) == "gcode" else ("slicing layers", "it")
+    toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, stage[0], unit=stage[1]), echo=echo,
+                             **mesh_options)
     interrupt.check()
     t_slice = time.perf_counter() - t0
     s = toolpath.summary()
@@ -556,7 +558,7 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
         raise DeltasliceError(f"{part}: no such file")
     check_output(output, inputs=[part])
     printer = _printer(printer)
-    if Path(part).suffix.lower() in (".csv", ".dsl", ".stream"):
+    if holds_samples(part):
         meta, samples = read_output(part)
         fig = draw.trajectory_figure(samples, printer, title=f"{Path(part).name} on {printer.name}")
         what = f"{len(samples)} samples"
