@@ -36,10 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DeltasliceError
+from .formats import is_svg
 from .toolpath import Role, Toolpath, ToolpathBuilder
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-SVG_SUFFIXES = (".svg",)
 MAX_PIXELS = 25_000_000  # larger images are refused: 5000 x 5000 px is far finer than any spot
 
 
@@ -116,8 +115,7 @@ def engrave(path, printer, options: EngraveOptions | dict | None = None) -> Tool
     opts.check(where)
     if printer.tool.channel_kind != "laser":
         raise EngraveError(f"{where}: printer {printer.name} has no laser ([tool] kind = 'extruder'): images are for lasers")
-    suffix = Path(path).suffix.lower()
-    if suffix in SVG_SUFFIXES:
+    if is_svg(path):
         lines, frame = svg_polylines(path, opts.tolerance)
         size = _svg_default_size(frame) if opts.width is None and opts.height is None else None
         if opts.mode == "raster":

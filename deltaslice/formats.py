@@ -8,7 +8,9 @@ from .errors import DeltasliceError
 
 MESH_SUFFIXES = (".stl", ".obj", ".3mf", ".ply", ".off")
 GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
-ENGRAVE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".svg")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")  # raster images to engrave
+SVG_SUFFIXES = (".svg",)  # vector drawings to engrave
+ENGRAVE_SUFFIXES = IMAGE_SUFFIXES + SVG_SUFFIXES
 
 OUTPUT_FORMATS = ("csv", "stream", "gcode")
 OUTPUT_SUFFIXES = {
@@ -17,6 +19,22 @@ OUTPUT_SUFFIXES = {
     ".stream": "stream",
     **{suffix: "gcode" for suffix in GCODE_SUFFIXES},
 }
+#: compiled outputs holding samples (read back by verify, decode, preview)
+SAMPLES_SUFFIXES = tuple(s for s, fmt in OUTPUT_SUFFIXES.items() if fmt in ("csv", "stream"))
+
+
+def suffix(path) -> str:
+    """The file's extension, lower case ("" for none)."""
+    return Path(str(path)).suffix.lower()
+
+
+def is_svg(path) -> bool:
+    return suffix(path) in SVG_SUFFIXES
+
+
+def holds_samples(path) -> bool:
+    """True for a compiled output (.csv setpoints, .dsl or .stream binary stream)."""
+    return suffix(path) in SAMPLES_SUFFIXES
 
 
 def part_kind(path) -> str:

@@ -155,3 +155,13 @@ def test_the_module_table_lists_every_file():
     assert len(rows) == len(set(rows)), "a module has two rows"
     assert sorted(rows) == files, (f"missing rows: {sorted(set(files) - set(rows))}; "
                                    f"rows of no file: {sorted(set(rows) - set(files))}")
+
+
+def test_one_table_of_file_suffixes():
+    """File kinds by extension live in formats.py only: no other module keeps a tuple of suffixes."""
+    table = re.compile(r"SUFFIXES\s*=|[(\[{]\s*['\"]\.[a-z0-9]+['\"]\s*,")
+    for m, path in MODULES.items():
+        if m == "deltaslice.formats":
+            continue
+        hit = table.search(path.read_text())
+        assert not hit, f"{m}: a suffix table ({hit.group(0)!r}): use deltaslice/formats.py"
