@@ -287,7 +287,7 @@ def real(args, printer, prusa):
 
         mesh = load_mesh(stl, scale=scale)
         t0 = time.perf_counter()
-        slice_mesh(mesh, printer)
+        slice_mesh(mesh, printer.slicing, printer.tool)
         t_in = time.perf_counter() - t0
         so = gcode_stats(read_gcode(ours_out), printer.tool.filament_diameter)
         st = gcode_stats(read_gcode(theirs_out), printer.tool.filament_diameter)
