@@ -17,11 +17,14 @@ from deltaslice.errors import SendError, StreamError
 from deltaslice.pipeline import send_file, write_samples
 from deltaslice.send import CHUNK
 
+RING = 128  # avr_serial.h's SERIAL_RING: it holds 127 bytes
+
 serial = pytest.importorskip("serial")
 
 
 class FakeBoard(threading.Thread):
-    """A board with a 128-byte receive buffer that drains slowly, granting a credit per free chunk;
+    """A board with avr_serial.h's 128-byte receive ring (127 bytes usable) that drains slowly,
+    granting credits as avr_serial.h does;
     ``mode``: "ok" (answers OK <samples> after the last byte), "err" (ERR after err_after bytes),
     "silent" (never answers). ``hold``: (after_bytes, seconds, keepalive) stops taking bytes and
     granting credits once after_bytes have arrived, for seconds, as the Mega player does during a
@@ -36,6 +39,7 @@ class FakeBoard(threading.Thread):
         self.expected, self.mode, self.err_after, self.samples = expected, mode, err_after, samples
         self.received = bytearray()
         self.max_outstanding = 0
+        self.max_buffered = 0
         self.stop = False
         self.hold = hold
         self.keepalives = 0
@@ -45,7 +49,7 @@ class FakeBoard(threading.Thread):
         # opened the port (which flushes its input) before the first credit
         time.sleep(0.5)
         os.set_blocking(self.master, False)
-        credits, buffered = 0, 0
+        granted, buffered = 0, 0  # bytes credited; bytes received and not yet taken
         while not self.stop:
             if self.mode == "silent":
                 time.sleep(0.01)
@@ -61,10 +65,12 @@ class FakeBoard(threading.Thread):
                         self.keepalives += 1
                     else:
                         time.sleep(0.01)
-            while buffered + credits * CHUNK + CHUNK <= 128:
+            # as avr_serial.h: a credit while a chunk fits in the 127 bytes of the ring that are
+            # neither received nor credited and on their way
+            while buffered + (granted - len(self.received)) + CHUNK <= RING - 1:
                 os.write(self.master, b">")
-                credits += 1
-            self.max_outstanding = max(self.max_outstanding, credits)
+                granted += CHUNK
+            self.max_outstanding = max(self.max_outstanding, -(-(granted - len(self.received)) // CHUNK))
             try:
                 data = os.read(self.master, 256)
             except BlockingIOError:
@@ -72,8 +78,7 @@ class FakeBoard(threading.Thread):
             if data:
                 self.received += data
                 buffered += len(data)
-                credits -= -(-len(data) // CHUNK) if len(data) % CHUNK else len(data) // CHUNK
-                credits = max(credits, 0)
+                self.max_buffered = max(self.max_buffered, buffered)  # over RING - 1: bytes lost
             buffered = max(0, buffered - 32)  # the player takes bytes as it plays
             if self.mode == "err" and len(self.received) >= self.err_after:
                 os.write(self.master, b"ERR block 3 at byte offset 999: CRC mismatch: block is corrupt\n")
@@ -102,6 +107,7 @@ def test_every_byte_arrives_in_credited_chunks(stream):
     assert bytes(board.received) == data
     assert result.bytes_sent == len(data) and result.samples == 1234
     assert board.max_outstanding <= 2  # never more than the board granted
+    assert 0 < board.max_buffered <= RING - 1  # the ring never overflowed
 
 
 def test_cli_reports_and_exits_zero(stream):

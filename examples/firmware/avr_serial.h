@@ -9,8 +9,10 @@
  *                  "# <text>\n"   information outside the protocol ("# heating" once a second while a
  *                                 heater wait holds the stream): the host ignores it, but it is not silence
  *
- * The ring holds two chunks, so the host can send the next chunk while the board decodes the
- * previous one; a credit is sent only for space that is free, so nothing is ever dropped.
+ * The ring holds 127 bytes (128, one kept empty). A credit goes out whenever the space neither
+ * filled nor promised to a chunk on its way is a whole chunk: the first at start, the second as
+ * soon as the board has taken the first byte of the first chunk, and so on, so the next chunk is
+ * on the wire while the board decodes the one before; nothing is ever dropped.
  * Strings live in flash (PSTR) to keep static RAM for the record buffers.
  */
 #ifndef AVR_SERIAL_H
@@ -22,18 +24,20 @@
 #include <stdint.h>
 
 #define DSL_CHUNK 64
-#define SERIAL_RING 128 /* two chunks; a power of two */
+#define SERIAL_RING 128 /* a power of two; holds SERIAL_RING - 1 bytes */
 
 static volatile uint8_t serial_ring[SERIAL_RING];
-static volatile uint8_t serial_head, serial_tail; /* written by the ISR, read by the main loop */
-static uint8_t serial_credits;                    /* chunks promised to the host and not yet received */
-static uint8_t serial_chunk_fill;                 /* bytes received of the oldest promised chunk */
+static volatile uint8_t serial_head;     /* written by the ISR */
+static uint8_t serial_tail;              /* written by the main loop */
+static volatile uint8_t serial_received; /* bytes received, mod 256 (the ISR counts them) */
+static uint8_t serial_granted;           /* bytes credited to the host, mod 256 */
 
 ISR(USART_RX_vect_NAME)
 {
     uint8_t b = UDR0;
     serial_ring[serial_head] = b;
     serial_head = (uint8_t)((serial_head + 1) & (SERIAL_RING - 1));
+    serial_received++;
 }
 
 static void serial_init(void)
@@ -73,15 +77,19 @@ static uint8_t serial_used(void)
     return (uint8_t)((serial_head - serial_tail) & (SERIAL_RING - 1));
 }
 
-/* Grant credits for the ring space no promised chunk will fill. */
+/* Grant a credit for every chunk of ring space that no received byte fills and no credited byte
+   on its way will fill (a short last chunk leaves its shortfall promised: the stream has ended). */
 static void serial_grant(void)
 {
-    uint8_t used = serial_used();
-    uint16_t promised = (uint16_t)serial_credits * DSL_CHUNK - serial_chunk_fill;
+    uint8_t used, promised, sreg = SREG;
+    cli(); /* the two counts of the same instant */
+    used = serial_used();
+    promised = (uint8_t)(serial_granted - serial_received);
+    SREG = sreg;
     while ((uint16_t)used + promised + DSL_CHUNK <= SERIAL_RING - 1) {
         serial_put('>');
-        serial_credits++;
-        promised += DSL_CHUNK;
+        serial_granted = (uint8_t)(serial_granted + DSL_CHUNK);
+        promised = (uint8_t)(promised + DSL_CHUNK);
     }
 }
 
@@ -91,10 +99,6 @@ static uint8_t serial_take(uint8_t *b)
     if (serial_head == serial_tail) return 0;
     *b = serial_ring[serial_tail];
     serial_tail = (uint8_t)((serial_tail + 1) & (SERIAL_RING - 1));
-    if (serial_credits && ++serial_chunk_fill == DSL_CHUNK) {
-        serial_credits--;
-        serial_chunk_fill = 0;
-    }
     return 1;
 }
 

@@ -12,7 +12,7 @@
  * counts_per_unit); each 20 ms frame sends the widths of the sample being played at its start.
  * Before the stream starts the servos hold the rest pose of dsl_config.h, which is where every
  * deltaslice trajectory starts and parks, so attaching them does not make them jump.
- * Build: make -C examples/firmware uno (CONFIG=config/delta_etitc.h).
+ * Build: make -C examples/firmware uno (CONFIG_UNO=config/delta_etitc.h, the default).
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
