@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .machine.limits import acceleration_window, velocity_window, windowed_differences
+from .machine.limits import windowed_differences
 from .toolpath import Role
 
 ROLE_STYLE = {  # role: (colour, label)
@@ -27,7 +27,6 @@ ROLE_STYLE = {  # role: (colour, label)
 }
 TRAVEL_COLOUR = "#9aa5b1"
 ENVELOPE_COLUMNS = 1500
-NOISE_FRACTION = 0.05
 
 
 def _plt():
@@ -153,8 +152,8 @@ def trajectory_figure(samples, printer, *, title=""):
         unit = "deg" if ch.kind == "revolute" else "mm"
         x = samples.q[:, j]
         res = 1.0 / abs(ch.counts_per_unit)
-        wv, _ = velocity_window(ch.velocity_max, res, rate, NOISE_FRACTION)
-        wa, _ = acceleration_window(ch.acceleration_max, res, rate, NOISE_FRACTION)
+        check = lim.sampled_check(j, res, rate)  # the windows verify uses
+        wv, wa = check.velocity_window, check.acceleration_window
         v, a = windowed_differences(x, t, wv, wa)
         c = colours[j % len(colours)]
         _series(axes[0, j], t, x * k, c, ch.position_max * k, ch.position_min * k)
@@ -173,8 +172,9 @@ def trajectory_figure(samples, printer, *, title=""):
     else:
         v, _a = windowed_differences(values, t, max(1, int(rate / 100)), 1)
         w = max(1, int(rate / 100))
-        _series(ax, t[w // 2: w // 2 + len(v)], v, "#ff7f0e", tool.velocity_max, float(-lim.idle_velocity[J]))
-        ax.set_title(f"filament speed (mm/s); limits: melt flow +{tool.velocity_max:.3g}, retract -{lim.idle_velocity[J]:.3g}")
+        working, idle = lim.tool_velocity_limits()
+        _series(ax, t[w // 2: w // 2 + len(v)], v, "#ff7f0e", working, -idle)
+        ax.set_title(f"filament speed (mm/s); limits: melt flow +{working:.3g}, retract -{idle:.3g}")
     tip = printer.kinematics().forward(samples.q)
     if len(t) > 1:
         w = max(1, int(rate / 100))

@@ -21,7 +21,8 @@ consecutive such velocities. Quantisation (half a count, ``d/2``) adds at most
 ``h = w / rate`` seconds; each channel's window is the shortest that keeps that
 bound below ``NOISE_FRACTION`` (5 %) of its limit, and the bound is added to the
 threshold. CSV files (10 decimals) get ``w = 1``. Limits are allowed
-``MARGIN`` (2 %) above their value. The limits and the difference arithmetic are
+``MARGIN`` (2 %) above their value. The limits, the windows and the thresholds
+(``Limits.sampled_check``, ``Limits.sampled_tool_velocity``) and the difference arithmetic are
 :mod:`deltaslice.machine.limits`', shared with the planner and the compile's monitor.
 
 Verify takes samples and a loaded printer (its limits and kinematics) and an optional
@@ -36,10 +37,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import StreamError
-from .machine.limits import TOLERANCE, acceleration_window, velocity_window, windowed_differences
+from .machine.limits import NOISE_FRACTION, TOLERANCE, windowed_differences
 
-MARGIN = TOLERANCE
-NOISE_FRACTION = 0.05
+MARGIN = TOLERANCE  # shown in the report; the thresholds are Limits.sampled_check's
 CSV_RESOLUTION = 1e-10  # the CSV's 10 decimals (rounding error 5e-11)
 MAX_LISTED = 20
 GAP_FILL = 0.05  # s: a stream's extruder count rises every few samples; gaps this short inside a run are working
@@ -304,20 +304,21 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
     quantised = fmt == "stream"
     stats = []
 
-    def channel(name, unit, x, lo, hi, vmax, amax, resolution, vkind="velocity", akind="acceleration", vlimit_arr=None,
-                pkind="position", pchannel=None):
-        wv, nv = velocity_window(vmax, resolution, rate, NOISE_FRACTION)
-        wa, na = acceleration_window(amax, resolution, rate, NOISE_FRACTION)
+    def channel(name, unit, x, lo, hi, i, resolution, vkind="velocity", akind="acceleration", vmax=None,
+                vlimit_arr=None):
+        check = lim.sampled_check(i, resolution, rate, NOISE_FRACTION, velocity=vmax)
+        vmax, amax = check.velocity_limit, check.acceleration_limit
+        wv, wa = check.velocity_window, check.acceleration_window
         half = 0.5 * resolution if quantised else CSV_RESOLUTION
         if lo is not None:
             col.add_mask("position", name, x < lo - half, x, lo, unit)
             col.add_mask("position", name, x > hi + half, x, hi, unit)
         v, a = windowed_differences(x, t, wv, wa)
         vbase = np.full(len(v), float(vmax)) if vlimit_arr is None else vlimit_arr[: len(v)]
-        vlim = vbase * (1 + MARGIN) + nv
+        vlim = check.velocity_threshold(vbase)
         if len(v):
             col.add_mask(vkind, name, np.abs(v) > vlim, v, vlim, f"{unit}/s", index_offset=wv // 2)
-        alim = amax * (1 + MARGIN) + na
+        alim = check.acceleration_threshold()
         if len(a):
             col.add_mask(akind, name, np.abs(a) > alim, a, alim, f"{unit}/s^2", index_offset=wa)
         iv = _nan_argmax(np.abs(v) / vbase) if len(v) else -1
@@ -349,7 +350,7 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         for j, joint in enumerate(lim.joints):
             res = 1.0 / abs(joint.counts_per_unit) if quantised else CSV_RESOLUTION
             channel(f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}", joint.unit, samples.q[:, j],
-                    joint.position_min, joint.position_max, joint.velocity_max, joint.acceleration_max, res)
+                    joint.position_min, joint.position_max, j, res)
 
     # The tool channel, from its limits: a laser has a power range (0..1) and no rate limit; an
     # extruder has no range, a melt-flow speed limit while extruding and its retract speed when idle.
@@ -366,24 +367,16 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
                              100.0 * float(x[i]) / ch.position_max if i >= 0 and ch.position_max > 0 else None,
                              float(t[i]) if i >= 0 else 0.0, i, None, not col.failed(f"{ch.name}_power", "tool")))
     if n and math.isfinite(ch.velocity_max):
-        working, idle = ch.velocity_max, float(lim.idle_velocity[T])
-        vlimit_arr = None
+        # a stream carries no tool state: the larger of the working and idle limits; a CSV's
+        # windows are held to the working limit where the tool is on throughout
+        vmax, vlimit_arr = lim.sampled_tool_velocity(None if quantised else samples.tool, res, rate, NOISE_FRACTION)
         if quantised:
-            vmax = max(working, idle)
             notes.append(
                 f"the stream carries no tool on/off state: {ch.name} speed checked against the larger of its "
                 f"working and idle limits, {vmax:g} {ch.unit}/s"
             )
-        else:
-            # A difference window is held to the working limit when the tool is on throughout it.
-            vmax = working
-            wv, _ = velocity_window(vmax, res, rate, NOISE_FRACTION)
-            if n > wv:
-                c = np.concatenate([[0], np.cumsum(samples.tool > 0)])
-                on_throughout = (c[wv + 1 :] - c[: -wv - 1]) == wv + 1
-                vlimit_arr = np.where(on_throughout, working, max(working, idle))
-        channel("e", ch.unit, x, None, None, vmax, ch.acceleration_max, res,
-                f"{ch.name}_speed", f"{ch.name}_acceleration", vlimit_arr=vlimit_arr)
+        channel("e", ch.unit, x, None, None, T, res, f"{ch.name}_speed", f"{ch.name}_acceleration", vmax=vmax,
+                vlimit_arr=vlimit_arr)
         tl = samples.tool
         col.add_mask("tool", "tool", (tl < 0) | (tl > 1), tl, np.where(tl < 0, 0.0, 1.0), "")
         rows.append(CheckRow("tool state 0..1", "tool", "", float(np.nanmax(np.abs(tl))) if np.isfinite(tl).any() else 0.0,

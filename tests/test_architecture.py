@@ -102,14 +102,16 @@ def test_only_the_pipeline_opens_outputs():
 
 
 def test_one_owner_of_the_limits():
-    """Outside the machine package nobody assembles limits: no joint_array, no margin arithmetic,
-    no tool rate limits read from the tool's own fields."""
+    """Outside the machine package nobody assembles limits: no joint_array, no margin arithmetic
+    (``limit * (1 + MARGIN)``: Limits.sampled_check owns the thresholds), no working-or-idle choice
+    (``idle_velocity``: Limits.sampled_tool_velocity), no tool rate limits read from the tool's own fields."""
     for m, path in MODULES.items():
         if m.startswith("deltaslice.machine"):
             continue
         text = path.read_text()
         for pattern in (r"joint_array", r"limit_margin\s*[)*]", r"1(\.0)?\s*-\s*[\w.]*limit_margin", r"max_filament_speed",
-                        r"max_filament_acceleration", r"\.is_laser"):
+                        r"max_filament_acceleration", r"\.is_laser", r"idle_velocity",
+                        r"1(\.0)?\s*[+-]\s*(?:[A-Za-z_]\w*\.)*(?:\w*margin|\w*MARGIN|TOLERANCE|tolerance)\b"):
             assert not re.search(pattern, text), f"{m}: {pattern}"
 
 

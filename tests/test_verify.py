@@ -182,3 +182,26 @@ def test_verify_against_gcode(good, tmp_path):
     gcode.write_text("\n".join(lines) + "\n")
     rep = verify_output(_write(tmp_path, p, s, "stream"), p, toolpath=gcode)
     assert rep.max_deviation is not None and rep.ok, rep.text()
+
+
+def test_the_limits_own_the_sampled_thresholds():
+    """Limits.sampled_check and sampled_tool_velocity: the windows, thresholds and working-or-idle
+    limit verify holds samples to (verify's output is unchanged by their move into machine/)."""
+    from deltaslice.machine.limits import TOLERANCE, acceleration_window, velocity_window
+
+    p = printer("delta_etitc")
+    lim = p.limits
+    res, rate = 1.0 / abs(lim.counts_per_unit[0]), 1000.0
+    check = lim.sampled_check(0, res, rate)
+    wv, nv = velocity_window(lim.velocity[0], res, rate, 0.05)
+    wa, na = acceleration_window(lim.acceleration[0], res, rate, 0.05)
+    assert (check.velocity_window, check.acceleration_window) == (wv, wa)
+    assert check.velocity_threshold() == pytest.approx(lim.velocity[0] * (1 + TOLERANCE) + nv)
+    assert check.acceleration_threshold() == pytest.approx(lim.acceleration[0] * (1 + TOLERANCE) + na)
+    working, idle = lim.tool_velocity_limits()
+    assert (working, idle) == (lim.velocity[-1], lim.idle_velocity[-1]) and idle > working
+    assert lim.sampled_tool_velocity(None, 0.01, rate) == (idle, None)  # a stream: no tool state
+    tool = np.r_[np.ones(500), np.zeros(100), np.ones(500)]
+    vmax, per_window = lim.sampled_tool_velocity(tool, 1e-10, rate)
+    assert vmax == working and len(per_window) == len(tool) - 1
+    assert per_window[0] == working and per_window[500] == idle and per_window[-1] == working

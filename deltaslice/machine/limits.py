@@ -22,6 +22,9 @@ KINDS = ("revolute", "prismatic", "extruder", "laser")
 #: How far above a limit a sampled output may go before the compile fails and verify says FAIL
 #: (finite differences of samples see discretisation that the continuous motion does not have).
 TOLERANCE = 0.02
+#: The difference window of a sampled check is the shortest that keeps quantisation noise below
+#: this share of the limit (:func:`velocity_window`, :func:`acceleration_window`).
+NOISE_FRACTION = 0.05
 UNITS = {"revolute": "rad", "prismatic": "mm", "extruder": "mm", "laser": "0..1"}
 
 
@@ -120,6 +123,46 @@ class Limits:
     def joints(self) -> tuple[ChannelLimits, ...]:
         return tuple(self.channel(i) for i in range(self.n_joints))
 
+    # -- checking sampled outputs (verify, previews) ---------------------------------------
+    def tool_velocity_limits(self) -> tuple[float, float]:
+        """(working, idle) velocity limit of the tool channel: an extruder's melt-flow speed
+        while extruding, its retract speed while the tool is off (infinite for a laser)."""
+        T = self.n_joints
+        return float(self.velocity[T]), float(self.idle_velocity[T])
+
+    def sampled_tool_velocity(self, tool_state, resolution: float, rate: float,
+                              noise_fraction: float = NOISE_FRACTION) -> tuple[float, np.ndarray | None]:
+        """The tool channel's velocity limit for differences of samples at ``rate`` Hz.
+
+        Returns (the limit that sets the window, a per-window limit array or None). Without the
+        tool state (``tool_state`` None: a stream carries none) every window is held to the larger
+        of the working and idle limits. With it ((n,) values, on when > 0), a window of the working
+        limit's size is held to the working limit when the tool is on throughout it, else to the
+        larger of the two."""
+        working, idle = self.tool_velocity_limits()
+        either = max(working, idle)
+        if tool_state is None:
+            return either, None
+        wv, _ = velocity_window(working, resolution, rate, noise_fraction)
+        on = np.asarray(tool_state) > 0
+        if len(on) <= wv:
+            return working, None
+        c = np.concatenate([[0], np.cumsum(on)])
+        on_throughout = (c[wv + 1:] - c[: -wv - 1]) == wv + 1
+        return working, np.where(on_throughout, working, either)
+
+    def sampled_check(self, i: int, resolution: float, rate: float, noise_fraction: float = NOISE_FRACTION,
+                      velocity: float | None = None, tolerance: float = TOLERANCE) -> "SampledCheck":
+        """How channel ``i`` sampled at ``rate`` Hz with ``resolution`` (channel units) is held
+        to its limits: difference windows, their quantisation noise, the thresholds with
+        ``tolerance`` and the noise added. velocity: the velocity limit to use instead of the
+        channel's (the tool channel's, from :meth:`sampled_tool_velocity`)."""
+        vmax = float(self.velocity[i]) if velocity is None else float(velocity)
+        amax = float(self.acceleration[i])
+        wv, nv = velocity_window(vmax, resolution, rate, noise_fraction)
+        wa, na = acceleration_window(amax, resolution, rate, noise_fraction)
+        return SampledCheck(vmax, amax, wv, nv, wa, na, tolerance)
+
     def to_counts(self, values: np.ndarray) -> np.ndarray:
         """values: (n, C) float, channel units -> (n, C) int64 actuator counts (rounded)."""
         return np.rint(self.zero_count[None] + self.counts_per_unit[None] * values).astype(np.int64)
@@ -139,6 +182,30 @@ class Limits:
             vlim = np.where(np.asarray(working, bool)[:, None], vlim, self.idle_velocity[None, :k])
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.abs(v) / vlim, np.abs(a) / self.acceleration[None, :k]
+
+
+@dataclass(frozen=True)
+class SampledCheck:
+    """One channel's check on sampled values (from :meth:`Limits.sampled_check`): velocities over
+    ``velocity_window`` samples, accelerations over twice ``acceleration_window``, each held to its
+    limit plus ``tolerance`` plus the window's quantisation noise bound."""
+
+    velocity_limit: float
+    acceleration_limit: float
+    velocity_window: int
+    velocity_noise: float
+    acceleration_window: int
+    acceleration_noise: float
+    tolerance: float = TOLERANCE
+
+    def velocity_threshold(self, limit=None):
+        """The velocity above which a window fails: the limit (or ``limit``, a per-window array)
+        with the tolerance, plus the noise bound."""
+        base = self.velocity_limit if limit is None else limit
+        return base * (1 + self.tolerance) + self.velocity_noise
+
+    def acceleration_threshold(self) -> float:
+        return self.acceleration_limit * (1 + self.tolerance) + self.acceleration_noise
 
 
 # --------------------------------------------------------------------------- differences
