@@ -93,6 +93,11 @@ class BlendedPath:
         """Arc lengths of the interior line/arc joins. (k-1,)"""
         return self.piece_start[1:-1]
 
+    def head(self, k: int) -> "BlendedPath":
+        """The path's first k pieces (0 < k <= number of pieces)."""
+        return BlendedPath(self.piece_start[: k + 1].copy(), self.kind[:k].copy(), self.p0[:k].copy(), self.d0[:k].copy(),
+                           self.normal[:k].copy(), self.radius[:k].copy(), self.segment[:k].copy())
+
 
 def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     """Blend the corners of a polyline.

@@ -636,9 +636,7 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
         # Keep the window up to its cut; what follows was the lookahead.
         stop = int(np.searchsorted(path.segment, cap[0]))
         g = int(cut_g(s_grid))
-        path = BlendedPath(*(arr[: stop + 1] if name == "piece_start" else arr[:stop]
-                             for name, arr in zip(BlendedPath.__dataclass_fields__, (
-                                 path.piece_start, path.kind, path.p0, path.d0, path.normal, path.radius, path.segment))))
+        path = path.head(stop)
         scale = S / path.length
         S = path.length
         x_grid, sd, xdd, t = x_grid[: g + 1] * scale, sd[: g + 1] * scale, xdd[:g] * scale, t[: g + 1]
