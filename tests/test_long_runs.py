@@ -148,10 +148,3 @@ def test_a_spooled_trajectory_samples_exactly_as_one_in_memory(small_windows):
     with pytest.raises(IndexError):
         disk.pieces[len(mem.pieces)]
 
-
-def test_plan_refuses_a_spool_that_is_not_a_bool():
-    from deltaslice.errors import DeltasliceError
-
-    printer = load_printer("linear_kossel")
-    with pytest.raises(DeltasliceError, match="spool"):
-        plan(_two_layer_spiral_toolpath(), printer, spool="yes")

@@ -208,6 +208,9 @@ BAD_CALLS = {
     "plan(tp, 'file.toml')": lambda: plan(_add(), ETITC),
     "plan(None, printer)": lambda: plan(None, printer("delta_etitc")),
     "plan workers=0": lambda: plan(_add(), printer("delta_etitc"), workers=0),
+    "plan(extruding toolpath, laser printer)": lambda: plan(_add(), printer("delta_espe_laser")),
+    "plan(laser toolpath, extruder printer)": lambda: plan(_add(e=0.0, role=Role.LASER), printer("delta_etitc")),
+    "plan spool='yes'": lambda: plan(_add(), printer("delta_etitc"), spool="yes"),
     "plan planner='x'": lambda: plan(_add(), printer("delta_etitc"), planner="x"),
     "single zero-length move, trapezoid": lambda: plan(
         _add(xyz=[[0.0, 0.0, 0.4]], e=0.0), printer("delta_etitc"), planner="trapezoid"),
@@ -255,6 +258,8 @@ NAMED = {
     "ToolpathBuilder((nan, 0, 0))": "start", "ToolpathBuilder((1, 2))": "start",
     "write_samples(etitc trajectory, ucb)": "delta_ucb", "write_samples(2-joint blocks, etitc)": "joints",
     "write_samples(None, etitc)": "blocks",
+    "plan(extruding toolpath, laser printer)": "has a laser", "plan(laser toolpath, extruder printer)": "has an extruder",
+    "plan spool='yes'": "spool",
 }
 
 

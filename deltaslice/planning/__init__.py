@@ -65,6 +65,17 @@ def check_reachable(toolpath: Toolpath, printer) -> None:
 LASER_ROLES = (int(Role.LASER), int(Role.LASER_DYNAMIC))
 
 
+def _check_tool(toolpath: Toolpath, printer) -> None:
+    """Refuse a toolpath made for the other kind of tool: filament for a laser, laser burns for
+    an extruder (the channel would carry a meaning its player does not have)."""
+    laser_moves = np.isin(toolpath.role, LASER_ROLES)
+    if printer.tool.channel_kind == "laser" and np.any(toolpath.e[toolpath.working] > 0):
+        raise DeltasliceError(f"the toolpath extrudes filament but {printer.name} has a laser: "
+                              "slice it for an extruder printer, or give the laser an image, an SVG or laser G-code")
+    if printer.tool.channel_kind != "laser" and laser_moves.any():
+        raise DeltasliceError(f"the toolpath has {int(laser_moves.sum())} laser moves but {printer.name} has an extruder")
+
+
 def split_runs(toolpath: Toolpath):
     """[(i, j)] half-open ranges of working moves with one tool value each; a run also ends
     at a wait event (M109/M190), where the machine must stand still while the heater comes up.
@@ -161,6 +172,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError("the toolpath has no moves: nothing to plan")
     if not ((toolpath.lengths > 1e-9) | (toolpath.e != 0)).any():
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
+    _check_tool(toolpath, printer)
     check_reachable(toolpath, printer)
     # Every trajectory starts at the machine's rest pose and parks there at the end.
     kin = printer.kinematics()
