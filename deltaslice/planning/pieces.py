@@ -1,4 +1,5 @@
-"""Pieces: what every planner returns, a list of them, end to end, each from rest to rest.
+"""Pieces: what every planner returns, a list of them, end to end, each from rest to rest
+(except the windows of a long run, :func:`.topp.iter_run`, which join at the same point and speed).
 
 The :class:`Piece` protocol is all the Trajectory, the emitters and the reports know of a
 planned motion: its kind ("run", "travel", "retract", "trapezoid"), layer, duration, the

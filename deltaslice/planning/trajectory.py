@@ -1,10 +1,10 @@
 """The Trajectory: planned pieces end to end, sampled on demand.
 
-Pieces (runs, travels, retracts) each start and end at rest and know their
-duration and how to give joint positions, filament and tool state at any time
-inside them. The trajectory stores only the pieces (grids and profiles, small),
-and samples them block by block at the output rate, so a long print streams to
-disk without holding its samples in memory.
+Pieces (runs, travels, retracts) start and end at rest (a long run's windows join at speed)
+and know their duration and how to give joint positions, filament and tool state at any time
+inside them. The trajectory stores only the pieces (grids and profiles, about a kilobyte a move;
+on disk, :mod:`.spool`, for a long print), and samples them block by block at the output rate,
+so a long print streams to disk without holding its samples in memory.
 """
 
 from __future__ import annotations
