@@ -76,7 +76,6 @@ int main(int argc, char **argv)
     dc_pid_gains g = DC_PID_UADY_GAINS;
     int started = 0, j, joints = 0;
     double dt = 1e-3;
-    FILE *f;
 
     if (argc == 5 && !strcmp(argv[1], "--step") && !strcmp(argv[3], "--ms"))
         return step_response((int32_t)atol(argv[2]), atoi(argv[4]));
@@ -84,13 +83,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s STREAM.dsl | --step COUNTS --ms N\n", argv[0]);
         return 2;
     }
-    f = fopen(argv[1], "rb");
-    if (!f) {
-        fprintf(stderr, "error: %s: cannot open\n", argv[1]);
-        return 2;
-    }
-    dsl_init(&player);
-    dsl_file_open(&input, f, 4096);
+    if (dsl_file_start(&player, &input, argv[1], 4096) != 0) return 2;
     for (;;) {
         int r;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
@@ -128,6 +121,6 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    fclose(f);
+    dsl_file_close(&input);
     return 0;
 }

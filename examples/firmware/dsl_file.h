@@ -6,6 +6,7 @@
 #define DSL_FILE_H
 
 #include <stdio.h>
+#include <string.h>
 
 #include "dsl_player.h"
 
@@ -25,6 +26,25 @@ static void dsl_file_open(dsl_file *in, FILE *f, size_t chunk)
     in->chunk = chunk < 1 || chunk > DSL_FILE_BUF ? DSL_FILE_BUF : chunk;
     in->avail = in->off = 0;
     in->eof = 0;
+}
+
+/* Open path ("-": standard input) and start a player on it: 0, or -1 after saying why on stderr. */
+static int dsl_file_start(dsl_player *p, dsl_file *in, const char *path, size_t chunk)
+{
+    FILE *f = strcmp(path, "-") == 0 ? stdin : fopen(path, "rb");
+    if (!f) {
+        fprintf(stderr, "error: %s: cannot open\n", path);
+        return -1;
+    }
+    dsl_init(p);
+    dsl_file_open(in, f, chunk);
+    return 0;
+}
+
+static void dsl_file_close(dsl_file *in)
+{
+    if (in->f && in->f != stdin) fclose(in->f);
+    in->f = NULL;
 }
 
 /* Give the player more input (call when dsl_next says DSL_AGAIN). 0, or -1 on a read error. */

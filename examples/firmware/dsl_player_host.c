@@ -28,7 +28,6 @@ int main(int argc, char **argv)
     size_t chunk = 4096;
     static dsl_file input;
     int a;
-    FILE *f;
 
     for (a = 1; a < argc; a++) {
         if (strcmp(argv[a], "--chunk") == 0 && a + 1 < argc) {
@@ -44,13 +43,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s STREAM.dsl [--chunk N]\n", argv[0]);
         return 2;
     }
-    f = strcmp(path, "-") == 0 ? stdin : fopen(path, "rb");
-    if (!f) {
-        fprintf(stderr, "error: %s: cannot open\n", path);
-        return 2;
-    }
-    dsl_init(&player);
-    dsl_file_open(&input, f, chunk);
+    if (dsl_file_start(&player, &input, path, chunk) != 0) return 2;
     for (;;) {
         int32_t counts[DSL_MAX_CHANNELS];
         int r, c;
@@ -77,6 +70,6 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    if (f != stdin) fclose(f);
+    dsl_file_close(&input);
     return 0;
 }

@@ -45,7 +45,6 @@ int main(int argc, char **argv)
     static dsl_file input;
     size_t len;
     int a, have_last = 0;
-    FILE *f;
 
     for (a = 1; a < argc; a++) {
         if (!strcmp(argv[a], "--baud") && a + 1 < argc) {
@@ -68,13 +67,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s STREAM.dsl [--baud B] [--ids 1,2,3]\n", argv[0]);
         return 2;
     }
-    f = fopen(path, "rb");
-    if (!f) {
-        fprintf(stderr, "error: %s: cannot open\n", path);
-        return 2;
-    }
-    dsl_init(&player);
-    dsl_file_open(&input, f, 4096);
+    if (dsl_file_start(&player, &input, path, 4096) != 0) return 2;
     for (;;) {
         int r;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
@@ -138,6 +131,6 @@ int main(int argc, char **argv)
         printf("P %lu", (unsigned long)(n_samples - 1));
         hex(packet, len);
     }
-    fclose(f);
+    dsl_file_close(&input);
     return 0;
 }

@@ -56,19 +56,12 @@ int main(int argc, char **argv)
     uint8_t axes = 0, a;
     int started = 0, j;
     unsigned long periods = 0;
-    FILE *f;
 
     if (argc != DSL_CFG_JOINTS + 2) {
         fprintf(stderr, "usage: %s STREAM.dsl and one pot reading per joint (%d)\n", argv[0], DSL_CFG_JOINTS);
         return 2;
     }
-    f = fopen(argv[1], "rb");
-    if (!f) {
-        fprintf(stderr, "error: %s: cannot open\n", argv[1]);
-        return 2;
-    }
-    dsl_init(&player);
-    dsl_file_open(&input, f, 64);
+    if (dsl_file_start(&player, &input, argv[1], 64) != 0) return 2;
     for (;;) {
         int r;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
@@ -119,6 +112,6 @@ int main(int argc, char **argv)
         }
     }
     printf("# overruns %lu\n", (unsigned long)stepper.overruns);
-    fclose(f);
+    dsl_file_close(&input);
     return 0;
 }
