@@ -44,7 +44,8 @@ def test_ucb_table_in_counts():
     ([[[3200, 0.0], [1790, 90.0]]], "a list of 3 tables"),
 ])
 def test_bad_sensor_table_named(table, why):
-    with pytest.raises(PrinterFileError, match=r"\[joints\] sensor_table.*" + why):
+    # given as an override, the problem is named as the override's (--set joints.sensor_table)
+    with pytest.raises(PrinterFileError, match=r"--set joints\.sensor_table = .*" + why):
         load_printer("delta_ucb", {"joints.sensor_table": table})
 
 
