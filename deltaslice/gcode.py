@@ -384,6 +384,18 @@ def _params(words, where: str, allowed: str | None) -> dict[str, float]:
     return out
 
 
+def _iter_lines(text: str):
+    """The lines of text one at a time (a list of a 60 MB file's 1.5 M lines would take 150 MB)."""
+    start = 0
+    while True:
+        end = text.find("\n", start)
+        if end < 0:
+            yield text[start:]
+            return
+        yield text[start:end]
+        start = end + 1
+
+
 def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, center=False, progress=None) -> Toolpath:
     """Parse G-code text (see :func:`read_gcode`). progress: callable(lines done, lines) or None."""
     shown = name
@@ -428,7 +440,7 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
     n_lines = text.count("\n") + 1
     if progress is not None and not callable(progress):
         raise GcodeError(f"{shown}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
-    for line_no, line in enumerate(text.split("\n"), 1):
+    for line_no, line in enumerate(_iter_lines(text), 1):
         if progress is not None and line_no % PROGRESS_LINES == 0:
             progress(line_no, n_lines)
         s = line.strip()

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+REACH_BLOCK = 65536  # points per evaluation in Kinematics.reachable
+
 
 def solve_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Batched ``np.linalg.solve(a, b)`` that never raises: rows whose matrix is
@@ -119,8 +121,12 @@ class Kinematics:
         return out
 
     def reachable(self, points: np.ndarray) -> np.ndarray:
-        """points: (N,3) float, mm -> (N,) bool: the tool can stand there within every limit."""
+        """points: (N,3) float, mm -> (N,) bool: the tool can stand there within every limit.
+        Evaluated REACH_BLOCK points at a time (the Jacobians of a 1.5 M-move print would take
+        most of a gigabyte at once)."""
         points = np.atleast_2d(np.asarray(points, dtype=float))
+        if len(points) > REACH_BLOCK:
+            return np.concatenate([self.reachable(points[i : i + REACH_BLOCK]) for i in range(0, len(points), REACH_BLOCK)])
         q = self.inverse(points)
         ok = np.all(np.isfinite(q), axis=1) & self.within_joint_limits(q)
         if ok.any():
