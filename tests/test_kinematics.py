@@ -323,3 +323,16 @@ def test_cartesian_is_an_offset():
     q = CARTESIAN.inverse(np.array([[1.0, 2.0, 3.0]]))
     np.testing.assert_allclose(q, [[111.0, -5.5, 6.0]])
     assert math.isclose(CARTESIAN.condition(q)[0], 1.0)
+
+
+@pytest.mark.parametrize("name", PRINTER_NAMES)
+def test_reachable_in_blocks_equals_reachable_at_once(name, monkeypatch):
+    import deltaslice.kinematics.base as base
+
+    kin = printer(name).kinematics()
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([-120, -120, -5], [120, 120, 150], (500, 3))
+    whole = kin.reachable(pts)
+    assert whole.any() and not whole.all()
+    monkeypatch.setattr(base, "REACH_BLOCK", 37)
+    np.testing.assert_array_equal(kin.reachable(pts), whole)
