@@ -148,3 +148,27 @@ def test_a_spooled_trajectory_samples_exactly_as_one_in_memory(small_windows):
     with pytest.raises(IndexError):
         disk.pieces[len(mem.pieces)]
 
+
+
+def test_workers_plan_around_a_long_run_exactly_as_one_process(small_windows):
+    """A long run planned in the main process while the pool plans the runs before and after it."""
+    printer = load_printer("linear_kossel")
+    b = ToolpathBuilder((0.0, 0.0, 2.0))
+    pts, e = spiral(700)
+    b.new_layer(0.3)
+    for k in range(4):  # short runs, then the spiral, then more short runs
+        b.add([[-10.0 + 5 * k, -25.0, 0.3]], 100, 0, 0, Role.TRAVEL)
+        b.add([[-10.0 + 5 * k, -20.0, 0.3]], 30, 0.2, 1, Role.INFILL)
+    b.add(pts[:1], 100, 0, 0, Role.TRAVEL)
+    b.add(pts[1:], 30, e, 1, Role.PERIMETER)
+    for k in range(4):
+        b.add([[-10.0 + 5 * k, 25.0, pts[-1, 2]]], 100, 0, 0, Role.TRAVEL)
+        b.add([[-10.0 + 5 * k, 20.0, pts[-1, 2]]], 30, 0.2, 1, Role.INFILL)
+    tp = b.build()
+    one = plan(tp, printer, workers=1)
+    two = plan(tp, printer, workers=2)
+    assert len(one.pieces) == len(two.pieces) > 20
+    assert two.duration == one.duration and two.events == one.events
+    a, c = one.samples(), two.samples()
+    np.testing.assert_array_equal(a.q, c.q)
+    np.testing.assert_array_equal(a.e, c.e)

@@ -11,6 +11,8 @@ Cartesian planner instead (:mod:`.trapezoid`), made safe for the joint limits.
 from __future__ import annotations
 
 import os
+from array import array
+from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -204,40 +206,59 @@ def _at_rest(toolpath: Toolpath, events: tuple, offset: float, duration: float) 
     )
 
 
-def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool) -> Trajectory:
-    """The time-optimal planner: head (from rest), the toolpath's runs and travels, tail (to rest).
-
-    Runs and travels are planned in the worker processes in print order; a long run
-    (:func:`.topp.is_long`) is planned here, window by window, while the workers go on with what
-    follows it, so its pieces can be put away one by one."""
-    ranges = split_runs(toolpath)
-    # Runs and the travels between them (and before the first / after the last), in print order.
-    jobs, starts = [], []  # starts: the first move of each job's range, for the events' times
+def _jobs(toolpath: Toolpath, ranges):
+    """(first move, end move, kind, job) of every run and of the travels between them (and before
+    the first, after the last), in print order, made one at a time: a print of 270k runs would
+    hold hundreds of MB of them at once."""
     pos = toolpath.start
     printed_top = 0.0
     prev_end = 0
     for i, j in ranges:
         if i > prev_end:
-            jobs.append(("travel", _travel_args(toolpath, prev_end, i, pos, printed_top)))
-            starts.append(prev_end)
-        jobs.append(("run", _run_spec(toolpath, i, j)))
-        starts.append(i)
+            yield prev_end, i, "travel", _travel_args(toolpath, prev_end, i, pos, printed_top)
+        yield i, j, "run", _run_spec(toolpath, i, j)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
     if prev_end < len(toolpath):
-        jobs.append(("travel", _travel_args(toolpath, prev_end, len(toolpath), pos, printed_top)))
-        starts.append(prev_end)
-    ends = starts[1:] + [len(toolpath)]
-    inline = [kind == "run" and is_long(job) for kind, job in jobs]
-    pooled = [job for job, here in zip(jobs, inline) if not here]
+        yield prev_end, len(toolpath), "travel", _travel_args(toolpath, prev_end, len(toolpath), pos, printed_top)
+
+
+def _slots(jobs, chunk: int):
+    """Consecutive jobs grouped for the workers: ("pool", [(start, end, kind, job), ...]) of at most
+    ``chunk`` jobs, or ("here", (start, end, kind, job)) for a long run the main process plans."""
+    group = []
+    for item in jobs:
+        if item[2] == "run" and is_long(item[3]):
+            if group:
+                yield "pool", group
+                group = []
+            yield "here", item
+        else:
+            group.append(item)
+            if len(group) == chunk:
+                yield "pool", group
+                group = []
+    if group:
+        yield "pool", group
+
+
+def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool) -> Trajectory:
+    """The time-optimal planner: head (from rest), the toolpath's runs and travels, tail (to rest).
+
+    Runs and travels are planned in the worker processes in print order, at most a few chunks
+    ahead of what has been put away (memory bounded by what is in flight, not by the print); a
+    long run (:func:`.topp.is_long`) is planned here, window by window, while the workers go on
+    with what follows it, so its pieces can be put away one by one."""
+    ranges = split_runs(toolpath)
     workers = max(1, workers or os.cpu_count() or 1)
-    chunk = max(1, min(64, len(pooled) // (4 * workers) or 1))
-    chunks = [pooled[k : k + chunk] for k in range(0, len(pooled), chunk)]
+    n_jobs = 2 * len(ranges) + 1  # at most: a travel before every run, one after the last
+    chunk = max(1, min(64, n_jobs // (4 * workers) or 1))
+    slots = _slots(_jobs(toolpath, ranges), chunk)
 
     pieces = PieceSpool() if spool else []
     pieces.extend(head)
-    first_piece = []  # (first move, index of its first piece) per job
+    job_start, job_piece = array("q"), array("q")  # per job: its first move, the index of its first piece
     done = 0
 
     def report(moves):
@@ -246,38 +267,68 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
         if progress:
             progress(min(int(round(done)), len(toolpath)), len(toolpath))
 
-    def consume(results):
-        kin = printer.kinematics()
-        pooled_results = (res for batch in results for res in batch)
-        for n, (kind, job) in enumerate(jobs):
-            first_piece.append((starts[n], len(pieces)))
-            if inline[n]:
-                before = 0.0
-                for piece, frac in iter_run(kin, printer, job, speed_limit, solver=solver):
-                    pieces.append(piece)
-                    report((frac - before) * (ends[n] - starts[n]))
-                    before = frac
-            else:
-                pieces.extend(next(pooled_results))
-                report(ends[n] - starts[n])
+    def put_away(group, results):
+        for (start, end, _kind, _job), res in zip(group, results):
+            job_start.append(start)
+            job_piece.append(len(pieces))
+            pieces.extend(res)
+        report(group[-1][1] - group[0][0])
 
-    if workers == 1 or len(pooled) < 8:
+    def plan_here(item):
+        start, end, _kind, spec = item
+        job_start.append(start)
+        job_piece.append(len(pieces))
+        before = 0.0
+        for piece, frac in iter_run(printer.kinematics(), printer, spec, speed_limit, solver=solver):
+            pieces.append(piece)
+            report((frac - before) * (end - start))
+            before = frac
+
+    def as_chunk(group):
+        return [(kind, job) for _s, _e, kind, job in group], speed_limit, solver
+
+    if workers == 1 or n_jobs < 8:
         _init_worker(printer)
-        consume(_plan_chunk((c, speed_limit, solver)) for c in chunks)
+        for where, item in slots:
+            if where == "here":
+                plan_here(item)
+            else:
+                put_away(item, _plan_chunk(as_chunk(item)))
     else:
+        ahead = 4 * workers  # chunks in flight; slots queued at most twice that
+        queue, in_flight = deque(), 0
         with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(printer,)) as pool:
-            consume(pool.map(_plan_chunk, [(c, speed_limit, solver) for c in chunks]))
-    first_piece.append((len(toolpath), len(pieces)))
+            for where, item in slots:
+                future = pool.submit(_plan_chunk, as_chunk(item)) if where == "pool" else None
+                queue.append((item, future))
+                in_flight += future is not None
+                while in_flight > ahead or len(queue) > 2 * ahead:
+                    in_flight -= _drain_one(queue, put_away, plan_here)
+            while queue:
+                _drain_one(queue, put_away, plan_here)
+    job_start.append(len(toolpath))
+    job_piece.append(len(pieces))
     if len(pieces) == len(head):
         raise DeltasliceError("the toolpath never moves the tool or the filament: nothing to plan")
     pieces.extend(tail)
     traj = Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit)
-    moves, piece_at = np.array(first_piece).T
+    moves, piece_at = np.asarray(job_start), np.asarray(job_piece)
     ev = toolpath.events["index"]
     k = piece_at[np.searchsorted(moves, ev, side="right") - 1]
     times = np.where(ev >= len(toolpath), traj.duration, traj.starts[np.minimum(k, len(pieces))])
     traj.events = _at_rest(toolpath, _event_times(toolpath, times), 0.0, traj.duration)
     return traj
+
+
+def _drain_one(queue, put_away, plan_here) -> int:
+    """Put away the oldest slot: a chunk's results (waiting for its worker; returns 1) or a long
+    run planned here (0)."""
+    item, future = queue.popleft()
+    if future is None:
+        plan_here(item)
+        return 0
+    put_away(item, future.result())
+    return 1
 
 
 def _event_times(toolpath: Toolpath, times) -> tuple:
