@@ -210,6 +210,8 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     if echo is not None:
         for note in mesh.repairs:
             echo(f"mesh: {note}")
+        if mesh.placement:  # where the part went, in its own units: a part in inches or off-centre shows here
+            echo(f"mesh: {mesh.placement}")
     check_fits(mesh, printer)
     with warnings.catch_warnings(record=True) as caught:  # the slicer's MeshWarnings become notes
         warnings.simplefilter("always", MeshWarning)

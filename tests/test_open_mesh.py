@@ -310,6 +310,20 @@ def test_tiny_part_gets_a_units_hint_and_placement_in_file_units(tmp_path):
     assert not any("across" in r for r in m.repairs)
 
 
+def test_a_successful_load_tells_where_the_part_went(tmp_path):
+    """The placement line reaches the user on success too, not only in a refusal."""
+    from deltaslice.pipeline import load_toolpath
+
+    tm = trimesh.creation.box((0.8, 0.8, 0.4))
+    tm.apply_translation((3, -2, 1))
+    notes = []
+    load_toolpath(meshes.write(tm, tmp_path / "inch.stl"), printer("delta_etitc"), scale=25.4, echo=notes.append)
+    placed = [n for n in notes if n.startswith("mesh: placed:")]
+    assert len(placed) == 1, notes
+    assert "0.8 x 0.8 x 0.4 file units, x-y centre (3, -2), bottom z 0.8" in placed[0]
+    assert "scaled 25.4x to 20.32 x 20.32 x 10.16 mm" in placed[0]
+
+
 def test_error_for_a_part_too_big_names_its_placement(tmp_path):
     from deltaslice.errors import UnreachableError
     from deltaslice.mesh import check_fits
