@@ -168,7 +168,12 @@ def load_grey(path) -> np.ndarray:
                     f"{MAX_PIXELS / 1e6:.0f} Mpx): scale it down"
                 )
             la = np.asarray(im.convert("LA"), dtype=float) / 255.0
-    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+    except Image.DecompressionBombError:  # Pillow refuses to open over ~179 Mpx, before our own bound
+        raise EngraveError(
+            f"{path}: image is too large (over {MAX_PIXELS / 1e6:.0f} Mpx, Pillow's decompression-bomb bound): "
+            "scale it down"
+        ) from None
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
         raise EngraveError(f"{path}: not a readable image ({exc.__class__.__name__}: {exc})") from None
     return la[..., 0] * la[..., 1] + (1.0 - la[..., 1])
 

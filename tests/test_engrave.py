@@ -278,6 +278,12 @@ def test_bad_images_clear_error_and_no_output(tmp_path, monkeypatch):
         engrave(_shapes(tmp_path / "a.png"), shipped(ESPE), {})
     with pytest.raises(EngraveError, match="has no laser"):
         engrave(tmp_path / "a.png", shipped("delta_etitc"), {})
+    # Pillow itself refuses an image over twice its MAX_IMAGE_PIXELS while opening it: our words, not its
+    import PIL.Image
+
+    monkeypatch.setattr(PIL.Image, "MAX_IMAGE_PIXELS", 10)
+    with pytest.raises(EngraveError, match=r"a\.png: image is too large .*decompression-bomb bound\): scale it down$"):
+        engrave(tmp_path / "a.png", shipped(ESPE), {})
 
 
 def test_cli_compiles_both_modes_and_gcode_uses_grbl_laser_words(tmp_path):
