@@ -114,6 +114,54 @@ def test_jacobian_matches_finite_differences(name, data):
     assert np.all(np.abs(jac - fd) <= 1e-6 * scale)
 
 
+def unit_rows(data, n, perpendicular_to=None):
+    """n random vectors: unit ones, or (perpendicular_to given) ones perpendicular to those rows
+    with a length (curvature, 1/mm) up to 2."""
+    v = np.array(data.draw(st.lists(st.floats(-1.0, 1.0), min_size=3 * n, max_size=3 * n))).reshape(n, 3)
+    if perpendicular_to is None:
+        norm = np.linalg.norm(v, axis=1)
+        assume(np.all(norm > 0.1))
+        return v / norm[:, None]
+    v -= np.sum(v * perpendicular_to, axis=1)[:, None] * perpendicular_to
+    return v * 2.0
+
+
+@pytest.mark.parametrize("name", CASES)
+@SETTINGS
+@given(data=st.data())
+def test_path_derivatives_match_inverse_kinematics_along_a_curve(name, data):
+    """The planner's joint derivatives along a curve (the closed form each family has) against
+    the brute force: inverse kinematics along p(s) = p + t s + kappa s^2 / 2, differenced, and
+    against the default (a difference of the inverse Jacobian)."""
+    from deltaslice.kinematics.base import Kinematics
+
+    kin, pts = reachable_batch(name, data)
+    t = unit_rows(data, len(pts))
+    kappa = unit_rows(data, len(pts), perpendicular_to=t)
+    q = kin.inverse(pts)
+    d1, d2 = kin.path_derivatives(pts, q, t, kappa)
+
+    def stencils(h):
+        qs = [kin.inverse(pts + t * s + kappa * s * s / 2) for s in (-2 * h, -h, 0.0, h, 2 * h)]
+        assume(all(np.all(np.isfinite(x)) for x in qs))
+        return ((qs[0] - 8 * qs[1] + 8 * qs[3] - qs[4]) / (12 * h),
+                (-qs[0] + 16 * qs[1] - 30 * qs[2] + 16 * qs[3] - qs[4]) / (12 * h * h))
+
+    # Fourth-order stencils at h and h/2: their difference bounds the truncation (large near the
+    # workspace edge, where a linear delta's rod lies almost flat); a few ulps of each coordinate
+    # over h^2 is their rounding.
+    h = 1e-2
+    (c1, c2), (fd1, fd2) = stencils(h), stencils(h / 2)
+    s1 = np.abs(fd1).max(axis=1, keepdims=True) + 1e-9
+    s2 = np.abs(fd2).max(axis=1, keepdims=True) + np.abs(fd1).max(axis=1, keepdims=True) ** 2 + 1e-9
+    rounding = 160 * np.finfo(float).eps * (np.abs(q) + 1) / (h * h)
+    assert np.all(np.abs(d1 - fd1) <= 1e-8 * s1 + np.abs(c1 - fd1))
+    assert np.all(np.abs(d2 - fd2) <= 1e-6 * s2 + np.abs(c2 - fd2) + rounding)
+    assert np.allclose(d1, np.einsum("nij,nj->ni", kin.inverse_jacobian(q), t), rtol=1e-9, atol=1e-12)
+    r1, r2 = Kinematics.path_derivatives(kin, pts, q, t, kappa)
+    assert np.all(np.abs(d2 - r2) <= 1e-6 * s2)
+
+
 @pytest.mark.parametrize("name", CASES)
 @SETTINGS
 @given(data=st.data())

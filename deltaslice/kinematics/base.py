@@ -8,7 +8,10 @@ limits. Everything is vectorised over N points:
 * ``forward(q (N,J)) -> points (N,3)`` (NaN rows where the joints cannot close
   the mechanism),
 * ``jacobian(q (N,J)) -> (N,3,J)``: d(point)/d(q),
-* ``inverse_jacobian(q (N,J)) -> (N,J,3)``: d(q)/d(point), what the planner uses,
+* ``inverse_jacobian(q (N,J)) -> (N,J,3)``: d(q)/d(point),
+* ``path_derivatives(points, q, t, kappa) -> (q' (N,J), q'' (N,J))``: the joints' first and
+  second derivatives along a curve, what the planner uses (closed form per family, a finite
+  difference of the inverse Jacobian by default),
 * ``reachable(points (N,3)) -> (N,) bool``: real inverse, joint limits and any
   family-specific limit (ball-joint tilt), and not near a singularity.
 
@@ -21,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 REACH_BLOCK = 65536  # points per evaluation in Kinematics.reachable
+FD_STEP = 1e-3  # mm: step of the default path_derivatives' difference of the inverse Jacobian
 
 
 def solve_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -59,6 +63,27 @@ def lower_sphere_intersection(centres: np.ndarray, radius: float):
     return out, h2
 
 
+def closure_derivatives(d, de, dde, t, kappa):
+    """Joint derivatives along a curve for arms each closed by a rigid link: joint i moves
+    its elbow e_i(q_i) and the link keeps |d_i| constant, d_i = (point + const) - e_i(q_i).
+
+    d: (N, J, k) link vectors, mm; de, dde: (N, J, k) the elbows' first and second
+    derivatives in their joint (mm/rad, mm/rad^2); t: (N, k) unit tangent, kappa: (N, k)
+    curvature vector (1/mm) of the curve in the same k coordinates. Returns (q' (N, J) rad/mm,
+    q'' (N, J) rad/mm^2); inf or NaN where d_i is perpendicular to its elbow's motion (singular).
+
+    From d.(p' - e' q') = 0: q' = (d.t) / (d.e'); differentiating the quotient along the curve
+    with d' = t - e' q' gives q'' = ((d'.t + d.kappa) - q' (d'.e' + d.e'' q')) / (d.e')."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.einsum("njk,njk->nj", d, de)
+        q1 = np.einsum("njk,nk->nj", d, t) / g
+        dd = t[:, None, :] - de * q1[..., None]
+        num1 = np.einsum("njk,nk->nj", dd, t) + np.einsum("njk,nk->nj", d, kappa)
+        g1 = np.einsum("njk,njk->nj", dd, de) + np.einsum("njk,njk->nj", d, dde) * q1
+        q2 = (num1 - q1 * g1) / g
+    return q1, q2
+
+
 class Kinematics:
     """Shared behaviour; subclasses provide ``inverse``, ``forward``, ``jacobian``."""
 
@@ -86,6 +111,28 @@ class Kinematics:
         """q: (N,J) -> (N,J,3), d(q)/d(point); NaN where the Jacobian is singular."""
         jac = self.jacobian(q)
         return solve_rows(jac, np.broadcast_to(np.eye(jac.shape[1]), jac.shape[:1] + (jac.shape[1], jac.shape[1])))
+
+    def inverse_jacobian_at(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """:meth:`inverse_jacobian` where the points of q are known too (a family may save its forward solve)."""
+        return self.inverse_jacobian(q)
+
+    def path_derivatives(self, points, q, t, kappa):
+        """The joints' derivatives along a curve through ``points`` (N,3) mm, q = inverse(points)
+        (N,J), with unit tangent t (N,3) and curvature vector kappa (N,3) 1/mm, by arc length:
+        (q' (N,J) joint units/mm, q'' (N,J) joint units/mm^2).
+
+        q' = Jinv t; q'' = (d Jinv/ds along t) t + Jinv kappa, the directional derivative by a
+        central difference of FD_STEP mm (one-sided where a neighbour is out of reach). The
+        families with a closed form override this; it stays the reference they are tested against."""
+        jinv = self.inverse_jacobian_at(points, q)
+        pp, pm = points + FD_STEP * t, points - FD_STEP * t
+        jp = self.inverse_jacobian_at(pp, self.inverse(pp))
+        jm = self.inverse_jacobian_at(pm, self.inverse(pm))
+        djp, djm = (jp - jinv) / FD_STEP, (jinv - jm) / FD_STEP
+        dj = np.where(np.isfinite(jp) & np.isfinite(jm), 0.5 * (djp + djm), np.where(np.isfinite(jp), djp, djm))
+        dq = np.einsum("nij,nj->ni", jinv, t)
+        ddq = np.einsum("nij,nj->ni", dj, t) + np.einsum("nij,nj->ni", jinv, kappa)
+        return dq, ddq
 
     def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Family-specific limits beyond joint positions (default: none). (N,) bool."""

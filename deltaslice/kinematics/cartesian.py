@@ -58,5 +58,9 @@ class Cartesian(Kinematics):
     def inverse_jacobian(self, q):
         return self.jacobian(q)
 
+    def path_derivatives(self, points, q, t, kappa):
+        """The joints follow the point: q' = t, q'' = kappa."""
+        return np.array(t, dtype=float), np.array(kappa, dtype=float)
+
 
 KINEMATICS = Cartesian

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import Section
-from .base import Kinematics, solve_rows
+from .base import Kinematics, closure_derivatives, solve_rows
 
 
 def _wrap(a, centre=0.0):
@@ -158,6 +158,19 @@ class FiveBar(Kinematics):
         dd = g.proximal_c * np.stack([-np.sin(q[:, 1]), np.cos(q[:, 1])], axis=1)
         diag = np.stack([-np.einsum("ni,ni->n", p - b, db), -np.einsum("ni,ni->n", p - d, dd)], axis=1)
         return rows, diag
+
+    def path_derivatives(self, points, q, t, kappa):
+        """Closed form (:func:`closure_derivatives`) for the two arms, whose distal links keep
+        their length while each elbow turns on a circle about its motor; z is its own joint."""
+        g = self.geometry
+        b, d = self._elbows(q)
+        links = np.stack([points[:, :2] - b, points[:, :2] - d], axis=1)  # (N, 2, 2)
+        c, s = np.cos(q[:, :2])[..., None], np.sin(q[:, :2])[..., None]
+        radius = np.array([g.proximal_a, g.proximal_c])[None, :, None]
+        de = radius * np.concatenate([-s, c], axis=2)
+        dde = radius * np.concatenate([-c, -s], axis=2)
+        q1, q2 = closure_derivatives(links, de, dde, t[:, :2], kappa[:, :2])
+        return np.column_stack([q1, t[:, 2]]), np.column_stack([q2, kappa[:, 2]])
 
     def jacobian(self, q):
         """q: (N,3) -> (N,3,3) d(point)/d(q): mm/rad for the arms, 1 for z."""

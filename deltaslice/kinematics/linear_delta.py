@@ -94,6 +94,16 @@ class LinearDelta(Kinematics):
             out[:, :, :2] = -(p[:, None, :2] - self.towers[None]) / h[..., None]
         return out
 
+    def path_derivatives(self, points, q, t, kappa):
+        """Closed form: q_i = z + t + h_i with h_i^2 = L^2 - |w_i|^2, w_i = xy - T_i, so
+        h h' = -w.t and h'^2 + h h'' = -(|t_xy|^2 + w.kappa_xy)."""
+        w = points[:, None, :2] - self.towers[None]  # (N, 3, 2)
+        h = q - points[:, 2:3] - self.t
+        with np.errstate(divide="ignore", invalid="ignore"):
+            h1 = -np.einsum("njk,nk->nj", w, t[:, :2]) / h
+            h2 = -(np.sum(t[:, :2] ** 2, axis=1)[:, None] + np.einsum("njk,nk->nj", w, kappa[:, :2]) + h1**2) / h
+        return t[:, 2:3] + h1, kappa[:, 2:3] + h2
+
     def jacobian(self, q):
         """q: (N,3) -> (N,3,3) d(point)/d(q), dimensionless."""
         inv = self.inverse_jacobian(q)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import Section
-from .base import Kinematics, lower_sphere_intersection, solve_rows
+from .base import Kinematics, closure_derivatives, lower_sphere_intersection, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
@@ -121,8 +121,11 @@ class RotaryDelta(Kinematics):
         e = self.elbows(q)
         ball = points[:, None, :] + (self.r * U + self.t * Z)[None]
         d = ball - e  # forearm vectors (N, arm, 3)
-        de_dq = self.L1 * (-np.sin(q)[..., None] * U[None] - np.cos(q)[..., None] * Z)
-        return d, -np.einsum("nij,nij->ni", d, de_dq)
+        return d, -np.einsum("nij,nij->ni", d, self._elbow_rates(q))
+
+    def _elbow_rates(self, q):
+        """d(elbow)/dq: (N, 3 arms, 3) mm/rad."""
+        return self.L1 * (-np.sin(q)[..., None] * U[None] - np.cos(q)[..., None] * Z)
 
     def jacobian(self, q):
         """q: (N,3) rad -> (N,3,3) d(point)/d(q), mm/rad."""
@@ -142,6 +145,14 @@ class RotaryDelta(Kinematics):
         a, b = self._closure(np.atleast_2d(q), np.atleast_2d(points))
         with np.errstate(divide="ignore", invalid="ignore"):
             return -a / b[:, :, None]
+
+    def path_derivatives(self, points, q, t, kappa):
+        """Closed form (:func:`closure_derivatives`): each forearm d_i = ball_i - elbow_i(q_i) keeps
+        its length; the elbow turns on a circle of radius L1 about its shoulder."""
+        d, de = self._closure(q, points)[0], self._elbow_rates(q)
+        c, s = np.cos(q)[..., None], np.sin(q)[..., None]
+        dde = self.L1 * (-c * U[None] + s * Z)
+        return closure_derivatives(d, de, dde, t, kappa)
 
     def ball_joint_tilt(self, points, q):
         """Sideways tilt of each forearm out of its arm's vertical plane: (N,3) rad."""

@@ -19,10 +19,9 @@ import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import WAIT_KINDS, Role, Toolpath
-from .fastpath import SOLVERS
 from .pieces import Piece
 from .spool import SPOOL_MOVES, PieceSpool
-from .topp import RunSpec, is_long, iter_run, plan_run
+from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_run
 from .trajectory import Trajectory
 from .travel import from_rest, plan_travel, to_rest
 

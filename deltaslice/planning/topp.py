@@ -51,6 +51,7 @@ from .reachability import solve as fast_solve
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
 # Grid: spacing grows geometrically from each join up to MAX_STEP (mm).
+SOLVERS = ("fast", "toppra")  # the speed-profile solvers: compiled reachability (default), toppra (reference)
 MIN_STEP = 0.01
 MAX_STEP = 2.0
 GROWTH = 2.0
@@ -63,7 +64,6 @@ MERGE_LENGTH = 0.02  # mm: segments shorter than this are merged where the path 
 MERGE_DEVIATION = 0.25  # of the blend tolerance: what merging may move the path
 EVAL = np.array([0.0, 0.25, 0.5, 0.75, 1.0])  # stage fractions where toppra constrains acceleration
 CHECK = np.linspace(0.0, 1.0, 9)  # stage fractions of the stage-wise limit check
-FD_STEP = 1e-3  # mm: step of the inverse Jacobian's directional derivative
 DERIVATIVE_BLOCK = 32768  # points per inverse-kinematics call in RunPath.derivatives
 CHECK_TOLERANCE = 1e-6  # a stage-wise ratio beyond 1 + this fails the run
 REFINE_PASSES = 3  # times a run's violating stages are split before it fails
@@ -127,38 +127,22 @@ class RunPath(AbstractGeometricPath):
             )
         return p, q
 
-    def _jinv(self, p, q):
-        if hasattr(self.kin, "inverse_jacobian_at"):
-            return self.kin.inverse_jacobian_at(p, q)
-        return self.kin.inverse_jacobian(q)
-
     def derivatives(self, s: np.ndarray, piece: np.ndarray):
         """First and second derivatives of the path with respect to x, at arc lengths s (mm)
         inside the given pieces (so a join is evaluated on the side the caller names).
         -> (dq, ddq), (n, dof) each, joint units per path unit.
 
-        q'(s) = Jinv(p) t(s); q''(s) = (d Jinv / ds along t) t + Jinv(p) kappa(s), the
-        directional derivative by a central difference of FD_STEP mm in space (the
-        inverse kinematics is smooth across joins; only t and kappa are piece-wise).
-        Evaluated DERIVATIVE_BLOCK points at a time: the Jacobians of a long window would
-        otherwise take hundreds of MB at once."""
+        The kinematics' ``path_derivatives`` along the piece's tangent t(s) and curvature
+        kappa(s) (piece-wise; the inverse kinematics itself is smooth across joins), scaled
+        from mm to path units. Evaluated DERIVATIVE_BLOCK points at a time: a long window's
+        arrays would otherwise take hundreds of MB at once."""
         if len(s) > DERIVATIVE_BLOCK:
             parts = [self.derivatives(s[i : i + DERIVATIVE_BLOCK], piece[i : i + DERIVATIVE_BLOCK])
                      for i in range(0, len(s), DERIVATIVE_BLOCK)]
             return np.concatenate([d for d, _ in parts]), np.concatenate([dd for _, dd in parts])
         p, q = self._ik(s, piece)
-        t = self.path.evaluate(s, 1, piece)
-        kappa = self.path.evaluate(s, 2, piece)
-        jinv = self._jinv(p, q)
-        h = FD_STEP
-        pp, pm = p + h * t, p - h * t
-        jp = self._jinv(pp, self.kin.inverse(pp))
-        jm = self._jinv(pm, self.kin.inverse(pm))
-        djp, djm = (jp - jinv) / h, (jinv - jm) / h
-        # One-sided where a neighbour is out of reach (at the edge of the workspace).
-        dj = np.where(np.isfinite(jp) & np.isfinite(jm), 0.5 * (djp + djm), np.where(np.isfinite(jp), djp, djm))
-        dq = np.einsum("nij,nj->ni", jinv, t) * self.S
-        ddq = (np.einsum("nij,nj->ni", dj, t) + np.einsum("nij,nj->ni", jinv, kappa)) * (self.S * self.S)
+        dq, ddq = self.kin.path_derivatives(p, q, self.path.evaluate(s, 1, piece), self.path.evaluate(s, 2, piece))
+        dq, ddq = dq * self.S, ddq * (self.S * self.S)
         if self.e_ratio is not None:
             dq = np.column_stack([dq, self.e_ratio[piece] * self.S])
             ddq = np.column_stack([ddq, np.zeros(len(s))])
