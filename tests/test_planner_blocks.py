@@ -174,3 +174,21 @@ def test_nearest_order_visits_every_path_once_from_the_nearest():
         assert entry(paths[k]) <= min(entry(paths[m]) for m in left) + 1e-9
         left.remove(k)
         pos = pts[-1]
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_frame_equals_evaluate_and_check_derivatives_hold_the_constraint_ones(seed):
+    """The planner computes a grid's derivatives once, at the check's fractions, and hands the
+    constraint every other one; the path's frame gives evaluate's three orders. Both must be the
+    very values of the separate calls, bit for bit, on both sides of every join."""
+    p, path, rp = _run_path("delta_etitc", seed)
+    assert np.array_equal(topp.CHECK[topp.EVAL_IN_CHECK], topp.EVAL)
+    s = np.concatenate([np.linspace(0, path.length, 997), path.joins()])
+    for piece in (path.locate(s), np.maximum(path.locate(s) - 1, 0)):
+        frame = path.frame(s, piece)
+        for order in range(3):
+            assert np.array_equal(frame[order], path.evaluate(s, order, piece))
+    x = topp.grid(path) / path.length
+    dq_c, ddq_c = rp.stage_derivatives(x, topp.CHECK)
+    dq_e, ddq_e = rp.stage_derivatives(x, topp.EVAL)
+    assert np.array_equal(dq_c[:, topp.EVAL_IN_CHECK], dq_e) and np.array_equal(ddq_c[:, topp.EVAL_IN_CHECK], ddq_e)

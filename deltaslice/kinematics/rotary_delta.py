@@ -149,8 +149,10 @@ class RotaryDelta(Kinematics):
     def path_derivatives(self, points, q, t, kappa):
         """Closed form (:func:`closure_derivatives`): each forearm d_i = ball_i - elbow_i(q_i) keeps
         its length; the elbow turns on a circle of radius L1 about its shoulder."""
-        d, de = self._closure(q, points)[0], self._elbow_rates(q)
-        c, s = np.cos(q)[..., None], np.sin(q)[..., None]
+        c, s = np.cos(q)[..., None], np.sin(q)[..., None]  # once: the planner's hottest call
+        elbow = self.shoulders[None] + self.L1 * (c * U[None] - s * Z)
+        d = points[:, None, :] + (self.r * U + self.t * Z)[None] - elbow
+        de = self.L1 * (-s * U[None] - c * Z)
         dde = self.L1 * (-c * U[None] + s * Z)
         return closure_derivatives(d, de, dde, t, kappa)
 

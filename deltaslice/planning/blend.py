@@ -78,6 +78,24 @@ class BlendedPath:
                 out[arc] = (-np.sin(a)[:, None] * d + np.cos(a)[:, None] * n) / r
         return out
 
+    def frame(self, s: np.ndarray, piece: np.ndarray | None = None):
+        """(point, unit tangent, curvature vector), each (n,3), at arc lengths s: :meth:`evaluate`'s
+        three orders from one gather, with no masks (a line is an arc of infinite radius and zero
+        normal; the values equal evaluate's)."""
+        s = np.asarray(s, dtype=float)
+        k = self.locate(s) if piece is None else piece
+        u = s - self.piece_start[k]
+        d0, nrm, rad = self.d0[k], self.normal[k], self.radius[k]
+        arc = self.kind[k] == 1
+        a = u / rad  # 0 on lines
+        sa, ca = np.sin(a), np.cos(a)
+        along = np.where(arc, sa, u)[:, None]
+        across = np.where(arc, 1 - ca, 0.0)[:, None]
+        point = self.p0[k] + np.where(arc, rad, 1.0)[:, None] * (along * d0 + across * nrm)
+        tangent = ca[:, None] * d0 + sa[:, None] * nrm
+        curvature = (-sa[:, None] * d0 + ca[:, None] * nrm) / rad[:, None]
+        return point, tangent, curvature
+
     def stops(self) -> np.ndarray:
         """Arc lengths of joins where the tangent breaks (exact reversals, which no arc can
         blend): the path speed must be zero there. (k,)"""

@@ -64,6 +64,8 @@ MERGE_LENGTH = 0.02  # mm: segments shorter than this are merged where the path 
 MERGE_DEVIATION = 0.25  # of the blend tolerance: what merging may move the path
 EVAL = np.array([0.0, 0.25, 0.5, 0.75, 1.0])  # stage fractions where toppra constrains acceleration
 CHECK = np.linspace(0.0, 1.0, 9)  # stage fractions of the stage-wise limit check
+# EVAL's fractions are CHECK's even ones (exactly: k/8): the derivatives are computed once per grid.
+EVAL_IN_CHECK = np.searchsorted(CHECK, EVAL)
 DERIVATIVE_BLOCK = 32768  # points per inverse-kinematics call in RunPath.derivatives
 CHECK_TOLERANCE = 1e-6  # a stage-wise ratio beyond 1 + this fails the run
 REFINE_PASSES = 3  # times a run's violating stages are split before it fails
@@ -117,7 +119,9 @@ class RunPath(AbstractGeometricPath):
         return np.array([0.0, 1.0])
 
     def _ik(self, s, piece):
-        p = self.path.evaluate(s, 0, piece)
+        return self._ik_at(self.path.evaluate(s, 0, piece))
+
+    def _ik_at(self, p):
         q = self.kin.inverse(p)
         bad = ~np.all(np.isfinite(q), axis=1)
         if bad.any():
@@ -140,8 +144,9 @@ class RunPath(AbstractGeometricPath):
             parts = [self.derivatives(s[i : i + DERIVATIVE_BLOCK], piece[i : i + DERIVATIVE_BLOCK])
                      for i in range(0, len(s), DERIVATIVE_BLOCK)]
             return np.concatenate([d for d, _ in parts]), np.concatenate([dd for _, dd in parts])
-        p, q = self._ik(s, piece)
-        dq, ddq = self.kin.path_derivatives(p, q, self.path.evaluate(s, 1, piece), self.path.evaluate(s, 2, piece))
+        p, t, kappa = self.path.frame(s, piece)
+        p, q = self._ik_at(p)
+        dq, ddq = self.kin.path_derivatives(p, q, t, kappa)
         dq, ddq = dq * self.S, ddq * (self.S * self.S)
         if self.e_ratio is not None:
             dq = np.column_stack([dq, self.e_ratio[piece] * self.S])
@@ -320,7 +325,7 @@ class StageMaxima:
         return float(max(self.velocity.max(initial=0.0), self.acceleration.max(initial=0.0)))
 
 
-def stage_maxima(rp: "RunPath", x, xd, xdd, vmax, amax, frac: np.ndarray = CHECK) -> StageMaxima:
+def stage_maxima(rp: "RunPath", x, xd, xdd, vmax, amax, frac: np.ndarray = CHECK, stage=None) -> StageMaxima:
     """Bound every channel's velocity and acceleration over every stage of a solution.
 
     x (n+1,) grid, xd (n+1,) path speed, xdd (n,) path acceleration; vmax, amax (dof,).
@@ -328,8 +333,9 @@ def stage_maxima(rp: "RunPath", x, xd, xdd, vmax, amax, frac: np.ndarray = CHECK
     acceleration |q' u + q'' x_dot^2| are exact at the ``frac`` points, each with the
     stage's own piece (a join is seen from both sides); between points the excess of a
     smooth function over its samples is at most h^2 max|g''| / 8, bounded here by an eighth
-    of the largest second difference of the samples (plus a quarter, for safety)."""
-    dq, ddq = rp.stage_derivatives(x, frac)
+    of the largest second difference of the samples (plus a quarter, for safety). ``stage``:
+    ``rp.stage_derivatives(x, frac)`` when the caller has it."""
+    dq, ddq = rp.stage_derivatives(x, frac) if stage is None else stage
     x2 = xd**2
     w = x2[:-1, None] + (x2[1:] - x2[:-1])[:, None] * frac[None]  # (n, f)
     w = np.maximum(w, 0.0)
@@ -561,7 +567,8 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
         feed_grid[np.isin(s_grid, stop_at)] = 0.0
         if cap is not None:
             feed_grid[cut_g(s_grid)] = min(feed_grid[cut_g(s_grid)], cap[1])
-        dq_st, ddq_st = rp.stage_derivatives(x_grid, EVAL)
+        dq_check, ddq_check = rp.stage_derivatives(x_grid, CHECK)
+        dq_st, ddq_st = dq_check[:, EVAL_IN_CHECK], ddq_check[:, EVAL_IN_CHECK]
         constraints = [
             PathVelocityConstraint(vmax, feed_grid, S, gridpoint_speed_factor(dq_st)),
             StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
@@ -585,7 +592,7 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
         dt = 2 * dx / vsum
         # Constant acceleration per stage consistent with the end speeds.
         xdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2 * dx)
-        check = stage_maxima(rp, x_grid, sd, xdd, true_v, true_a)
+        check = stage_maxima(rp, x_grid, sd, xdd, true_v, true_a, stage=(dq_check, ddq_check))
         bad = check.per_stage > 1.0 + CHECK_TOLERANCE
         if not bad.any():
             break
