@@ -210,9 +210,9 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     if echo is not None:
         for note in mesh.repairs:
             echo(f"mesh: {note}")
-        if mesh.placement:  # where the part went, in its own units: a part in inches or off-centre shows here
-            echo(f"mesh: {mesh.placement}")
-    check_fits(mesh, printer)
+    check_fits(mesh, printer)  # a refusal names the placement itself
+    if echo is not None and mesh.placement:  # where the part went, in its own units (inches, off-centre)
+        echo(f"mesh: {mesh.placement}")
     with warnings.catch_warnings(record=True) as caught:  # the slicer's MeshWarnings become notes
         warnings.simplefilter("always", MeshWarning)
         toolpath = slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
