@@ -68,4 +68,23 @@ static int dsl_file_pump(dsl_player *p, dsl_file *in)
     return 0;
 }
 
+/* The host loop's step after dsl_next gave r, neither a sample nor an event: DSL_FILE_MORE when the
+ * player got more input and the loop goes on; otherwise the exit status, 0 at the end of the stream,
+ * 1 on a stream error, 2 on a read error (both said on stderr with the path). */
+#define DSL_FILE_MORE (-1)
+static int dsl_file_continue(dsl_player *p, dsl_file *in, int r, const char *path)
+{
+    if (r == DSL_DONE) return 0;
+    if (r == DSL_ERROR) {
+        fflush(stdout);
+        fprintf(stderr, "error: %s: %s\n", path, p->error);
+        return 1;
+    }
+    if (dsl_file_pump(p, in)) {
+        fprintf(stderr, "error: %s: read error\n", path);
+        return 2;
+    }
+    return DSL_FILE_MORE;
+}
+
 #endif

@@ -46,7 +46,7 @@ int main(int argc, char **argv)
     if (dsl_file_start(&player, &input, path, chunk) != 0) return 2;
     for (;;) {
         int32_t counts[DSL_MAX_CHANNELS];
-        int r, c;
+        int r, c, status;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
             if (r == DSL_EVENT) {
                 int k = player.event_kind;
@@ -59,16 +59,9 @@ int main(int argc, char **argv)
             for (c = 0; c < player.n_channels; c++) printf(" %ld", (long)counts[c]);
             putchar('\n');
         }
-        if (r == DSL_DONE) break;
-        if (r == DSL_ERROR) {
-            fflush(stdout);
-            fprintf(stderr, "error: %s: %s\n", path, player.error);
-            return 1;
-        }
-        if (dsl_file_pump(&player, &input)) {
-            fprintf(stderr, "error: %s: read error\n", path);
-            return 2;
-        }
+        status = dsl_file_continue(&player, &input, r, path);
+        if (status == 0) break;
+        if (status != DSL_FILE_MORE) return status;
     }
     dsl_file_close(&input);
     return 0;

@@ -69,7 +69,7 @@ int main(int argc, char **argv)
     }
     if (dsl_file_start(&player, &input, path, 4096) != 0) return 2;
     for (;;) {
-        int r;
+        int r, status;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
             uint32_t i = player.sample_index - 1;
             int32_t want;
@@ -115,16 +115,9 @@ int main(int argc, char **argv)
             }
             n_samples = i + 1;
         }
-        if (r == DSL_DONE) break;
-        if (r == DSL_ERROR) {
-            fflush(stdout);
-            fprintf(stderr, "error: %s: %s\n", path, player.error);
-            return 1;
-        }
-        if (dsl_file_pump(&player, &input)) {
-            fprintf(stderr, "error: read error\n");
-            return 2;
-        }
+        status = dsl_file_continue(&player, &input, r, path);
+        if (status == 0) break;
+        if (status != DSL_FILE_MORE) return status;
     }
     if (have_last) { /* the last sample always goes out */
         len = dxl_sync_write_u16(packet, DXL_GOAL_POSITION, ids, last, joints);

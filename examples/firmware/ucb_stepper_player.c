@@ -63,7 +63,7 @@ int main(int argc, char **argv)
     }
     if (dsl_file_start(&player, &input, argv[1], 64) != 0) return 2;
     for (;;) {
-        int r;
+        int r, status;
         while ((r = dsl_next(&player, counts)) == DSL_SAMPLE || r == DSL_EVENT) {
             if (r == DSL_EVENT) continue; /* the UCB's hot end has its own controller */
             if (!started) {
@@ -100,16 +100,9 @@ int main(int argc, char **argv)
             for (a = 0; a < axes; a++) printf(" %ld", (long)pins_pos[a]);
             putchar('\n');
         }
-        if (r == DSL_DONE) break;
-        if (r == DSL_ERROR) {
-            fflush(stdout);
-            fprintf(stderr, "error: %s: %s\n", argv[1], player.error);
-            return 1;
-        }
-        if (dsl_file_pump(&player, &input)) {
-            fprintf(stderr, "error: read error\n");
-            return 2;
-        }
+        status = dsl_file_continue(&player, &input, r, argv[1]);
+        if (status == 0) break;
+        if (status != DSL_FILE_MORE) return status;
     }
     printf("# overruns %lu\n", (unsigned long)stepper.overruns);
     dsl_file_close(&input);
