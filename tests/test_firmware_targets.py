@@ -68,15 +68,19 @@ def simulate(build, mcu, elf, stream, seconds=60, *options):
     return r.returncode, out
 
 
+def _pad_stream(directory, printer_name):
+    """A 5 x 5 x 0.5 mm pad (one layer) compiled for a printer: starts at rest, heater events at sample 0."""
+    part = directory / "pad.stl"
+    write(trimesh.creation.box((5, 5, 0.5)), part)
+    out = directory / "pad.dsl"
+    compile_part(part, printer(printer_name), output=out, workers=1)
+    return out
+
+
 @pytest.fixture(scope="module")
 def etitc_stream(tmp_path_factory):
-    """A one-layer part compiled for the ETITC: starts at rest, heater events at sample 0."""
-    d = tmp_path_factory.mktemp("uno")
-    part = d / "pad.stl"
-    write(trimesh.creation.box((5, 5, 0.5)), part)
-    out = d / "pad.dsl"
-    compile_part(part, printer("delta_etitc"), output=out, workers=1)
-    return out
+    """The pad compiled for the ETITC."""
+    return _pad_stream(tmp_path_factory.mktemp("uno"), "delta_etitc")
 
 
 def test_uno_static_ram_fits_with_room_for_the_stack(build):
@@ -152,13 +156,8 @@ def assert_steps_exact(out, counts):
 
 @pytest.fixture(scope="module")
 def atlas_stream(tmp_path_factory):
-    """A one-layer part compiled for the Atlas: bed and hot end set-and-wait events at sample 0."""
-    d = tmp_path_factory.mktemp("atlas")
-    part = d / "pad.stl"
-    write(trimesh.creation.box((5, 5, 0.5)), part)
-    out = d / "pad.dsl"
-    compile_part(part, printer("fivebar_atlas"), output=out, workers=1)
-    return out
+    """The pad compiled for the Atlas: bed and hot end set-and-wait events at sample 0."""
+    return _pad_stream(tmp_path_factory.mktemp("atlas"), "fivebar_atlas")
 
 
 def test_mega_heaters_hold_the_first_sample_until_hot(build, atlas_stream):

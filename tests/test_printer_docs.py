@@ -50,11 +50,16 @@ def test_every_problem_of_a_file_is_reported_at_once(tmp_path):
     assert "nozzle_diameter missing" not in msg
 
 
-def _generator():
-    spec = importlib.util.spec_from_file_location("gen_printer_file", ROOT / "docs" / "gen_printer_file.py")
+def _docs_script(name):
+    """A generator script of docs/ (not a package module) loaded by its path."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "docs" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def _generator():
+    return _docs_script("gen_printer_file")
 
 
 def test_the_printer_file_reference_is_generated_from_the_reader():
@@ -73,10 +78,7 @@ def test_the_printer_file_reference_is_generated_from_the_reader():
 
 
 def _sources_generator():
-    spec = importlib.util.spec_from_file_location("gen_printers", ROOT / "docs" / "gen_printers.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return _docs_script("gen_printers")
 
 
 def test_the_printer_sources_table_is_generated_from_the_files():
