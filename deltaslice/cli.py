@@ -414,7 +414,13 @@ def firmware_config_cmd(printer_path, overrides, output):
 @click.option("--printer", "printer_path", default=None, metavar="FILE|NAME",
               help="Printer the stream must match; needed with --units only when the stream's own header is not enough.")
 def decode_cmd(stream, units, printer_path):
-    """Print the samples of a binary stream, one line per sample."""
+    """Print the samples of a binary stream, one line per sample.
+
+    \b
+    Examples:
+      deltaslice decode cube.dsl | head
+      deltaslice decode cube.dsl --units --printer delta_etitc > cube_setpoints.csv
+    """
     from .pipeline import decode_stream
 
     _run(decode_stream, stream, sys.stdout, units=units, printer=None if printer_path is None else _printer(printer_path, None))
@@ -429,7 +435,13 @@ def decode_cmd(stream, units, printer_path):
 @_engrave_options
 @json_option
 def verify_cmd(output, printer_path, overrides, toolpath_path, scale, rotate, keep_position, as_json, **engrave):
-    """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 3 on any violation."""
+    """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 3 on any violation.
+
+    \b
+    Examples:
+      deltaslice verify cube.dsl --printer delta_etitc
+      deltaslice verify cube.csv --printer delta_etitc --toolpath examples/parts/calibration_cube.stl --json
+    """
     from .pipeline import verify_output
 
     report = _run(verify_output, output, _printer(printer_path, overrides), toolpath=toolpath_path,
@@ -444,7 +456,12 @@ def verify_cmd(output, printer_path, overrides, toolpath_path, scale, rotate, ke
 @main.command("printers")
 @json_option
 def printers_cmd(as_json):
-    """List the printers shipped with deltaslice (usable by name: --printer NAME)."""
+    """List the printers shipped with deltaslice (usable by name: --printer NAME).
+
+    \b
+    Example:
+      deltaslice printers --json
+    """
     from .pipeline import shipped_printers
 
     rows = _run(shipped_printers)

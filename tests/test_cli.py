@@ -182,3 +182,13 @@ def test_workspace_plot_path_is_checked_before_the_work(tmp_path):
     assert r.exit_code == 1 and "does not exist" in r.stderr and r.stderr.count("\n") == 1
     r = _run("workspace", "--printer", "delta_etitc", "--plot", tmp_path / "ws.pdf")
     assert r.exit_code == 1 and ".png" in r.stderr
+
+
+@pytest.mark.parametrize("command", sorted(main.commands))
+def test_every_command_help_shows_an_example(command):
+    r = CliRunner().invoke(main, [command, "--help"])
+    assert r.exit_code == 0, r.output
+    assert "Example" in r.output, r.output
+    example = r.output.split("Example", 1)[1]
+    # compile is the default command: its examples start with the part
+    assert f"deltaslice {command} " in example or (command == "compile" and "deltaslice part.gcode" in example), r.output
