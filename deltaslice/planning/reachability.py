@@ -15,20 +15,14 @@ eliminating u (Fourier-Motzkin: every pair of a lower and an upper bound on u gi
 and the whole loop runs compiled: about 2 us a stage with 4 coordinates (16 rows, ~100 bound pairs;
 measured on the shared 2-core machine) against toppra's ~20 us, and no per-call set-up. The first
 call in a fresh install compiles (~6 s; cached in __pycache__ after, ~0.7 s to load per process).
-Without numba the same code runs as plain Python (correct, slow).
+Without numba the same code runs as plain Python (correct, slow; :mod:`deltaslice.jit`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-try:  # numba is a declared dependency; the fallback keeps a broken install usable
-    from numba import njit
-except ImportError:  # pragma: no cover
-    def njit(*args, **kwargs):
-        if args and callable(args[0]):
-            return args[0]
-        return lambda f: f
+from ..jit import njit
 
 # toppra's constants: the seidel solver's box on both variables, its forward-pass shrink and
 # the tolerance on the start velocity's controllability.
@@ -40,7 +34,7 @@ MAX_TRIES = 10
 PARALLEL = 1e-12
 
 
-@njit(cache=True)
+@njit(error_model="python")
 def _u_rows(a, b, lo, hi, i, ds, interp, n_rows, low_p, low_r, up_p, up_r):
     """Bounds on u at stage i as u >= p + r x (low) and u <= p + r x (up); rows with no u
     term become bounds on x. Returns (n_low, n_up, xl, xh); xl > xh when infeasible."""
@@ -84,7 +78,7 @@ def _u_rows(a, b, lo, hi, i, ds, interp, n_rows, low_p, low_r, up_p, up_r):
     return nl, nu, xl, xh
 
 
-@njit(cache=True)
+@njit(error_model="python")
 def _x_range(nl, nu, low_p, low_r, up_p, up_r, xl, xh):
     """Projection onto x of {(u, x): low_k(x) <= u <= up_j(x)} within [xl, xh]."""
     for k in range(nl):
@@ -100,7 +94,7 @@ def _x_range(nl, nu, low_p, low_r, up_p, up_r, xl, xh):
     return xl, xh
 
 
-@njit(cache=True)
+@njit(error_model="python")
 def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
     """One run in place: xs (n+1,), us (n,), K (n+1, 2). Returns 0 on success, 1 when the
     run is not controllable (xs, us NaN), 2 when the forward pass fails."""
@@ -192,7 +186,7 @@ def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
     return 0
 
 
-@njit(cache=True)
+@njit(error_model="python")
 def _solve_many(a, b, lo, hi, xmax, ds, offsets, interp, x_start, x_end, xs, us, K, status):
     """Runs r = 0..R-1 stacked: grid points offsets[r]..offsets[r+1]-1 of a, b, xmax, xs, K;
     stages offsets[r]-r .. offsets[r+1]-r-2 of ds, us."""
