@@ -34,6 +34,7 @@ that starts or stops at rest always has room to move. Segments shorter than
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +45,7 @@ from toppra.constraint.linear_constraint import LinearConstraint
 from toppra.interpolator import AbstractGeometricPath
 
 from ..errors import PlanningError, UnreachableError
+from ..jit import njit
 from .blend import BlendedPath, blend_polyline, dedupe, merge_short
 from .pieces import FilamentPiece, RunPiece
 from .reachability import solve as fast_solve
@@ -336,20 +338,48 @@ def stage_maxima(rp: "RunPath", x, xd, xdd, vmax, amax, frac: np.ndarray = CHECK
     of the largest second difference of the samples (plus a quarter, for safety). ``stage``:
     ``rp.stage_derivatives(x, frac)`` when the caller has it."""
     dq, ddq = rp.stage_derivatives(x, frac) if stage is None else stage
-    x2 = xd**2
-    w = x2[:-1, None] + (x2[1:] - x2[:-1])[:, None] * frac[None]  # (n, f)
-    w = np.maximum(w, 0.0)
-    vel = np.abs(dq) * np.sqrt(w)[..., None] / vmax
-    acc = np.abs(dq * xdd[:, None, None] + ddq * w[..., None]) / amax
-
-    def bound(g):
-        top = g.max(axis=1)
-        if g.shape[1] > 2:
-            top = top + 0.3125 * np.abs(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]).max(axis=1)
-        return top  # (n, dof)
-
-    bv, ba = bound(vel), bound(acc)
+    n, dof = dq.shape[0], dq.shape[2]
+    bv, ba = np.empty((n, dof)), np.empty((n, dof))
+    _stage_bounds(*(np.ascontiguousarray(v, dtype=float) for v in (dq, ddq, xd, xdd, frac, vmax, amax)), bv, ba)
     return StageMaxima(bv.max(axis=0), ba.max(axis=0), bv.argmax(axis=0), ba.argmax(axis=0), np.maximum(bv, ba).max(axis=1))
+
+
+@njit
+def _stage_bounds(dq, ddq, xd, xdd, frac, vmax, amax, bv, ba):
+    """:func:`stage_maxima`'s bounds per stage and channel, bv, ba (n, dof): at each fraction f,
+    x_dot^2 = w = max(0, x_i + (x_{i+1} - x_i) f), velocity |q'| sqrt(w) / vmax and acceleration
+    |q' u + q'' w| / amax; the largest sample plus 0.3125 of the largest second difference of
+    the samples. NaN propagates (as numpy's max)."""
+    n, f, dof = dq.shape
+    w = np.empty(f)
+    g = np.empty(f)
+    for i in range(n):
+        x0 = xd[i] * xd[i]
+        x1 = xd[i + 1] * xd[i + 1]
+        for m in range(f):
+            w[m] = max(x0 + (x1 - x0) * frac[m], 0.0)
+        for j in range(dof):
+            for kind in range(2):
+                for m in range(f):
+                    if kind == 0:
+                        g[m] = abs(dq[i, m, j]) * math.sqrt(w[m]) / vmax[j]
+                    else:
+                        g[m] = abs(dq[i, m, j] * xdd[i] + ddq[i, m, j] * w[m]) / amax[j]
+                top = g[0]
+                for m in range(1, f):
+                    if g[m] > top or g[m] != g[m]:
+                        top = g[m] if top == top else top
+                if f > 2:
+                    dd = abs(g[2] - 2 * g[1] + g[0])
+                    for m in range(1, f - 2):
+                        v = abs(g[m + 2] - 2 * g[m + 1] + g[m])
+                        if v > dd or v != v:
+                            dd = v if dd == dd else dd
+                    top = top + 0.3125 * dd
+                if kind == 0:
+                    bv[i, j] = top
+                else:
+                    ba[i, j] = top
 
 
 def run_stage_maxima(piece: RunPiece, kin, vmax, amax, filament: tuple[float, float] | None = None) -> StageMaxima:
