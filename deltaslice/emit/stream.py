@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import StreamError
+from ..jit import njit
 from ..samples import Samples, to_counts
 from ..toolpath import EVENT_NAMES, EventKind
 from . import csv as csvfmt
@@ -221,36 +222,82 @@ def _unzz1(u: int) -> int:
     return (u >> 1) ^ -(u & 1)
 
 
-def _bitlen(u: np.ndarray) -> int:
-    return int(u.max()).bit_length() if u.size else 0
-
-
 def _plan_block(x: np.ndarray, orders=(1, 2)):
-    """Per channel: (order, width, residuals uint64 (n-1,), v0). x: (n, C) int64.
-    ``orders`` restricts the choice (for measurements)."""
+    """Per channel: (order, width, v0): residuals of first (order 1) or second (order 2)
+    differences, whichever needs fewer bits (``width``, of their zig-zag), v0 the first
+    difference an order-2 channel starts from. x: (n, C) int64. ``orders`` restricts the
+    choice (for measurements)."""
     n, nch = x.shape
-    plans = []
-    d1 = np.diff(x, axis=0)  # (n-1, C)
+    order = np.empty(nch, dtype=np.int64)
+    width = np.empty(nch, dtype=np.int64)
+    v0 = np.empty(nch, dtype=np.int64)
+    _plan_kernel(x, 1 in orders, 2 in orders, order, width, v0)
+    return [(int(o), int(w), int(v)) for o, w, v in zip(order, width, v0)]
+
+
+@njit
+def _zz(v):
+    return 2 * v if v >= 0 else -2 * v - 1
+
+
+@njit
+def _bits(u):
+    n = 0
+    while u:
+        u >>= 1
+        n += 1
+    return n
+
+
+@njit
+def _residual(x, k, c, order):
+    """Channel c's residual at row k >= 1 of x: its first difference, or for order 2 the change
+    of it (0 at k = 1, where the first difference is the header's v0)."""
+    d = x[k, c] - x[k - 1, c]
+    if order == 2:
+        return 0 if k == 1 else d - (x[k - 1, c] - x[k - 2, c])
+    return d
+
+
+@njit
+def _plan_kernel(x, use1, use2, order, width, v0):
+    n, nch = x.shape
     for c in range(nch):
-        r1 = zigzag(d1[:, c])
-        w1 = _bitlen(r1) if (1 in orders or n < 3) else 99
-        if n >= 3 and 2 in orders:
-            r2 = np.empty(n - 1, dtype=np.uint64)
-            r2[0] = 0
-            r2[1:] = zigzag(np.diff(d1[:, c]))
-            w2 = _bitlen(r2)
-        else:
-            w2 = 99
+        m1 = 0
+        m2 = 0
+        for k in range(1, n):
+            m1 = max(m1, _zz(_residual(x, k, c, 1)))
+            m2 = max(m2, _zz(_residual(x, k, c, 2)))
+        w1 = _bits(m1) if (use1 or n < 3) else 99
+        w2 = _bits(m2) if (n >= 3 and use2) else 99
         if w2 < w1:
-            plans.append((2, w2, r2, int(d1[0, c])))
+            order[c], width[c], v0[c] = 2, w2, x[1, c] - x[0, c]
         else:
-            plans.append((1, w1, r1, 0))
-    return plans
+            order[c], width[c], v0[c] = 1, w1, 0
+
+
+@njit
+def _pack_kernel(x, order, width, out):
+    """Sample-major LSB-first bit packing of the residual rows 1..n-1 of x into out (zeroed
+    uint8, ceil((n - 1) * sum(width) / 8) bytes)."""
+    n, nch = x.shape
+    pos = 0
+    for k in range(1, n):
+        for c in range(nch):
+            w = width[c]
+            if w == 0:
+                continue
+            z = _zz(_residual(x, k, c, order[c]))
+            for _b in range(w):
+                if z & 1:
+                    out[pos >> 3] |= np.uint8(1 << (pos & 7))
+                z >>= 1
+                pos += 1
 
 
 def _record_size(n: int, x0: np.ndarray, plans) -> int:
     size = 1 + 2 + 2 + 4  # type, length, count, crc
-    for c, (order, width, _r, v0) in enumerate(plans):
+    for c, (order, width, v0) in enumerate(plans):
         size += 1 + len(_varint(_zz1(int(x0[c]))))
         if order == 2:
             size += len(_varint(_zz1(v0)))
@@ -258,44 +305,33 @@ def _record_size(n: int, x0: np.ndarray, plans) -> int:
     return size + (bits + 7) // 8
 
 
-def _pack(plans, n: int) -> bytes:
-    """Sample-major LSB-first bit packing of the residual rows."""
-    widths = [p[1] for p in plans]
-    row_bits = sum(widths)
+def _pack(x: np.ndarray, plans) -> bytes:
+    """The block's payload: its residual rows bit-packed (:func:`_pack_kernel`)."""
+    n = len(x)
+    row_bits = sum(p[1] for p in plans)
     if row_bits == 0 or n < 2:
         return b""
-    if row_bits <= 64:
-        rows = np.zeros(n - 1, dtype=np.uint64)
-        off = 0
-        for order, w, r, _ in plans:
-            if w:
-                rows |= r << np.uint64(off)
-                off += w
-        bits = np.unpackbits(rows.astype("<u8").view(np.uint8).reshape(n - 1, 8), axis=1, bitorder="little")[:, :row_bits]
-    else:
-        cols = []
-        for order, w, r, _ in plans:
-            if w:
-                cols.append(((r[:, None] >> np.arange(w, dtype=np.uint64)) & np.uint64(1)).astype(np.uint8))
-        bits = np.concatenate(cols, axis=1)
-    return np.packbits(bits.ravel(), bitorder="little").tobytes()
+    out = np.zeros(((n - 1) * row_bits + 7) // 8, dtype=np.uint8)
+    _pack_kernel(x, np.array([p[0] for p in plans], dtype=np.int64), np.array([p[1] for p in plans], dtype=np.int64), out)
+    return out.tobytes()
 
 
 def encode_block(x: np.ndarray) -> bytes:
     """One block record for counts x (n, C) int64, 1 <= n <= 65535. May exceed MAX_RECORD
     (callers split: see :func:`encode_blocks`)."""
+    x = np.ascontiguousarray(x, dtype=np.int64)
     return _assemble(x, _plan_block(x))
 
 
 def _assemble(x, plans) -> bytes:
     n = len(x)
     head = bytearray()
-    for c, (order, width, _r, v0) in enumerate(plans):
+    for c, (order, width, v0) in enumerate(plans):
         head.append((order << 6) | width)
         head += _varint(_zz1(int(x[0, c])))
         if order == 2:
             head += _varint(_zz1(v0))
-    payload = _pack(plans, n)
+    payload = _pack(x, plans)
     length = 1 + 2 + 2 + len(head) + len(payload) + 4
     if length > 0xFFFF:
         raise StreamError(f"block of {n} samples needs {length} bytes: too large")
@@ -307,7 +343,7 @@ def encode_blocks(counts: np.ndarray, block_samples: int = BLOCK_SAMPLES, max_re
                   orders=(1, 2)) -> list[bytes]:
     """Block records for counts (n, C): nominal ``block_samples`` per block, halved
     until each record fits ``max_record`` bytes."""
-    counts = np.asarray(counts, dtype=np.int64)
+    counts = np.ascontiguousarray(counts, dtype=np.int64)
     out: list[bytes] = []
     stack = [(i, min(i + block_samples, len(counts))) for i in range(0, len(counts), block_samples)]
     stack.reverse()
