@@ -8,11 +8,13 @@ the bed; each diagonal rod of length L closes
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..config import Section
+from ..jit import njit
 from .base import Kinematics, lower_sphere_intersection, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
@@ -62,12 +64,9 @@ class LinearDelta(Kinematics):
 
     def inverse(self, points):
         """points: (N,3) mm -> q: (N,3) carriage heights, mm (NaN out of reach)."""
-        points = np.atleast_2d(np.asarray(points, dtype=float))
-        d2 = np.sum((points[:, None, :2] - self.towers[None]) ** 2, axis=2)
-        h2 = self.L**2 - d2
-        with np.errstate(invalid="ignore"):
-            q = points[:, 2:3] + self.t + np.sqrt(h2)
-        q[(h2 <= 0).any(axis=1) | ~np.all(np.isfinite(q), axis=1)] = np.nan
+        points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)))
+        q = np.empty((len(points), 3))
+        _inverse_kernel(points, self.towers, self.L, self.t, q)
         return q
 
     def forward(self, q):
@@ -95,19 +94,55 @@ class LinearDelta(Kinematics):
         return out
 
     def path_derivatives(self, points, q, t, kappa):
-        """Closed form: q_i = z + t + h_i with h_i^2 = L^2 - |w_i|^2, w_i = xy - T_i, so
-        h h' = -w.t and h'^2 + h h'' = -(|t_xy|^2 + w.kappa_xy)."""
-        w = points[:, None, :2] - self.towers[None]  # (N, 3, 2)
-        h = q - points[:, 2:3] - self.t
-        with np.errstate(divide="ignore", invalid="ignore"):
-            h1 = -np.einsum("njk,nk->nj", w, t[:, :2]) / h
-            h2 = -(np.sum(t[:, :2] ** 2, axis=1)[:, None] + np.einsum("njk,nk->nj", w, kappa[:, :2]) + h1**2) / h
-        return t[:, 2:3] + h1, kappa[:, 2:3] + h2
+        """Closed form (compiled): q_i = z + t + h_i with h_i^2 = L^2 - |w_i|^2, w_i = xy - T_i,
+        so h h' = -w.t and h'^2 + h h'' = -(|t_xy|^2 + w.kappa_xy)."""
+        q1 = np.empty((len(q), 3))
+        q2 = np.empty((len(q), 3))
+        _derivatives_kernel(*(np.ascontiguousarray(v, dtype=float) for v in (points, q, t, kappa)),
+                            self.towers, self.t, q1, q2)
+        return q1, q2
 
     def jacobian(self, q):
         """q: (N,3) -> (N,3,3) d(point)/d(q), dimensionless."""
         inv = self.inverse_jacobian(q)
         return solve_rows(inv, np.broadcast_to(np.eye(3), inv.shape))
+
+
+@njit
+def _inverse_kernel(points, towers, L, t, q):
+    """q (N,3) mm: q_i = z + t + sqrt(L^2 - |xy - T_i|^2); a row is NaN where any rod cannot
+    reach (h^2 <= 0) or the point is not finite."""
+    for k in range(points.shape[0]):
+        ok = True
+        for i in range(3):
+            dx = points[k, 0] - towers[i, 0]
+            dy = points[k, 1] - towers[i, 1]
+            h2 = L * L - (dx * dx + dy * dy)
+            v = points[k, 2] + t + math.sqrt(h2) if h2 > 0 else np.nan
+            if not math.isfinite(v):
+                ok = False
+                break
+            q[k, i] = v
+        if not ok:
+            q[k, 0] = np.nan
+            q[k, 1] = np.nan
+            q[k, 2] = np.nan
+
+
+@njit
+def _derivatives_kernel(points, q, t, kappa, towers, tool, q1, q2):
+    """q' and q'' (N,3) along a curve with unit tangent t and curvature vector kappa (N,3):
+    h = q - z - tool, h' = -w.t_xy / h, h'' = -(|t_xy|^2 + w.kappa_xy + h'^2) / h."""
+    for k in range(points.shape[0]):
+        txy2 = t[k, 0] * t[k, 0] + t[k, 1] * t[k, 1]
+        for i in range(3):
+            wx = points[k, 0] - towers[i, 0]
+            wy = points[k, 1] - towers[i, 1]
+            h = q[k, i] - points[k, 2] - tool
+            h1 = -(wx * t[k, 0] + wy * t[k, 1]) / h
+            h2 = -(txy2 + (wx * kappa[k, 0] + wy * kappa[k, 1]) + h1 * h1) / h
+            q1[k, i] = t[k, 2] + h1
+            q2[k, i] = kappa[k, 2] + h2
 
 
 KINEMATICS = LinearDelta
