@@ -11,7 +11,8 @@ limits. Everything is vectorised over N points:
 * ``inverse_jacobian(q (N,J)) -> (N,J,3)``: d(q)/d(point),
 * ``path_derivatives(points, q, t, kappa) -> (q' (N,J), q'' (N,J))``: the joints' first and
   second derivatives along a curve, what the planner uses (closed form per family, a finite
-  difference of the inverse Jacobian by default),
+  difference of the inverse Jacobian by default); ``inverse_path_derivatives(points, t, kappa)``
+  gives q with them (a family may fuse the two),
 * ``reachable(points (N,3)) -> (N,) bool``: real inverse, joint limits and any
   family-specific limit (ball-joint tilt), and not near a singularity.
 
@@ -133,6 +134,12 @@ class Kinematics:
         dq = np.einsum("nij,nj->ni", jinv, t)
         ddq = np.einsum("nij,nj->ni", dj, t) + np.einsum("nij,nj->ni", jinv, kappa)
         return dq, ddq
+
+    def inverse_path_derivatives(self, points, t, kappa):
+        """(q, q', q''), each (N,J): :meth:`inverse` of points (N,3) mm and :meth:`path_derivatives`
+        there along unit tangents t and curvature vectors kappa (N,3); a family may fuse the two."""
+        q = self.inverse(points)
+        return (q, *self.path_derivatives(points, q, t, kappa))
 
     def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Family-specific limits beyond joint positions (default: none). (N,) bool."""

@@ -152,6 +152,13 @@ class RotaryDelta(Kinematics):
                             self._offsets, self.L1, q1, q2)
         return q1, q2
 
+    def inverse_path_derivatives(self, points, t, kappa):
+        """``inverse`` and ``path_derivatives`` in one compiled pass (the planner's hottest call)."""
+        points, t, kappa = (np.ascontiguousarray(v, dtype=float) for v in (points, t, kappa))
+        q, q1, q2 = np.empty((len(points), 3)), np.empty((len(points), 3)), np.empty((len(points), 3))
+        _fused_kernel(points, t, kappa, self._offsets, self.L1, self.L2, q, q1, q2)
+        return q, q1, q2
+
     def ball_joint_tilt(self, points, q):
         """Sideways tilt of each forearm out of its arm's vertical plane: (N,3) rad."""
         d, _ = self._closure(q, points)
@@ -169,59 +176,87 @@ class RotaryDelta(Kinematics):
 
 
 @njit
+def _arm_angle(points, k, i, offsets, L1, L2):
+    """Arm i's knee-outward root at point k: (theta, cos theta, sin theta), NaN when none.
+
+    a cos(theta) + b sin(theta) = c with w = point + offsets[i], a = w.u_i, b = -w_z,
+    c = (L1^2 + |w|^2 - L2^2) / (2 L1): theta = atan2(b, a) - acos(c / rho), rho = |(a, b)|,
+    taken as one angle: with h = sqrt(rho^2 - c^2), cos theta = (a c + b h) / rho^2 and
+    sin theta = (b c - a h) / rho^2, in the same range (-2 pi, pi]."""
+    wx = points[k, 0] + offsets[i, 0]
+    wy = points[k, 1] + offsets[i, 1]
+    wz = points[k, 2] + offsets[i, 2]
+    a = wx * U[i, 0] + wy * U[i, 1]
+    b = -wz
+    c = (L1 * L1 + (wx * wx + wy * wy + wz * wz) - L2 * L2) / (2.0 * L1)
+    rho2 = a * a + b * b
+    disc = rho2 - c * c
+    if not (disc >= 0.0 and rho2 > 0.0 and math.isfinite(rho2) and math.isfinite(c)):
+        return np.nan, np.nan, np.nan
+    h = math.sqrt(disc)
+    x = a * c + b * h
+    y = b * c - a * h
+    th = math.atan2(y, x)
+    # atan2(b, a) - acos(c / rho) lies in (-2 pi, pi]: below -pi exactly when b < 0 and
+    # a + c < 0 (atan2(b, a) + pi < acos(c / rho)), where one atan2 gives it plus 2 pi.
+    if b < 0.0 and a + c < 0.0 and th > 0.0:
+        th -= 2.0 * math.pi
+    return th, x / rho2, y / rho2
+
+
+@njit
+def _arm_rates(points, k, i, offsets, L1, cq, sq, t, kappa):
+    """Arm i's q' (rad/mm) and q'' (rad/mm^2) at point k along a curve with unit tangent t and
+    curvature vector kappa (rows k), from cos q and sin q: with the forearm
+    d = w - L1 (cos q u - sin q z) and the elbow's rates e' = L1 (-sin q u - cos q z),
+    e'' = L1 (-cos q u + sin q z), as closure_derivatives: q' = d.t / d.e',
+    q'' = ((d'.t + d.kappa) - q' (d'.e' + d.e'' q')) / d.e', d' = t - e' q'."""
+    ux, uy = U[i, 0], U[i, 1]
+    tx, ty, tz = t[k, 0], t[k, 1], t[k, 2]
+    dx = points[k, 0] + offsets[i, 0] - L1 * cq * ux
+    dy = points[k, 1] + offsets[i, 1] - L1 * cq * uy
+    dz = points[k, 2] + offsets[i, 2] + L1 * sq
+    ex, ey, ez = -L1 * sq * ux, -L1 * sq * uy, -L1 * cq
+    fx, fy, fz = -L1 * cq * ux, -L1 * cq * uy, L1 * sq
+    g = dx * ex + dy * ey + dz * ez
+    d1 = (dx * tx + dy * ty + dz * tz) / g
+    ddx, ddy, ddz = tx - ex * d1, ty - ey * d1, tz - ez * d1
+    num = (ddx * tx + ddy * ty + ddz * tz) + (dx * kappa[k, 0] + dy * kappa[k, 1] + dz * kappa[k, 2])
+    g1 = (ddx * ex + ddy * ey + ddz * ez) + (dx * fx + dy * fy + dz * fz) * d1
+    return d1, (num - d1 * g1) / g
+
+
+@njit
 def _inverse_kernel(points, offsets, L1, L2, q):
-    """q (N,3) rad of points (N,3) mm: per arm a cos(theta) + b sin(theta) = c with w = point +
-    offsets[i], a = w.u_i, b = -w_z, c = (L1^2 + |w|^2 - L2^2) / (2 L1); the knee-outward root.
-    A row is NaN where any arm has no real root (or the point is not finite)."""
+    """q (N,3) rad of points (N,3) mm; a row is NaN where any arm has no real root (or the
+    point is not finite)."""
     for k in range(points.shape[0]):
-        ok = True
         for i in range(3):
-            wx = points[k, 0] + offsets[i, 0]
-            wy = points[k, 1] + offsets[i, 1]
-            wz = points[k, 2] + offsets[i, 2]
-            a = wx * U[i, 0] + wy * U[i, 1]
-            b = -wz
-            c = (L1 * L1 + (wx * wx + wy * wy + wz * wz) - L2 * L2) / (2.0 * L1)
-            rho = math.hypot(a, b)
-            if not (abs(c) <= rho):
-                ok = False
+            q[k, i] = _arm_angle(points, k, i, offsets, L1, L2)[0]
+            if q[k, i] != q[k, i]:
+                q[k, 0] = q[k, 1] = q[k, 2] = np.nan
                 break
-            th = math.atan2(b, a) - math.acos(c / rho)
-            if not math.isfinite(th):
-                ok = False
-                break
-            q[k, i] = th
-        if not ok:
-            q[k, 0] = np.nan
-            q[k, 1] = np.nan
-            q[k, 2] = np.nan
 
 
 @njit
 def _derivatives_kernel(points, q, t, kappa, offsets, L1, q1, q2):
-    """q' (N,3) rad/mm and q'' (N,3) rad/mm^2 along a curve with unit tangent t and curvature
-    vector kappa (N,3): with the forearm d = w - L1 (cos q u - sin q z), the elbow's rates
-    e' = L1 (-sin q u - cos q z), e'' = L1 (-cos q u + sin q z), as closure_derivatives:
-    q' = d.t / d.e', q'' = ((d'.t + d.kappa) - q' (d'.e' + d.e'' q')) / d.e', d' = t - e' q'."""
+    """q' and q'' (N,3) at points whose joints q (N,3) are known."""
     for k in range(points.shape[0]):
-        tx, ty, tz = t[k, 0], t[k, 1], t[k, 2]
-        kx, ky, kz = kappa[k, 0], kappa[k, 1], kappa[k, 2]
         for i in range(3):
-            ux, uy = U[i, 0], U[i, 1]
-            c = math.cos(q[k, i])
-            s = math.sin(q[k, i])
-            dx = points[k, 0] + offsets[i, 0] - L1 * c * ux
-            dy = points[k, 1] + offsets[i, 1] - L1 * c * uy
-            dz = points[k, 2] + offsets[i, 2] + L1 * s
-            ex, ey, ez = -L1 * s * ux, -L1 * s * uy, -L1 * c
-            fx, fy, fz = -L1 * c * ux, -L1 * c * uy, L1 * s
-            g = dx * ex + dy * ey + dz * ez
-            d1 = (dx * tx + dy * ty + dz * tz) / g
-            ddx, ddy, ddz = tx - ex * d1, ty - ey * d1, tz - ez * d1
-            num = (ddx * tx + ddy * ty + ddz * tz) + (dx * kx + dy * ky + dz * kz)
-            g1 = (ddx * ex + ddy * ey + ddz * ez) + (dx * fx + dy * fy + dz * fz) * d1
-            q1[k, i] = d1
-            q2[k, i] = (num - d1 * g1) / g
+            q1[k, i], q2[k, i] = _arm_rates(points, k, i, offsets, L1, math.cos(q[k, i]), math.sin(q[k, i]), t, kappa)
+
+
+@njit
+def _fused_kernel(points, t, kappa, offsets, L1, L2, q, q1, q2):
+    """q, q', q'' (N,3) in one pass: the rates take cos q and sin q from the root itself."""
+    for k in range(points.shape[0]):
+        for i in range(3):
+            th, cq, sq = _arm_angle(points, k, i, offsets, L1, L2)
+            q[k, i] = th
+            q1[k, i], q2[k, i] = _arm_rates(points, k, i, offsets, L1, cq, sq, t, kappa)
+        if q[k, 0] != q[k, 0] or q[k, 1] != q[k, 1] or q[k, 2] != q[k, 2]:
+            for i in range(3):
+                q[k, i] = q1[k, i] = q2[k, i] = np.nan
 
 
 KINEMATICS = RotaryDelta

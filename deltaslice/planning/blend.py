@@ -99,8 +99,8 @@ class BlendedPath:
         if len(j) == 0:
             return j
         k = self.locate(j)
-        end_of_previous = self.evaluate(j, 1, k - 1)
-        start_of_next = self.evaluate(j, 1, k)
+        end_of_previous = self.frame(j, k - 1)[1]
+        start_of_next = self.frame(j, k)[1]
         return j[np.einsum("ij,ij->i", end_of_previous, start_of_next) < 1 - 1e-9]
 
     def joins(self) -> np.ndarray:

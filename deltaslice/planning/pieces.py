@@ -101,7 +101,7 @@ class RunPiece:
         """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))"""
         s = self.arc_length_at(tau)
         k = self.path.locate(s)
-        q = kin.inverse(self.path.evaluate(s, 0, k))
+        q = kin.inverse(self.path.frame(s, k)[0])
         if self.power is None:
             return q, self.filament_at(s, k), np.full(len(s), self.tool)
         tool = self.power[k]

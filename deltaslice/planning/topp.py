@@ -125,13 +125,16 @@ class RunPath(AbstractGeometricPath):
 
     def _ik_at(self, p):
         q = self.kin.inverse(p)
+        self._check_reach(p, q)
+        return p, q
+
+    def _check_reach(self, p, q):
         bad = ~np.all(np.isfinite(q), axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise UnreachableError(
                 f"layer {self.layer}: point x = {p[i, 0]:.2f}, y = {p[i, 1]:.2f}, z = {p[i, 2]:.2f} mm is out of reach"
             )
-        return p, q
 
     def derivatives(self, s: np.ndarray, piece: np.ndarray):
         """First and second derivatives of the path with respect to x, at arc lengths s (mm)
@@ -147,8 +150,8 @@ class RunPath(AbstractGeometricPath):
                      for i in range(0, len(s), DERIVATIVE_BLOCK)]
             return np.concatenate([d for d, _ in parts]), np.concatenate([dd for _, dd in parts])
         p, t, kappa = self.path.frame(s, piece)
-        p, q = self._ik_at(p)
-        dq, ddq = self.kin.path_derivatives(p, q, t, kappa)
+        q, dq, ddq = self.kin.inverse_path_derivatives(p, t, kappa)
+        self._check_reach(p, q)
         dq, ddq = dq * self.S, ddq * (self.S * self.S)
         if self.e_ratio is not None:
             dq = np.column_stack([dq, self.e_ratio[piece] * self.S])
