@@ -38,11 +38,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import toppra
-import toppra.algorithm
-import toppra.constraint
-from toppra.constraint.linear_constraint import LinearConstraint
-from toppra.interpolator import AbstractGeometricPath
 
 from ..errors import PlanningError, UnreachableError
 from ..jit import njit
@@ -101,11 +96,11 @@ class RunSpec:
         return RunSpec(self.points[a : b + 1], self.feed[a:b], self.e[a:b], self.tool, self.layer, power, self.dynamic_power)
 
 
-class RunPath(AbstractGeometricPath):
-    """The run as toppra sees it: x in [0, 1] -> (q_1..q_J[, e]) with analytic first
-    derivatives (inverse Jacobian times tangent) and one-sided second derivatives
-    taken inside the piece a grid point starts (toppra's collocation uses the stage
-    ahead of each grid point)."""
+class RunPath:
+    """The run as toppra sees it (its ``AbstractGeometricPath`` interface, by duck typing):
+    x in [0, 1] -> (q_1..q_J[, e]) with analytic first derivatives (inverse Jacobian times
+    tangent) and one-sided second derivatives taken inside the piece a grid point starts
+    (toppra's collocation uses the stage ahead of each grid point)."""
 
     def __init__(self, kin, path: BlendedPath, e_ratio: np.ndarray | None, layer: int):
         self.kin, self.path, self.e_ratio, self.layer = kin, path, e_ratio, layer
@@ -182,7 +177,7 @@ class RunPath(AbstractGeometricPath):
         return dq if order == 1 else ddq
 
 
-class StageAccelerationConstraint(LinearConstraint):
+class StageAccelerationConstraint:
     """Joint (and filament) acceleration limits imposed inside every stage.
 
     In stage i (x_i..x_{i+1}, width d) the path acceleration u is constant and
@@ -191,14 +186,13 @@ class StageAccelerationConstraint(LinearConstraint):
     set per fraction in ``frac``, derivatives from the stage's own piece. ``stage``:
     precomputed ``RunPath.stage_derivatives(x, frac)``."""
 
+    identical = True  # toppra's flag: F and g are the same at every grid point
+
     def __init__(self, amax: np.ndarray, frac: np.ndarray = EVAL, stage=None):
-        super().__init__()
         self.amax = np.asarray(amax, dtype=float)
         self.dof = len(self.amax)
         self.frac = np.asarray(frac, dtype=float)
         self.stage = stage
-        self.identical = True
-        self._format_string = "    stage-wise acceleration (joints, filament)\n"
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
         dq, ddq = self.stage if self.stage is not None else path.stage_derivatives(gridpoints, self.frac)
@@ -232,19 +226,19 @@ def gridpoint_speed_factor(dq_stage: np.ndarray) -> np.ndarray:
     return out
 
 
-class PathVelocityConstraint(LinearConstraint):
+class PathVelocityConstraint:
     """Every first-order limit at once, over the whole grid: joint (and filament)
     velocity limits through q'(x), and the feed cap on the Cartesian speed S x_dot.
     Returns only toppra's ``xbound`` (bounds on x_dot^2)."""
 
+    identical = False
+
     def __init__(self, vmax: np.ndarray, feed_at_grid: np.ndarray, S: float, speed_factor: np.ndarray | None = None):
-        super().__init__()
         self.speed_factor = speed_factor  # (n+1, dof) |q'| per grid point, both sides (gridpoint_speed_factor)
         self.vmax = np.asarray(vmax, dtype=float)
         self.dof = len(self.vmax)
         self.feed = np.asarray(feed_at_grid, dtype=float)
         self.S = S
-        self._format_string = "    path velocity (joints, filament, feed)\n"
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
         dq = np.abs(path(gridpoints, 1)) if self.speed_factor is None else self.speed_factor
@@ -684,8 +678,7 @@ def _start_speed(constraints, rp, x_grid, amax, solver) -> float:
         bound = np.tile(amax, len(constraints[1].frac))
         K = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), interpolation=False)[2]
     else:
-        algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
-        K = algo.compute_controllable_sets(0.0, 0.0)
+        K = _toppra(constraints, rp, x_grid).compute_controllable_sets(0.0, 0.0)
     top = K[0, 1]
     return float(np.sqrt(top)) if np.isfinite(top) and top > 0 else 0.0
 
@@ -701,8 +694,25 @@ def _speeds(constraints, rp, x_grid, amax, solver, sd_start=0.0):
         bound = np.tile(amax, len(constraints[1].frac))
         x, _u, _k = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), x_start=sd_start**2, interpolation=False)
         return np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None
-    algo = toppra.algorithm.TOPPRA(constraints, rp, gridpoints=x_grid, solver_wrapper="seidel")
-    return algo.compute_parameterization(sd_start, 0.0)[1]
+    return _toppra(constraints, rp, x_grid).compute_parameterization(sd_start, 0.0)[1]
+
+
+def _toppra(constraints, rp, x_grid):
+    """toppra's TOPPRA (seidel solver) on our constraints, each seen through a toppra
+    ``LinearConstraint``. toppra is imported here, not with the module: it brings matplotlib and
+    scipy.interpolate (about a second per process) and only the reference solver needs it."""
+    import toppra.algorithm
+    from toppra.constraint.linear_constraint import LinearConstraint
+
+    class View(LinearConstraint):
+        def __init__(self, inner):
+            super().__init__()
+            self.inner, self.identical = inner, inner.identical
+
+        def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+            return self.inner.compute_constraint_params(path, gridpoints)
+
+    return toppra.algorithm.TOPPRA([View(c) for c in constraints], rp, gridpoints=x_grid, solver_wrapper="seidel")
 
 
 def _segment_power(spec: RunSpec, pts: np.ndarray) -> np.ndarray:
