@@ -124,6 +124,9 @@ class RunPath:
         return p, q
 
     def _check_reach(self, p, q):
+        with np.errstate(over="ignore"):
+            if np.isfinite(q.sum()):  # one reduction: a NaN row (out of reach) makes the sum NaN
+                return
         bad = ~np.all(np.isfinite(q), axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
