@@ -222,19 +222,6 @@ def _unzz1(u: int) -> int:
     return (u >> 1) ^ -(u & 1)
 
 
-def _plan_block(x: np.ndarray, orders=(1, 2)):
-    """Per channel: (order, width, v0): residuals of first (order 1) or second (order 2)
-    differences, whichever needs fewer bits (``width``, of their zig-zag), v0 the first
-    difference an order-2 channel starts from. x: (n, C) int64. ``orders`` restricts the
-    choice (for measurements)."""
-    n, nch = x.shape
-    order = np.empty(nch, dtype=np.int64)
-    width = np.empty(nch, dtype=np.int64)
-    v0 = np.empty(nch, dtype=np.int64)
-    _plan_kernel(x, 1 in orders, 2 in orders, order, width, v0)
-    return [(int(o), int(w), int(v)) for o, w, v in zip(order, width, v0)]
-
-
 @njit
 def _zz(v):
     return 2 * v if v >= 0 else -2 * v - 1
@@ -250,115 +237,168 @@ def _bits(u):
 
 
 @njit
+def _varint_len(u):
+    n = 1
+    while u >= 128:
+        u >>= 7
+        n += 1
+    return n
+
+
+@njit
+def _put_varint(buf, pos, u):
+    while u >= 128:
+        buf[pos] = (u & 0x7F) | 0x80
+        u >>= 7
+        pos += 1
+    buf[pos] = u
+    return pos + 1
+
+
+@njit
 def _residual(x, k, c, order):
-    """Channel c's residual at row k >= 1 of x: its first difference, or for order 2 the change
-    of it (0 at k = 1, where the first difference is the header's v0)."""
+    """Channel c's residual at row k of x: its first difference (k >= 1 in the block), or for
+    order 2 the change of it (k >= 2; the block's first is the header's v0, its residual 0)."""
     d = x[k, c] - x[k - 1, c]
     if order == 2:
-        return 0 if k == 1 else d - (x[k - 1, c] - x[k - 2, c])
+        return d - (x[k - 1, c] - x[k - 2, c])
     return d
 
 
 @njit
-def _plan_kernel(x, use1, use2, order, width, v0):
-    n, nch = x.shape
+def _plan(x, a, b, use1, use2, order, width, v0):
+    """Per channel of rows a..b-1: first (order 1) or second (order 2) differences, whichever
+    needs fewer bits of their zig-zag; v0 the first difference an order-2 channel starts from.
+    Returns the record's size in bytes."""
+    n = b - a
+    nch = x.shape[1]
+    size = 1 + 2 + 2 + 4  # type, length, count, crc
+    row_bits = 0
     for c in range(nch):
         m1 = 0
         m2 = 0
-        for k in range(1, n):
+        for k in range(a + 1, b):
             m1 = max(m1, _zz(_residual(x, k, c, 1)))
-            m2 = max(m2, _zz(_residual(x, k, c, 2)))
+            if k > a + 1:
+                m2 = max(m2, _zz(_residual(x, k, c, 2)))
         w1 = _bits(m1) if (use1 or n < 3) else 99
         w2 = _bits(m2) if (n >= 3 and use2) else 99
         if w2 < w1:
-            order[c], width[c], v0[c] = 2, w2, x[1, c] - x[0, c]
+            order[c], width[c], v0[c] = 2, w2, x[a + 1, c] - x[a, c]
         else:
             order[c], width[c], v0[c] = 1, w1, 0
+        size += 1 + _varint_len(_zz(x[a, c]))
+        if order[c] == 2:
+            size += _varint_len(_zz(v0[c]))
+        row_bits += width[c]
+    return size + ((n - 1) * row_bits + 7) // 8
 
 
 @njit
-def _pack_kernel(x, order, width, out):
-    """Sample-major LSB-first bit packing of the residual rows 1..n-1 of x into out (zeroed
-    uint8, ceil((n - 1) * sum(width) / 8) bytes)."""
-    n, nch = x.shape
-    pos = 0
-    for k in range(1, n):
-        for c in range(nch):
-            w = width[c]
-            if w == 0:
-                continue
-            z = _zz(_residual(x, k, c, order[c]))
-            for _b in range(w):
+def _write_record(x, a, b, order, width, v0, size, buf, pos):
+    """The block record of rows a..b-1 at buf[pos:pos + size], its CRC left zero (the caller's)."""
+    n = b - a
+    buf[pos] = REC_BLOCK
+    buf[pos + 1] = size & 0xFF
+    buf[pos + 2] = size >> 8
+    buf[pos + 3] = n & 0xFF
+    buf[pos + 4] = n >> 8
+    q = pos + 5
+    for c in range(x.shape[1]):
+        buf[q] = (order[c] << 6) | width[c]
+        q = _put_varint(buf, q + 1, _zz(x[a, c]))
+        if order[c] == 2:
+            q = _put_varint(buf, q, _zz(v0[c]))
+    # sample-major LSB-first bit packing of the residual rows
+    bit = 0
+    for k in range(a + 1, b):
+        for c in range(x.shape[1]):
+            z = _zz(_residual(x, k, c, order[c])) if k > a + 1 or order[c] == 1 else 0
+            for _b in range(width[c]):
                 if z & 1:
-                    out[pos >> 3] |= np.uint8(1 << (pos & 7))
+                    buf[q + (bit >> 3)] |= 1 << (bit & 7)
                 z >>= 1
-                pos += 1
+                bit += 1
+    for i in range(4):
+        buf[pos + size - 4 + i] = 0
 
 
-def _record_size(n: int, x0: np.ndarray, plans) -> int:
-    size = 1 + 2 + 2 + 4  # type, length, count, crc
-    for c, (order, width, v0) in enumerate(plans):
-        size += 1 + len(_varint(_zz1(int(x0[c]))))
-        if order == 2:
-            size += len(_varint(_zz1(v0)))
-    bits = (n - 1) * sum(p[1] for p in plans)
-    return size + (bits + 7) // 8
+@njit
+def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
+    """Block records of counts x (n, C) into buf (zeroed): nominal ``block_samples`` rows each,
+    halved until a record fits ``max_record`` bytes. rec_end[i]: where record i ends in buf.
+    Returns the number of records, or -1 when one sample does not fit."""
+    nch = x.shape[1]
+    order = np.empty(nch, dtype=np.int64)
+    width = np.empty(nch, dtype=np.int64)
+    v0 = np.empty(nch, dtype=np.int64)
+    stack = np.empty((64, 2), dtype=np.int64)
+    pos = 0
+    count = 0
+    for first in range(0, x.shape[0], block_samples):
+        stack[0, 0] = first
+        stack[0, 1] = min(first + block_samples, x.shape[0])
+        top = 1
+        while top:
+            top -= 1
+            a = stack[top, 0]
+            b = stack[top, 1]
+            size = _plan(x, a, b, use1, use2, order, width, v0)
+            if size > max_record:
+                if b - a == 1:
+                    return -1
+                m = (a + b) // 2
+                stack[top, 0], stack[top, 1] = m, b
+                stack[top + 1, 0], stack[top + 1, 1] = a, m
+                top += 2
+                continue
+            _write_record(x, a, b, order, width, v0, size, buf, pos)
+            pos += size
+            rec_end[count] = pos
+            count += 1
+    return count
 
 
-def _pack(x: np.ndarray, plans) -> bytes:
-    """The block's payload: its residual rows bit-packed (:func:`_pack_kernel`)."""
-    n = len(x)
-    row_bits = sum(p[1] for p in plans)
-    if row_bits == 0 or n < 2:
-        return b""
-    out = np.zeros(((n - 1) * row_bits + 7) // 8, dtype=np.uint8)
-    _pack_kernel(x, np.array([p[0] for p in plans], dtype=np.int64), np.array([p[1] for p in plans], dtype=np.int64), out)
-    return out.tobytes()
+def _records(counts: np.ndarray, block_samples: int, max_record: int, orders=(1, 2)) -> list[bytes]:
+    counts = np.ascontiguousarray(counts, dtype=np.int64)
+    n = len(counts)
+    if n == 0:
+        return []
+    if np.abs(counts).max() >= COUNT_LIMIT:
+        raise StreamError(f"an actuator count beyond +-2^29 ({int(np.abs(counts).max())}) cannot be stored")
+    # at most one record per sample; each at most max_record bytes and its rows' bits
+    cap = min(n * max_record, n * (9 + counts.shape[1] * 20) + 64)
+    buf = np.zeros(cap, dtype=np.uint8)
+    rec_end = np.empty(n, dtype=np.int64)
+    count = _encode_kernel(counts, int(block_samples), int(max_record), 1 in orders, 2 in orders, buf, rec_end)
+    if count < 0:
+        raise StreamError(f"one sample of {counts.shape[1]} channels does not fit a {max_record}-byte block")
+    data = buf[: rec_end[count - 1]].tobytes()
+    out = []
+    start = 0
+    for end in rec_end[:count].tolist():
+        body = data[start : end - 4]
+        out.append(body + struct.pack("<I", zlib.crc32(body)))
+        start = end
+    return out
 
 
 def encode_block(x: np.ndarray) -> bytes:
-    """One block record for counts x (n, C) int64, 1 <= n <= 65535. May exceed MAX_RECORD
-    (callers split: see :func:`encode_blocks`)."""
-    x = np.ascontiguousarray(x, dtype=np.int64)
-    return _assemble(x, _plan_block(x))
-
-
-def _assemble(x, plans) -> bytes:
-    n = len(x)
-    head = bytearray()
-    for c, (order, width, v0) in enumerate(plans):
-        head.append((order << 6) | width)
-        head += _varint(_zz1(int(x[0, c])))
-        if order == 2:
-            head += _varint(_zz1(v0))
-    payload = _pack(x, plans)
-    length = 1 + 2 + 2 + len(head) + len(payload) + 4
-    if length > 0xFFFF:
-        raise StreamError(f"block of {n} samples needs {length} bytes: too large")
-    rec = bytes([REC_BLOCK]) + struct.pack("<HH", length, n) + bytes(head) + payload
-    return rec + struct.pack("<I", zlib.crc32(rec))
+    """One block record for counts x (n, C) int64, 1 <= n <= 65535, whatever its size up to the
+    format's 65535 bytes (callers that must fit MAX_RECORD split: see :func:`encode_blocks`)."""
+    x = np.asarray(x, dtype=np.int64)
+    recs = _records(x, len(x), 0xFFFF)
+    if len(recs) != 1:
+        raise StreamError(f"block of {len(x)} samples needs more than 65535 bytes: too large")
+    return recs[0]
 
 
 def encode_blocks(counts: np.ndarray, block_samples: int = BLOCK_SAMPLES, max_record: int = MAX_RECORD,
                   orders=(1, 2)) -> list[bytes]:
     """Block records for counts (n, C): nominal ``block_samples`` per block, halved
-    until each record fits ``max_record`` bytes."""
-    counts = np.ascontiguousarray(counts, dtype=np.int64)
-    out: list[bytes] = []
-    stack = [(i, min(i + block_samples, len(counts))) for i in range(0, len(counts), block_samples)]
-    stack.reverse()
-    while stack:
-        a, b = stack.pop()
-        x = counts[a:b]
-        plans = _plan_block(x, orders)
-        if _record_size(b - a, x[0], plans) > max_record:
-            if b - a == 1:
-                raise StreamError(f"one sample of {counts.shape[1]} channels does not fit a {max_record}-byte block")
-            m = (a + b) // 2
-            stack += [(m, b), (a, m)]
-            continue
-        out.append(_assemble(x, plans))
-    return out
+    until each record fits ``max_record`` bytes (planned, sized and packed in one compiled pass;
+    ``orders`` restricts the difference orders, for measurements)."""
+    return _records(counts, block_samples, max_record, orders)
 
 
 def decode_block(rec: bytes, n_channels: int) -> np.ndarray:
