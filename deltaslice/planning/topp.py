@@ -197,7 +197,8 @@ class StageAccelerationConstraint:
         self.frac = np.asarray(frac, dtype=float)
         self.stage = stage
 
-    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+    def rows(self, path, gridpoints):
+        """The rows' u and x coefficients a, b (n+1, f * dof), each bounded by +-amax."""
         dq, ddq = self.stage if self.stage is not None else path.stage_derivatives(gridpoints, self.frac)
         d = np.diff(gridpoints)
         n, f, dof = dq.shape
@@ -208,9 +209,13 @@ class StageAccelerationConstraint:
         # The last grid point has no stage ahead: its own (end) derivatives, no u-term.
         a[-1] = np.tile(dq[-1, -1], f)
         b[-1] = np.tile(ddq[-1, -1], f)
-        eye = np.eye(f * dof)
+        return a, b
+
+    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+        a, b = self.rows(path, gridpoints)
+        eye = np.eye(a.shape[1])
         F = np.vstack([eye, -eye])
-        g = np.tile(self.amax, 2 * f)
+        g = np.tile(self.amax, 2 * len(self.frac))
         return a, b, np.zeros_like(a), F, g, None, None
 
 
@@ -243,13 +248,17 @@ class PathVelocityConstraint:
         self.feed = np.asarray(feed_at_grid, dtype=float)
         self.S = S
 
-    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
+    def cap2(self, path, gridpoints) -> np.ndarray:
+        """The bound on x_dot^2 at each grid point (n+1,)."""
         dq = np.abs(path(gridpoints, 1)) if self.speed_factor is None else self.speed_factor
         with np.errstate(divide="ignore"):
             cap = np.min(self.vmax[None] / dq, axis=1)
         cap = np.minimum(cap, self.feed / self.S)
+        return cap**2
+
+    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
         xbound = np.zeros((len(gridpoints), 2))
-        xbound[:, 1] = cap**2
+        xbound[:, 1] = self.cap2(path, gridpoints)
         return None, None, None, None, None, None, xbound
 
 
@@ -402,7 +411,8 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
     kind: the pieces' kind ("run", or "travel" for a straight travel). A run shorter than a
     micron is its filament pushed at rest (or nothing); in the rare case toppra's numerics
     fail on a whole run, the pieces of its two halves (split at a vertex, each from rest to rest)."""
-    if len(dedupe(spec.points, spec.feed, spec.e)[0]) < 2:
+    deduped = dedupe(spec.points, spec.feed, spec.e)
+    if len(deduped[0]) < 2:
         amount = float(spec.e.sum())
         if amount == 0:
             return []
@@ -410,7 +420,7 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         q = kin.inverse(spec.points[-1:])[0]
         return [FilamentPiece(q, amount, float(limits.velocity[-1]), float(limits.acceleration[-1]), spec.layer, kind=kind)]
     try:
-        return _plan_run(kin, printer, spec, speed_limit, tolerance, kind, solver)
+        return _plan_run(kin, printer, spec, speed_limit, tolerance, kind, solver, deduped)
     except PlanningError:
         m = len(spec.points) - 1
         if m < 2:
@@ -423,9 +433,10 @@ def _describe(printer, channel: int) -> str:
     return printer.limits.names[channel]
 
 
-def _prepare(printer, spec: RunSpec, tolerance: float | None):
-    """(polyline, blend tolerance left) of a run: deduplicated, short segments merged."""
-    pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
+def _prepare(printer, spec: RunSpec, tolerance: float | None, deduped=None):
+    """(polyline, blend tolerance left) of a run: deduplicated (``deduped``: dedupe's result when
+    the caller has it), short segments merged."""
+    pts, feed, e = dedupe(spec.points, spec.feed, spec.e) if deduped is None else deduped
     tol = printer.planning.blend_tolerance if tolerance is None else tolerance
     pts, feed, e, moved = merge_short(pts, feed, e, MERGE_LENGTH, MERGE_DEVIATION * tol)
     # merged and deduplicated segments carry their power along as they do their feed
@@ -434,8 +445,9 @@ def _prepare(printer, spec: RunSpec, tolerance: float | None):
     return _Polyline(pts, feed, e, power), tol - moved
 
 
-def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str, solver: str) -> list:
-    poly, tol = _prepare(printer, spec, tolerance)
+def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | None, kind: str, solver: str,
+              deduped=None) -> list:
+    poly, tol = _prepare(printer, spec, tolerance, deduped)
     if len(poly.points) - 1 > LONG_RUN:
         return [piece for piece, _done in _iter_windows(kin, printer, spec, poly, speed_limit, tol, kind, solver)]
     return [_plan_polyline(kin, printer, spec, poly, speed_limit, tol, kind, solver)[0]]
@@ -450,8 +462,9 @@ def iter_run(kin, printer, spec: RunSpec, speed_limit: str, solver: str = "fast"
     """``plan_run``'s pieces one at a time, each with the fraction of the run planned so far: a
     long run window by window (memory bounded by a window, however long the run), so a caller
     can put each piece away before the next is planned."""
-    if len(dedupe(spec.points, spec.feed, spec.e)[0]) >= 2:
-        poly, tol = _prepare(printer, spec, None)
+    deduped = dedupe(spec.points, spec.feed, spec.e)
+    if len(deduped[0]) >= 2:
+        poly, tol = _prepare(printer, spec, None, deduped)
         if len(poly.points) - 1 > LONG_RUN:
             yield from _iter_windows(kin, printer, spec, poly, speed_limit, tol, "run", solver)
             return
@@ -603,9 +616,10 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
             PathVelocityConstraint(vmax, feed_grid, S, gridpoint_speed_factor(dq_st)),
             StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
         ]
-        sd = _speeds(constraints, rp, x_grid, amax, solver, v_start / S)
+        rows = _fast_rows(constraints, rp, x_grid, amax) if solver == "fast" else None
+        sd = _speeds(constraints, rp, x_grid, rows, v_start / S)
         if v_start > 0 and (sd is None or not np.all(np.isfinite(sd))):
-            fastest = _start_speed(constraints, rp, x_grid, amax, solver) * S
+            fastest = _start_speed(constraints, rp, x_grid, rows) * S
             if v_start > fastest * (1 + 1e-9):
                 raise _StartTooFast(fastest)
         if sd is None or not np.all(np.isfinite(sd)):
@@ -645,7 +659,7 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
 
     # Which stages have a limit active (the optimality certificate): the speed at its
     # first-order cap, or some joint's acceleration at its limit.
-    cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
+    cap2 = rows[3] if rows is not None else constraints[0].cap2(rp, x_grid)
     acc = np.abs(dq_st[:, 0] * xdd[:, None] + ddq_st[:, 0] * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
     power = nominal = None
@@ -673,12 +687,18 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
     return piece, float(sd[-1] * S)
 
 
-def _start_speed(constraints, rp, x_grid, amax, solver) -> float:
-    """The fastest path speed x_dot the run can start at and still stop at its end."""
-    if solver == "fast":
-        cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
-        a, b = constraints[1].compute_constraint_params(rp, x_grid)[:2]
-        bound = np.tile(amax, len(constraints[1].frac))
+def _fast_rows(constraints, rp, x_grid, amax):
+    """What the compiled solver takes, computed once per grid: (a, b, bound, cap2), the
+    acceleration rows a u + b x in [-bound, bound] and the bound on x_dot^2 (see _speeds)."""
+    a, b = constraints[1].rows(rp, x_grid)
+    return a, b, np.tile(amax, len(constraints[1].frac)), constraints[0].cap2(rp, x_grid)
+
+
+def _start_speed(constraints, rp, x_grid, rows) -> float:
+    """The fastest path speed x_dot the run can start at and still stop at its end. rows:
+    :func:`_fast_rows` for the compiled solver, None for toppra's."""
+    if rows is not None:
+        a, b, bound, cap2 = rows
         K = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), interpolation=False)[2]
     else:
         K = _toppra(constraints, rp, x_grid).compute_controllable_sets(0.0, 0.0)
@@ -686,15 +706,13 @@ def _start_speed(constraints, rp, x_grid, amax, solver) -> float:
     return float(np.sqrt(top)) if np.isfinite(top) and top > 0 else 0.0
 
 
-def _speeds(constraints, rp, x_grid, amax, solver, sd_start=0.0):
+def _speeds(constraints, rp, x_grid, rows, sd_start=0.0):
     """Path speeds x_dot (n+1,) on the grid from sd_start to rest under the path-velocity cap and the
     stage-wise acceleration rows, or None where the solver finds no profile. "fast": the
     compiled reachability solver on the same rows (collocation: each stage's rows in its
-    start's (u, x)); "toppra": toppra's seidel solver, the reference."""
-    if solver == "fast":
-        cap2 = constraints[0].compute_constraint_params(rp, x_grid)[-1][:, 1]
-        a, b = constraints[1].compute_constraint_params(rp, x_grid)[:2]
-        bound = np.tile(amax, len(constraints[1].frac))
+    start's (u, x); ``rows``: :func:`_fast_rows`); rows None: toppra's seidel solver, the reference."""
+    if rows is not None:
+        a, b, bound, cap2 = rows
         x, _u, _k = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), x_start=sd_start**2, interpolation=False)
         return np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None
     return _toppra(constraints, rp, x_grid).compute_parameterization(sd_start, 0.0)[1]
