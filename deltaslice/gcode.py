@@ -337,8 +337,10 @@ def read_gcode(path, *, printer=None, echo=None, center=False, progress=None) ->
     except UnicodeDecodeError as exc:
         line_no = raw[: exc.start].count(b"\n") + 1
         raise GcodeError(f"{shown}:{line_no}: not text (byte {exc.start}): expected G-code") from None
-    del raw  # a large file is held once, as text
-    return parse_gcode(text, name=shown, printer=printer, echo=echo, center=center, progress=progress)
+    del raw  # a large file is held once, as text, and only while its lines are parsed
+    box = [text]
+    del text
+    return _parse(box, name=shown, printer=printer, echo=echo, center=center, progress=progress)
 
 
 def _words(s: str, where: str, line: str) -> list[tuple[str, str | None]]:
@@ -398,6 +400,14 @@ def _iter_lines(text: str):
 
 def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, center=False, progress=None) -> Toolpath:
     """Parse G-code text (see :func:`read_gcode`). progress: callable(lines done, lines) or None."""
+    return _parse([text], name=name, printer=printer, echo=echo, center=center, progress=progress)
+
+
+def _parse(box: list, *, name, printer, echo, center, progress) -> Toolpath:
+    """:func:`parse_gcode` of the text in the one-element list ``box``, taken out of it, so a
+    caller that holds no other reference (:func:`read_gcode`) has the text freed once its lines
+    are parsed, before the moves' arrays are built (a 60 MB file is 60 MB of text)."""
+    text = box.pop()
     shown = name
     default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") else DEFAULT_FEED
     prusa_layers = ";LAYER_CHANGE" in text
@@ -684,15 +694,23 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
     n = len(xs)
     if n == 0:
         raise GcodeError(f"{shown}: no moves found (expected G0/G1/G2/G3 lines)")
+    del text  # what is left to build is the moves' arrays: the text need not wait for them
 
-    xyz = np.column_stack([np.asarray(xs), np.asarray(ys), np.asarray(zs)])
-    e = np.asarray(es)
-    feed_a = np.asarray(fs)
+    # Built column by column and each typed array dropped once copied: peak memory is what the
+    # toolpath keeps plus a few columns, not several copies of every move (a vase has millions).
+    xyz = np.empty((n, 3))
+    for col, values in enumerate((xs, ys, zs)):
+        xyz[:, col] = np.frombuffer(values, dtype=np.float64)
+    del xs, ys, zs
+    e = np.array(es)
+    feed_a = np.array(fs)
+    del es, fs
     rc = np.asarray(roles, dtype=np.int16)
     kind = np.asarray(kinds, dtype=np.int8)
     starts = np.vstack([start[None], xyz[:-1]])
-    moved = np.any(np.abs(xyz - starts) > 0, axis=1)
-    moved_xy = np.any(np.abs(xyz[:, :2] - starts[:, :2]) > 0, axis=1)
+    moved_xy = np.any(starts[:, :2] != xyz[:, :2], axis=1)  # finite numbers (the parser refuses others)
+    moved = moved_xy | (starts[:, 2] != xyz[:, 2])
+    del starts  # made again only for the flow model, when the file has no E words
 
     if have_layer_comments:
         layer = np.asarray(layers, dtype=np.int32)
@@ -703,6 +721,7 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
     e, tool, working, note = _apply_dialects(
         printer, xyz, e, kind, np.asarray(powers), moved, moved_xy, layer, e_words, bare_words, laser_seen, source
     )
+    del powers
     if note and echo is not None:
         echo(f"{shown}: {note}")
     role = np.where(working, np.where(rc >= 0, rc, int(Role.LASER if printer is not None and printer.tool.channel_kind == "laser" else Role.OTHER)),
@@ -710,6 +729,7 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
     role = np.where(~moved & (e != 0), int(Role.RETRACT), role).astype(np.uint8)
     if lmodes:  # GRBL M4: power follows the tool's speed (Role.LASER_DYNAMIC), M3 constant
         role = np.where(working & (np.asarray(lmodes) == 4), int(Role.LASER_DYNAMIC), role).astype(np.uint8)
+    del rc, roles, lmodes
 
     if have_layer_comments:
         layer_z = np.zeros(n_layers)
@@ -723,8 +743,11 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
     else:
         layer, layer_z = _layers_from_z(xyz[:, 2], working)
     if not e_words and printer is not None and printer.tool.channel_kind != "laser":
-        e = _flow_model_e(printer, xyz, starts, working, layer, layer_z, e)
+        e = _flow_model_e(printer, xyz, np.vstack([start[None], xyz[:-1]]), working, layer, layer_z, e)
     e = _compare_source(source, printer, e, kind, moved, shown, echo, center)
+    del moved, moved_xy, kind, kinds
+    for column in (xyz, feed_a, e, tool, role, layer):
+        column.setflags(write=False)  # given to the toolpath, which keeps them rather than copies
     tp = Toolpath(start, xyz, feed_a, e, tool, role, layer, layer_z, make_events(events))
     if center:
         tp, shift = centred(tp)
@@ -901,11 +924,16 @@ def _layers_from_z(z: np.ndarray, working: np.ndarray):
     n = len(z)
     if not working.any():
         return np.zeros(n, np.int32), np.array([float(z.max())])
-    wz = np.where(working, z, -np.inf)
-    prev_max = np.concatenate([[-np.inf], np.maximum.accumulate(wz)[:-1]])
+    # int32 indices throughout (a G-code of 2^31 moves is far beyond what is read): these
+    # temporaries are the largest of reading a file without layer comments
+    prev_max = np.maximum.accumulate(np.where(working, z, -np.inf))
+    prev_max[1:] = prev_max[:-1].copy()
+    prev_max[0] = -np.inf
     new = working & (z > prev_max + 1e-6)
-    lay_at = np.cumsum(new) - 1
-    nxt_work = np.minimum.accumulate(np.where(working, np.arange(n), n)[::-1])[::-1]
+    del prev_max
+    lay_at = np.cumsum(new, dtype=np.int32) - 1
+    nxt_work = np.minimum.accumulate(np.where(working, np.arange(n, dtype=np.int32), np.int32(n))[::-1])[::-1]
     owner = np.where(nxt_work < n, lay_at[np.minimum(nxt_work, n - 1)], lay_at[-1])
+    del nxt_work
     owner = np.where(working, lay_at, owner)
     return np.maximum(owner, 0).astype(np.int32), z[new]

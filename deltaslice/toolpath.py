@@ -89,7 +89,12 @@ MAX_FEED = 1e5  # mm/s
 
 def _column(name, value, dtype):
     """``value`` as an array of ``dtype``; DeltasliceError naming ``name`` for anything that is
-    not real numbers of that kind (None, strings, complex numbers, out-of-range integers)."""
+    not real numbers of that kind (None, strings, complex numbers, out-of-range integers).
+    An array of that dtype that owns its data and is read-only is taken as it is (another
+    toolpath's column, or a reader's that it gives away): nothing can change it, so no copy."""
+    if (isinstance(value, np.ndarray) and value.dtype == dtype and value.base is None and not value.flags.writeable
+            and value.flags.c_contiguous):
+        return value
     try:
         raw = np.asarray(value)
     except (TypeError, ValueError) as exc:
