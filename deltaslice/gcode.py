@@ -327,20 +327,48 @@ def read_gcode(path, *, printer=None, echo=None, center=False, progress=None) ->
     path = Path(path)
     shown = str(path)
     try:
-        raw = path.read_bytes()
+        with open(path, "rb") as f:
+            n_lines, prusa_layers = _scan(f)
+            f.seek(0)
+            return _parse(_file_lines(f, shown), n_lines, prusa_layers, name=shown, printer=printer, echo=echo,
+                          center=center, progress=progress)
     except FileNotFoundError:
         raise GcodeError(f"{shown}: no such file") from None
     except OSError as exc:
         raise GcodeError(f"{shown}: cannot read: {exc}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line_no = raw[: exc.start].count(b"\n") + 1
-        raise GcodeError(f"{shown}:{line_no}: not text (byte {exc.start}): expected G-code") from None
-    del raw  # a large file is held once, as text, and only while its lines are parsed
-    box = [text]
-    del text
-    return _parse(box, name=shown, printer=printer, echo=echo, center=center, progress=progress)
+
+
+SCAN_BLOCK = 1 << 20
+
+
+def _scan(f) -> tuple[int, bool]:
+    """(lines, whether PrusaSlicer's ;LAYER_CHANGE comment occurs) of a binary file, read a block
+    at a time: the parser needs both before the first line."""
+    tag = b";LAYER_CHANGE"
+    lines, found, tail = 1, False, b""
+    while block := f.read(SCAN_BLOCK):
+        lines += block.count(b"\n")
+        found = found or tag in tail + block
+        tail = block[-len(tag):]
+    return lines, found
+
+
+def _file_lines(f, shown: str):
+    """The lines of a binary file as text (UTF-8), one at a time, without their newline, and an
+    empty last line after a final newline, as :func:`_iter_lines` gives them: a 60 MB file is
+    never held whole (it would be 60 MB of text while its moves' arrays are built)."""
+    line_no, offset, last = 0, 0, b"\n"
+    for raw in f:
+        line_no += 1
+        try:
+            line = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise GcodeError(f"{shown}:{line_no}: not text (byte {offset + exc.start}): expected G-code") from None
+        offset += len(raw)
+        last = raw
+        yield line[:-1] if line.endswith("\n") else line
+    if last.endswith(b"\n"):
+        yield ""
 
 
 def _words(s: str, where: str, line: str) -> list[tuple[str, str | None]]:
@@ -400,17 +428,15 @@ def _iter_lines(text: str):
 
 def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, center=False, progress=None) -> Toolpath:
     """Parse G-code text (see :func:`read_gcode`). progress: callable(lines done, lines) or None."""
-    return _parse([text], name=name, printer=printer, echo=echo, center=center, progress=progress)
+    return _parse(_iter_lines(text), text.count("\n") + 1, ";LAYER_CHANGE" in text, name=name, printer=printer,
+                  echo=echo, center=center, progress=progress)
 
 
-def _parse(box: list, *, name, printer, echo, center, progress) -> Toolpath:
-    """:func:`parse_gcode` of the text in the one-element list ``box``, taken out of it, so a
-    caller that holds no other reference (:func:`read_gcode`) has the text freed once its lines
-    are parsed, before the moves' arrays are built (a 60 MB file is 60 MB of text)."""
-    text = box.pop()
+def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, center, progress) -> Toolpath:
+    """:func:`parse_gcode` of ``lines`` (an iterator of the text's lines, n_lines of them);
+    prusa_layers: whether a ``;LAYER_CHANGE`` comment occurs anywhere."""
     shown = name
     default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") else DEFAULT_FEED
-    prusa_layers = ";LAYER_CHANGE" in text
     start = np.zeros(3)
     pos = [0.0, 0.0, 0.0]  # bed frame
     offset = [0.0, 0.0, 0.0]  # bed = file + offset (G92 after the first move)
@@ -447,10 +473,9 @@ def _parse(box: list, *, name, printer, echo, center, progress) -> Toolpath:
     skipped: Counter = Counter()
     started = False
 
-    n_lines = text.count("\n") + 1
     if progress is not None and not callable(progress):
         raise GcodeError(f"{shown}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
-    for line_no, line in enumerate(_iter_lines(text), 1):
+    for line_no, line in enumerate(lines, 1):
         if progress is not None and line_no % PROGRESS_LINES == 0:
             progress(line_no, n_lines)
         s = line.strip()
@@ -694,7 +719,6 @@ def _parse(box: list, *, name, printer, echo, center, progress) -> Toolpath:
     n = len(xs)
     if n == 0:
         raise GcodeError(f"{shown}: no moves found (expected G0/G1/G2/G3 lines)")
-    del text  # what is left to build is the moves' arrays: the text need not wait for them
 
     # Built column by column and each typed array dropped once copied: peak memory is what the
     # toolpath keeps plus a few columns, not several copies of every move (a vase has millions).
