@@ -172,3 +172,22 @@ def test_workers_plan_around_a_long_run_exactly_as_one_process(small_windows):
     a, c = one.samples(), two.samples()
     np.testing.assert_array_equal(a.q, c.q)
     np.testing.assert_array_equal(a.e, c.e)
+
+
+def test_the_spool_writes_pieces_in_batches_and_reads_them_back_in_order(monkeypatch):
+    """Small pieces (travels, filament moves) are pickled a batch at a time, not one call and
+    two index entries each; what is still waiting is counted, indexed and read like the rest."""
+    from deltaslice.planning import spool as spool_module
+    from deltaslice.planning.pieces import FilamentPiece
+
+    monkeypatch.setattr(spool_module, "BATCH_PIECES", 50)
+    pieces = [FilamentPiece(np.zeros(3), 0.1 * (k + 1), 20.0, 500.0, k) for k in range(120)]
+    sp = PieceSpool()
+    for p in pieces:
+        sp.append(p)  # one job at a time, as the planner puts them away
+    assert len(sp._first) - 1 == 2 and len(sp) == 120  # two batches of 50 written, 20 waiting
+    assert [p.layer for p in sp] == list(range(120))  # iteration writes what waits first
+    assert len(sp._first) - 1 == 3
+    assert sp[119].amount == pytest.approx(12.0) and sp[-120].layer == 0
+    np.testing.assert_array_equal(np.asarray(sp.durations), [p.duration for p in pieces])
+    sp.close()

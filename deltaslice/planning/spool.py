@@ -19,19 +19,25 @@ import numpy as np
 
 #: moves in a toolpath above which ``plan`` spools its pieces (about 200 MB of pieces in memory)
 SPOOL_MOVES = 200_000
+#: pieces are pickled together until this many grid points (a few MB) or BATCH_PIECES pieces wait:
+#: one batch a job would cost a pickle call and two index entries for every travel
+BATCH_POINTS = 20_000
+BATCH_PIECES = 512
 
 
 class PieceSpool:
     """A sequence of pieces in a temporary file (deleted when closed or collected).
 
-    ``extend(pieces)`` writes one batch; ``spool[i]`` and iteration read batches back, keeping
-    the last one read. ``durations``, ``filament_totals``, ``active_times`` (float arrays) and
-    ``kinds`` are kept per piece in memory."""
+    ``extend(pieces)`` adds pieces, written a batch at a time (BATCH_POINTS, BATCH_PIECES);
+    ``spool[i]`` and iteration read batches back, keeping the last one read. ``durations``,
+    ``filament_totals``, ``active_times`` (float arrays) and ``kinds`` are kept per piece in
+    memory."""
 
     def __init__(self):
         self._file = tempfile.TemporaryFile(prefix="deltaslice-pieces-")
-        self._offsets = [0]  # file offset of each batch, and the end
-        self._first = [0]  # index of each batch's first piece, and the count
+        self._offsets = array("q", [0])  # file offset of each batch, and the end
+        self._first = array("q", [0])  # index of each batch's first piece, and the count written
+        self._pending, self._pending_points = [], 0
         self.durations = array("d")
         self.filament_totals = array("d")
         self.active_times = array("d")
@@ -39,24 +45,30 @@ class PieceSpool:
         self._cached = (-1, [])
 
     def extend(self, pieces) -> None:
-        pieces = list(pieces)
-        if not pieces:
-            return
-        self._file.seek(self._offsets[-1])
-        pickle.dump(pieces, self._file, protocol=pickle.HIGHEST_PROTOCOL)
-        self._offsets.append(self._file.tell())
-        self._first.append(self._first[-1] + len(pieces))
         for p in pieces:
             self.durations.append(p.duration)
             self.filament_totals.append(p.filament_total)
             self.active_times.append(p.active_time)
             self.kinds.append(p.kind)
+            self._pending.append(p)
+            self._pending_points += len(getattr(p, "x", ())) + 1
+        if self._pending_points >= BATCH_POINTS or len(self._pending) >= BATCH_PIECES:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._pending:
+            return
+        self._file.seek(self._offsets[-1])
+        pickle.dump(self._pending, self._file, protocol=pickle.HIGHEST_PROTOCOL)
+        self._offsets.append(self._file.tell())
+        self._first.append(self._first[-1] + len(self._pending))
+        self._pending, self._pending_points = [], 0
 
     def append(self, piece) -> None:
         self.extend([piece])
 
     def __len__(self) -> int:
-        return self._first[-1]
+        return self._first[-1] + len(self._pending)
 
     def _batch(self, b: int) -> list:
         if self._cached[0] != b:
@@ -67,17 +79,20 @@ class PieceSpool:
     def __getitem__(self, i: int):
         n = len(self)
         if isinstance(i, (int, np.integer)) and -n <= i < n:
+            self._flush()
             i = int(i) % n
             b = bisect_right(self._first, i) - 1
             return self._batch(b)[i - self._first[b]]
         raise IndexError(f"piece {i!r} of {n}")
 
     def __iter__(self):
+        self._flush()
         for b in range(len(self._first) - 1):
             yield from self._batch(b)
 
     def close(self) -> None:
         self._cached = (-1, [])
+        self._pending = []
         self._file.close()
 
     def __getstate__(self):
