@@ -138,6 +138,23 @@ def test_single_joint_bang_bang_is_exact():
     assert np.all(np.abs(u) <= 2.0 + 1e-9)
 
 
+def test_the_shrink_never_decelerates_beyond_the_rows_on_tiny_stages():
+    """toppra's forward pass shrinks every step by 1e-8 in x whatever the stage's width; on
+    stages 1e-9 long (a refined grid in a long window: S = 1.5 m) that alone was a deceleration
+    of 4 where the rows allow 1 (a spiral vase's window failed its check at 141 times a joint's
+    limit). The path acceleration implied by consecutive points, (x[i+1] - x[i]) / (2 ds), stays
+    within the rows' [-1, 1] on every stage."""
+    ds = np.full(300, 1e-3)
+    ds[140:190] = 1e-9  # a cruise at the cap, refined
+    n = len(ds)
+    x, _u, _ = solve(np.ones((n + 1, 1)), np.zeros((n + 1, 1)), [-1.0], [1.0], np.full(n + 1, 0.1), ds,
+                     interpolation=False)
+    implied = np.diff(x) / (2 * ds)
+    assert np.all(np.isfinite(x)) and x.max() > 0.09
+    assert implied.min() >= -1 - 1e-6, f"a stage decelerates at {implied.min():.3g}"
+    assert implied.max() <= 1 + 1e-6
+
+
 def test_toppra_box_is_reproduced():
     """toppra's seidel solver bounds u and x by 1e8: tiny runs at high speed hit it; so do we."""
     n = 1000

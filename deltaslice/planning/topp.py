@@ -617,9 +617,13 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
             StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
         ]
         rows = _fast_rows(constraints, rp, x_grid, amax) if solver == "fast" else None
-        sd = _speeds(constraints, rp, x_grid, rows, v_start / S)
-        if v_start > 0 and (sd is None or not np.all(np.isfinite(sd))):
-            fastest = _start_speed(constraints, rp, x_grid, rows) * S
+        sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S)
+        if v_start > 0:
+            # A start speed outside the controllable set is refused even when the solver, which
+            # tolerates a small excess (toppra's), found a profile: its forward pass would cut the
+            # speed where the excess meets a limit, a step of many times the acceleration limit
+            # (a window of a spiral vase on linear_kossel). The previous window re-plans instead.
+            fastest = (_start_speed(constraints, rp, x_grid, rows) if top is None else _root(top)) * S
             if v_start > fastest * (1 + 1e-9):
                 raise _StartTooFast(fastest)
         if sd is None or not np.all(np.isfinite(sd)):
@@ -702,20 +706,25 @@ def _start_speed(constraints, rp, x_grid, rows) -> float:
         K = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), interpolation=False)[2]
     else:
         K = _toppra(constraints, rp, x_grid).compute_controllable_sets(0.0, 0.0)
-    top = K[0, 1]
+    return _root(K[0, 1])
+
+
+def _root(top: float) -> float:
+    """The path speed of the top of a controllable set (x = x_dot^2), 0 where there is none."""
     return float(np.sqrt(top)) if np.isfinite(top) and top > 0 else 0.0
 
 
 def _speeds(constraints, rp, x_grid, rows, sd_start=0.0):
-    """Path speeds x_dot (n+1,) on the grid from sd_start to rest under the path-velocity cap and the
-    stage-wise acceleration rows, or None where the solver finds no profile. "fast": the
+    """(path speeds x_dot (n+1,) on the grid from sd_start to rest under the path-velocity cap and
+    the stage-wise acceleration rows, or None where the solver finds no profile; the top of the
+    start's controllable set, x_dot^2, or None when the solver does not give it). "fast": the
     compiled reachability solver on the same rows (collocation: each stage's rows in its
     start's (u, x); ``rows``: :func:`_fast_rows`); rows None: toppra's seidel solver, the reference."""
     if rows is not None:
         a, b, bound, cap2 = rows
-        x, _u, _k = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), x_start=sd_start**2, interpolation=False)
-        return np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None
-    return _toppra(constraints, rp, x_grid).compute_parameterization(sd_start, 0.0)[1]
+        x, _u, K = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), x_start=sd_start**2, interpolation=False)
+        return (np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None), float(K[0, 1])
+    return _toppra(constraints, rp, x_grid).compute_parameterization(sd_start, 0.0)[1], None
 
 
 def _toppra(constraints, rp, x_grid):
