@@ -3,9 +3,15 @@ path simplification possible: a 300-lobed wavy cylinder, r = 30 +- 0.8 mm, 0.1 m
 for linear_kossel, at several heights, to see how peak memory and time grow with the print.
 
     python benchmarks/bench_memory.py [--heights 12.5,25] [--workers 1]
+    python benchmarks/bench_memory.py --spiral [--heights 12.5,25]
 
 Prints per height: G-code size and moves, compile wall time, plan time, peak RSS (wait4, the
 process and its workers).
+
+PrusaSlicer 2.5 does not spiral this part (its perimeters split each lobe into variable-width
+pieces, no move carries both Z and E): its file is 10 layers a mm of about 1,700 short runs each.
+``--spiral`` writes a true spiral-vase G-code instead (:func:`spiral_gcode`): one extrusion run
+from the first move to the last, the case of a single run far too long to plan at once.
 """
 
 from __future__ import annotations
@@ -34,23 +40,48 @@ def vase(h: float, path: Path) -> None:
     trimesh.creation.extrude_polygon(sg.Polygon(np.c_[r * np.cos(th), r * np.sin(th)]), h).export(path)
 
 
+def spiral_gcode(h: float, path: Path, points_per_turn: int = 2000, lobes: int = 100, pitch: float = 0.1) -> int:
+    """A spiral vase as PrusaSlicer writes one (absolute E, a ;LAYER_CHANGE a turn, Z rising along
+    every move): a wavy cylinder r = 30 +- 0.8 mm climbing ``pitch`` mm a turn to height h, one
+    continuous extrusion. Returns its moves."""
+    n = int(round(h / pitch * points_per_turn))
+    k = np.arange(1, n + 1)
+    th = 2 * np.pi * k / points_per_turn
+    r = 30 + 0.8 * np.sin(lobes * th)
+    x, y, z = r * np.cos(th), r * np.sin(th), 0.2 + pitch * k / points_per_turn
+    step = np.hypot(np.diff(x, prepend=30.0), np.diff(y, prepend=0.0))
+    e = np.cumsum(step * 0.45 * pitch / (np.pi * 1.75**2 / 4))
+    with open(path, "w") as f:
+        f.write("G21\nG90\nM82\nG92 E0\nG1 Z0.2 F7800\nG1 X30 Y0\nG1 F1800\n")
+        for turn in range(0, n, points_per_turn):
+            f.write(f";LAYER_CHANGE\n;Z:{z[turn]:.3f}\n")
+            sl = slice(turn, turn + points_per_turn)
+            f.writelines(f"G1 X{a:.3f} Y{b:.3f} Z{c:.4f} E{d:.5f}\n" for a, b, c, d in
+                         zip(x[sl].tolist(), y[sl].tolist(), z[sl].tolist(), e[sl].tolist()))
+    return n
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--heights", default="12.5,25")
     ap.add_argument("--workers", default="1")
+    ap.add_argument("--spiral", action="store_true", help="a true spiral vase written by this script (one run)")
     args = ap.parse_args()
-    if not shutil.which("prusa-slicer"):
+    if not args.spiral and not shutil.which("prusa-slicer"):
         sys.exit("prusa-slicer not found (apt-get install prusa-slicer)")
     d = Path(tempfile.mkdtemp())
     print("| height mm | G-code MB | moves | compile s | plan s | peak RSS MB |")
     print("|---|---|---|---|---|---|")
     for h in (float(x) for x in args.heights.split(",")):
         stl, gcode = d / f"vase{h}.stl", d / f"vase{h}.gcode"
-        vase(h, stl)
-        subprocess.run(["prusa-slicer", "--export-gcode", "--spiral-vase", "--perimeters", "1", "--top-solid-layers", "0",
-                        "--bottom-solid-layers", "1", "--fill-density", "0", "--layer-height", "0.1",
-                        "--gcode-resolution", "0.0125", "--center", "0,0", "-o", str(gcode), str(stl)],
-                       check=True, capture_output=True)
+        if args.spiral:
+            spiral_gcode(h, gcode)
+        else:
+            vase(h, stl)
+            subprocess.run(["prusa-slicer", "--export-gcode", "--spiral-vase", "--perimeters", "1", "--top-solid-layers", "0",
+                            "--bottom-solid-layers", "1", "--fill-density", "0", "--layer-height", "0.1",
+                            "--gcode-resolution", "0.0125", "--center", "0,0", "-o", str(gcode), str(stl)],
+                           check=True, capture_output=True)
         moves = sum(1 for line in open(gcode) if line.startswith("G1"))
         t0 = time.perf_counter()
         proc = subprocess.Popen([sys.executable, "-m", "deltaslice", str(gcode), "--printer", "linear_kossel",
