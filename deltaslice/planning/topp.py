@@ -449,7 +449,9 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
               deduped=None) -> list:
     poly, tol = _prepare(printer, spec, tolerance, deduped)
     if len(poly.points) - 1 > LONG_RUN:
-        return [piece for piece, _done in _iter_windows(kin, printer, spec, poly, speed_limit, tol, kind, solver)]
+        box = [poly]
+        del poly, deduped
+        return [piece for piece, _done in _iter_windows(kin, printer, spec, box, speed_limit, tol, kind, solver)]
     return [_plan_polyline(kin, printer, spec, poly, speed_limit, tol, kind, solver)[0]]
 
 
@@ -465,8 +467,11 @@ def iter_run(kin, printer, spec: RunSpec, speed_limit: str, solver: str = "fast"
     deduped = dedupe(spec.points, spec.feed, spec.e)
     if len(deduped[0]) >= 2:
         poly, tol = _prepare(printer, spec, None, deduped)
+        del deduped  # whole-run copies: only the windows' own polyline is kept while they are planned
         if len(poly.points) - 1 > LONG_RUN:
-            yield from _iter_windows(kin, printer, spec, poly, speed_limit, tol, "run", solver)
+            box = [poly]
+            del poly
+            yield from _iter_windows(kin, printer, spec, box, speed_limit, tol, "run", solver)
             return
     for piece in plan_run(kin, printer, spec, speed_limit, solver=solver):
         yield piece, 1.0
@@ -494,7 +499,7 @@ class _StartTooFast(PlanningError):
         self.speed = speed
 
 
-def _iter_windows(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit, tol, kind, solver):
+def _iter_windows(kin, printer, spec: RunSpec, box: list, speed_limit, tol, kind, solver):
     """A long run planned window by window so the planner's memory is bounded by a window, not
     the run (a spiral vase is one run of a million moves). Each window plans its WINDOW
     segments plus a lookahead to rest, then keeps the part up to its cut, ending at the speed
@@ -503,7 +508,10 @@ def _iter_windows(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit, tol
     (a straight point: no blend arc crosses it, both windows see the same geometry around it).
     A window that cannot start that fast (its grid refined differently) makes the previous one
     re-plan to the speed it can start at (so each piece is handed out only once its successor
-    has started). Yields (piece, fraction of the run's segments done)."""
+    has started). Yields (piece, fraction of the run's segments done). ``box``: a list holding
+    the run's polyline (prepared), taken out of it so that the polyline with the cut vertices
+    replaces it rather than adds to it (a spiral vase's run is millions of segments)."""
+    poly = box.pop()
     pts, m = poly.points, len(poly.points) - 1
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     cuts, target = [], WINDOW
@@ -522,6 +530,7 @@ def _iter_windows(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit, tol
     e = np.insert(e, at, e[cuts])
     feed = np.insert(poly.feed, at, poly.feed[cuts])
     power = None if poly.power is None else np.insert(poly.power, at, poly.power[cuts])
+    del seg
     poly = _Polyline(pts, feed, e, power)
     seg_end = np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))
     vertices = np.concatenate([[0], cuts + 1 + np.arange(len(cuts)), [len(pts) - 1]])
