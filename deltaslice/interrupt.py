@@ -5,7 +5,9 @@ import. The handler records the request and raises ``KeyboardInterrupt``; if an 
 library swallows the exception (trimesh's optional imports catch ``BaseException``), the
 recorded request still stops the work at the next :func:`check` (the pipeline checks
 between stages and before replacing an output), so a previous output is never overwritten
-after Ctrl-C. A second Ctrl-C exits at once with status 130.
+after Ctrl-C. A second Ctrl-C exits at once with status 130. Where Python itself cannot
+propagate the exception (a ctypes callback: llvmlite's, while numba writes its cache), it
+reports it as "Exception ignored"; that report is dropped, the recorded request stands.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import threading
 EXIT_INTERRUPTED = 130
 MESSAGE = "interrupted: no output written (any previous output is unchanged)"
 
-_state = {"requested": False, "installed": False}
+_state = {"requested": False, "installed": False, "unraisable": sys.__unraisablehook__}
 
 
 def _handler(signum, frame):
@@ -28,6 +30,14 @@ def _handler(signum, frame):
         os._exit(EXIT_INTERRUPTED)
     _state["requested"] = True
     raise KeyboardInterrupt
+
+
+def _unraisable(report) -> None:
+    """sys.unraisablehook: a KeyboardInterrupt this module raised and Python could not propagate
+    is silent (the request is recorded); everything else goes to the hook that was there."""
+    if _state["requested"] and report.exc_type is not None and issubclass(report.exc_type, KeyboardInterrupt):
+        return
+    _state["unraisable"](report)
 
 
 def exit_now() -> None:
@@ -51,6 +61,9 @@ def install(at_once: bool = False) -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     signal.signal(signal.SIGINT, _exit_handler if at_once else _handler)
+    if not at_once and sys.unraisablehook is not _unraisable:
+        _state["unraisable"] = sys.unraisablehook
+        sys.unraisablehook = _unraisable
     _state["installed"] = True
 
 

@@ -315,6 +315,38 @@ def test_ctrl_c_at_any_moment_keeps_the_previous_output(tmp_path, delay):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cube.dsl", "cube.stl"]
 
 
+_SIGINT_IN_A_CTYPES_CALLBACK = """
+import ctypes, os, signal, sys
+from deltaslice import interrupt
+
+interrupt.install()
+
+@ctypes.CFUNCTYPE(None)
+def callback():  # as llvmlite's object-cache callback when numba writes its cache
+    os.kill(os.getpid(), signal.SIGINT)
+    sum(range(1000))  # the handler runs here, inside the callback
+
+callback()
+try:
+    interrupt.check()
+except KeyboardInterrupt:
+    print("stopped at the check")
+"""
+
+
+def test_ctrl_c_inside_a_ctypes_callback_is_recorded_silently():
+    """A KeyboardInterrupt raised inside a ctypes callback cannot propagate; Python used to print
+    "Exception ignored on calling ctypes callback function" and its traceback (a Ctrl-C while
+    numba wrote its cache in a fresh checkout). The request is still recorded and stops the work
+    at the next check, with nothing on stderr."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-c", _SIGINT_IN_A_CTYPES_CALLBACK], capture_output=True, text=True, env=env,
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "stopped at the check"
+    assert r.stderr == ""
+
+
 _SIGINT_DURING_IMPORT = """
 import importlib.abc, os, runpy, signal, sys
 
