@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from deltaslice.errors import UnreachableError
 from deltaslice.planning import topp, travel
 from deltaslice.planning.blend import blend_polyline
 from deltaslice.planning.pieces import JointMovePiece, RunPiece
@@ -192,3 +193,108 @@ def test_frame_equals_evaluate_and_check_derivatives_hold_the_constraint_ones(se
     dq_c, ddq_c = rp.stage_derivatives(x, topp.CHECK)
     dq_e, ddq_e = rp.stage_derivatives(x, topp.EVAL)
     assert np.array_equal(dq_c[:, topp.EVAL_IN_CHECK], dq_e) and np.array_equal(ddq_c[:, topp.EVAL_IN_CHECK], ddq_e)
+
+
+def _bed_points(p, rng, n):
+    """n reachable points (n, 3) mm over the bed, the bottom half of the build height."""
+    kin, bed = p.kinematics(), p.bed
+    half = bed.radius if bed.shape == "circle" else 0.5 * min(bed.size_x, bed.size_y)
+    pts = np.column_stack([rng.uniform(-0.7 * half, 0.7 * half, (4 * n, 2)),
+                           rng.uniform(0.2, 0.5 * bed.max_height, 4 * n)])
+    pts = pts[bed.contains_xy(pts[:, :2]) & kin.reachable(pts)]
+    assert len(pts) >= n
+    return pts[:n]
+
+
+@pytest.mark.parametrize("name", ["delta_etitc", "fivebar_atlas", "linear_kossel", "delta_uady", "delta_espe_laser"])
+def test_lines_planned_as_one_path_are_each_planned_alone(name):
+    """plan_lines solves many straight travels laid end to end as one path, each in its own units:
+    every move's pieces (grid, profile, duration, certificate) are what plan_run gives it alone,
+    to rounding. Moves of a micron or less give no piece (dedupe's bound), as alone."""
+    p = printer(name)
+    kin = p.kinematics()
+    rng = np.random.default_rng(7)
+    pts = _bed_points(p, rng, 40)
+    a, b = pts[:20], pts[20:].copy()
+    b[3] = a[3] + [0.0005, 0.0, 0.0]  # shorter than dedupe's micron: nothing to plan
+    b[4] = a[4] + [0.0, 0.004, 0.0]  # a few microns: planned
+    b[5] = a[5] + [0.0, 0.0, 0.3]  # a lift
+    feed = rng.uniform(20.0, 300.0, 20)
+    layers = np.arange(20)
+    batch = topp.plan_lines(kin, p, a, b, feed, layers, "feed")
+    for i in range(20):
+        spec = topp.RunSpec(np.array([a[i], b[i]]), feed[i : i + 1], np.zeros(1), 0.0, int(layers[i]))
+        alone = topp.plan_run(kin, p, spec, "feed", kind="travel")
+        assert len(batch[i]) == len(alone) == (0 if i == 3 else 1), i
+        for got, want in zip(batch[i], alone):
+            assert got.kind == "travel" and got.layer == i
+            assert got.duration == pytest.approx(want.duration, rel=1e-9, abs=1e-12)
+            assert got.active_time == pytest.approx(want.active_time, rel=1e-9, abs=1e-12)
+            assert len(got.x) == len(want.x)
+            assert np.allclose(got.x, want.x, rtol=0, atol=1e-9)
+            assert np.allclose(got.xd, want.xd, rtol=1e-9, atol=1e-12)
+            assert np.allclose(got.q_start, want.q_start, atol=1e-12) and np.allclose(got.q_end, want.q_end, atol=1e-12)
+    # Trapezoid-style speed limit off: the joints alone bound the speed, still move by move.
+    fast = topp.plan_lines(kin, p, a[:6], b[:6], feed[:6], layers[:6], "joints")
+    for i in (0, 4, 5):
+        spec = topp.RunSpec(np.array([a[i], b[i]]), feed[i : i + 1], np.zeros(1), 0.0, i)
+        assert fast[i][0].duration == pytest.approx(topp.plan_run(kin, p, spec, "joints", kind="travel")[0].duration,
+                                                    rel=1e-9)
+
+
+def test_a_batch_of_lines_with_one_out_of_reach_raises_that_lines_error():
+    """A move out of reach in a batch: each move is planned alone, so the error is the one that
+    move's own plan raises (its layer and point), not a batch's."""
+    p = printer("delta_etitc")
+    kin = p.kinematics()
+    pts = _bed_points(p, np.random.default_rng(3), 6)
+    a, b = pts[:3], pts[3:].copy()
+    b[1, 2] = 10 * p.bed.max_height
+    with pytest.raises(UnreachableError, match="layer 11: point"):
+        topp.plan_lines(kin, p, a, b, np.full(3, 100.0), np.array([10, 11, 12]), "feed")
+
+
+def test_travels_planned_together_are_each_planned_alone():
+    """plan_travels over many travels (lifts, joint-space moves, retracts, a z-hop, travels that
+    do not move) gives every travel the pieces plan_travel gives it alone."""
+    p = printer("delta_etitc")
+    kin = p.kinematics()
+    rng = np.random.default_rng(11)
+    pts = _bed_points(p, rng, 40)
+    pts[:, 2] = np.minimum(pts[:, 2], 8.0)
+    jobs = []
+    for k in range(20):
+        a, b = pts[k], pts[20 + k]
+        via = None
+        if k % 5 == 1:
+            via = np.array([a + [0, 0, 0.4], b + [0, 0, 0.4]])  # a slicer's z-hop
+        if k % 7 == 3:
+            b = a.copy()  # a retract and unretract in place
+        if k % 6 == 2:
+            b = a + [1.0, 0.5, 0.0]  # short: the straight move only
+        jobs.append(dict(a=a, b=b, layer=k, printed_top=float(a[2]), retract=-0.8 * (k % 2), unretract=0.8 * (k % 2),
+                         via=via, feed=float(rng.choice([5.0, 150.0]))))
+    together = travel.plan_travels(kin, p, jobs, speed_limit="feed")
+    kinds = set()
+    for job, got in zip(jobs, together):
+        alone = travel.plan_travel(kin, p, speed_limit="feed", **job)
+        assert [type(x).__name__ for x in got] == [type(x).__name__ for x in alone]
+        kinds.update(type(x).__name__ for x in got)
+        for x, y in zip(got, alone):
+            assert x.duration == pytest.approx(y.duration, rel=1e-9, abs=1e-12)
+            assert np.allclose(x.q_start, y.q_start, atol=1e-12) and np.allclose(x.q_end, y.q_end, atol=1e-12)
+    assert kinds == {"FilamentPiece", "RunPiece", "JointMovePiece"}, kinds
+
+
+def test_joint_moves_checked_together_are_each_checked_alone():
+    """joint_moves_clear (one forward kinematics of every move's samples) agrees with
+    joint_move_clear move by move, both ways: clear and not."""
+    p = printer("delta_etitc")
+    kin = p.kinematics()
+    pts = _bed_points(p, np.random.default_rng(5), 16)
+    moves = [travel._ruckig_move(p, *kin.inverse(np.array([pts[k], pts[8 + k]])), layer=0) for k in range(8)]
+    z_min = np.array([0.0, 1e3, 0.0, 1e3, 0.0, 0.0, 1e3, 0.0]) + np.minimum(pts[:8, 2], pts[8:, 2]) - 0.1
+    together = travel.joint_moves_clear(kin, moves, z_min)
+    alone = [travel.joint_move_clear(kin, m, z) for m, z in zip(moves, z_min)]
+    assert together.tolist() == alone
+    assert True in alone and False in alone

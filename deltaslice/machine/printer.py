@@ -72,8 +72,13 @@ class Printer:
         return out
 
     def planned_limits(self) -> Limits:
-        """The limits the planner plans to: every rate limit times ``1 - limit_margin``."""
-        return self.limits.scaled(1.0 - self.planning.limit_margin)
+        """The limits the planner plans to: every rate limit times ``1 - limit_margin``. Made once
+        (the planner asks for them for every move it plans)."""
+        planned = self.__dict__.get("_planned_limits")
+        if planned is None:
+            planned = self.limits.scaled(1.0 - self.planning.limit_margin)
+            object.__setattr__(self, "_planned_limits", planned)  # a cache of a frozen value, not a field
+        return planned
 
     def fingerprint(self) -> int:
         """A 32-bit CRC of the geometry and joint counts: a stream compiled for one

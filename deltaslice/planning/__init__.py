@@ -23,7 +23,7 @@ from .pieces import Piece
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_run
 from .trajectory import Trajectory
-from .travel import from_rest, plan_travel, to_rest
+from .travel import from_rest, plan_travels, to_rest
 
 __all__ = ["plan", "Piece", "Trajectory", "split_runs", "check_reachable"]
 
@@ -127,12 +127,15 @@ def _plan_chunk(args):
     Returns one list of pieces per job."""
     jobs, speed_limit, solver = args
     printer, kin = _WORKER["printer"], _WORKER["kin"]
-    out = []
-    for kind, job in jobs:
-        if kind == "travel":
-            out.append(plan_travel(kin, printer, speed_limit=speed_limit, solver=solver, **job))
-        else:
-            out.append(plan_run(kin, printer, job, speed_limit, solver=solver))
+    out = [None] * len(jobs)
+    # The chunk's travels in one batch: their straight moves are solved together.
+    travels = [i for i, (kind, _job) in enumerate(jobs) if kind == "travel"]
+    for i, pieces in zip(travels, plan_travels(kin, printer, [jobs[i][1] for i in travels], speed_limit=speed_limit,
+                                               solver=solver)):
+        out[i] = pieces
+    for i, (kind, job) in enumerate(jobs):
+        if kind != "travel":
+            out[i] = plan_run(kin, printer, job, speed_limit, solver=solver)
     return out
 
 

@@ -22,6 +22,7 @@ _MIN_TURN = 1e-6  # rad: straighter corners are not blended
 # rad: a corner within this of a full reversal is taken at rest (its arc would be shorter
 # than a micron, with a curvature no joint can follow at any useful speed).
 _REVERSAL = 1e-3
+DEDUPE_EPS = 1e-3  # mm: dedupe's shortest segment kept
 
 
 @dataclass(frozen=True)
@@ -199,7 +200,7 @@ def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     return BlendedPath(np.concatenate([[0.0], np.cumsum(lengths)]), kind, p0, d0, nrm, rad, segment)
 
 
-def dedupe(points: np.ndarray, feed: np.ndarray, e: np.ndarray, eps: float = 1e-3):
+def dedupe(points: np.ndarray, feed: np.ndarray, e: np.ndarray, eps: float = DEDUPE_EPS):
     """Drop segments shorter than eps (mm) from a polyline, keeping the filament.
 
     points (m+1,3); feed, e: per segment (m,). A dropped segment's filament goes to the

@@ -39,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import PlanningError, UnreachableError
+from ..errors import DeltasliceError, PlanningError, UnreachableError
 from ..jit import njit
-from .blend import BlendedPath, blend_polyline, dedupe, merge_short
+from .blend import DEDUPE_EPS, BlendedPath, blend_polyline, dedupe, merge_short
 from .pieces import FilamentPiece, RunPiece
 from .reachability import solve as fast_solve
 
@@ -573,7 +573,6 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
     cut there (the part after it was only the lookahead). Returns (piece, speed at its end)."""
     pts, feed, e = poly.points, poly.feed, poly.e
     path = blend_polyline(pts, tol)
-    S = path.length
 
     # Filament per mm of each piece: the polyline segment's own ratio, so the filament
     # pushed is always that ratio times the arc length driven (blend arcs included) and
@@ -584,14 +583,8 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
     cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
 
     # The tool channel only where filament moves (a laser's e is zero): all-zero rows make the
-    # LP degenerate. The planner plans to the margin-reduced limits and checks the real ones.
+    # LP degenerate.
     extruder = bool(np.any(e != 0))
-    planned, limits = printer.planned_limits(), printer.limits
-    channels = limits.n_channels if extruder else limits.n_joints
-    vmax, amax = planned.velocity[:channels], planned.acceleration[:channels]
-    true_v, true_a = limits.velocity[:channels], limits.acceleration[:channels]
-
-    s_grid = grid(path)
     seg_feed = feed if speed_limit == "feed" else np.full(len(feed), np.inf)
     # An arc is capped by the slower of the segments it joins.
     prev_seg = np.maximum(path.segment - 1, 0)
@@ -603,12 +596,74 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
         # inside one run).
         jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
         stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
-    rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
+    s_cut = None if cap is None else float(path.piece_start[np.searchsorted(path.segment, cap[0])])
+    sol = _solve_path(kin, printer, spec.layer, path, e_ratio if extruder else None, piece_feed, stop_at, solver,
+                      v_start=v_start, cap=None if cap is None else (s_cut, cap[1]))
+    S, x_grid, sd, xdd, t, dt, active = path.length, sol.x, sol.sd, sol.xdd, sol.t, sol.dt, sol.active
+    power = nominal = None
+    if poly.power is not None:
+        power = poly.power[path.segment]
+        nominal = feed[path.segment]
     if cap is not None:
-        s_cut = float(path.piece_start[np.searchsorted(path.segment, cap[0])])
+        # Keep the window up to its cut; what follows was the lookahead.
+        stop = int(np.searchsorted(path.segment, cap[0]))
+        g = sol.cut
+        path = path.head(stop)
+        scale = S / path.length
+        S = path.length
+        x_grid, sd, xdd, t = x_grid[: g + 1] * scale, sd[: g + 1] * scale, xdd[:g] * scale, t[: g + 1]
+        x_grid[-1] = 1.0
+        cum_e, e_ratio, active = cum_e[: stop + 1], e_ratio[:stop], active[:g]
+        dt = dt[:g]
+        power = None if power is None else power[:stop]
+        nominal = None if nominal is None else nominal[:stop]
+    q_ends = RunPath(kin, path, None, spec.layer)(np.array([0.0, 1.0]))
+    piece = RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()), kind,
+                     q_ends[0], q_ends[1], power=power, nominal_feed=nominal, dynamic_power=spec.dynamic_power)
+    return piece, float(sd[-1] * S)
 
-        def cut_g(grid_s):
-            return int(np.argmin(np.abs(grid_s - s_cut)))
+
+@dataclass(frozen=True)
+class _Profile:
+    """A path's solved speed profile on its final grid. s, x: (n+1,) grid in mm and in path units
+    (s / S); sd: (n+1,) path speed x_dot; xdd: (n,) path acceleration per stage; t: (n+1,) time
+    at the grid points, s; dt: (n,) stage durations; active: (n,) stages with a limit active (the
+    optimality certificate); cut: the grid index of the capped point (or -1)."""
+
+    s: np.ndarray
+    x: np.ndarray
+    sd: np.ndarray
+    xdd: np.ndarray
+    t: np.ndarray
+    dt: np.ndarray
+    active: np.ndarray
+    cut: int = -1
+
+
+def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed, stop_at, solver: str,
+                v_start: float = 0.0, cap: tuple | None = None, conservative: bool = True,
+                unit_length: np.ndarray | None = None) -> _Profile:
+    """The time-optimal speed profile along a blended path from path speed v_start (mm/s) to rest,
+    refined where the stage-wise check finds a limit exceeded.
+
+    e_ratio: (k,) filament per mm of each piece, or None when the tool channel is not planned (no
+    filament moves); piece_feed: (k,) feed cap per piece, mm/s (inf: none); stop_at: arc lengths
+    (mm) where the path must be at rest; cap: (s, speed) the path speed capped at arc length s (a
+    window's cut); conservative: fall back to one constant-acceleration profile when the solver
+    finds none (else PlanningError); unit_length: (k,) mm, for a path of moves that meet at rest
+    (:func:`plan_lines`), the length of the move each piece belongs to: the compiled solver works
+    in each move's own units. The planner plans to the margin-reduced limits and checks the real
+    ones."""
+    S = path.length
+    planned, limits = printer.planned_limits(), printer.limits
+    channels = limits.n_channels if e_ratio is not None else limits.n_joints
+    vmax, amax = planned.velocity[:channels], planned.acceleration[:channels]
+    true_v, true_a = limits.velocity[:channels], limits.acceleration[:channels]
+    s_grid = grid(path)
+    rp = RunPath(kin, path, e_ratio, layer)
+
+    def cut_g(grid_s):
+        return int(np.argmin(np.abs(grid_s - cap[0])))
 
     for attempt in range(REFINE_PASSES + 1):
         x_grid = s_grid / S
@@ -626,7 +681,8 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
             StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
         ]
         rows = _fast_rows(constraints, rp, x_grid, amax) if solver == "fast" else None
-        sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S)
+        unit = None if unit_length is None else S / unit_length[path.locate(s_grid)]
+        sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S, unit)
         if v_start > 0:
             # A start speed outside the controllable set is refused even when the solver, which
             # tolerates a small excess (toppra's), found a profile: its forward pass would cut the
@@ -638,14 +694,15 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
         if sd is None or not np.all(np.isfinite(sd)):
             # Seidel's 2-D LP occasionally meets a degenerate stage; a conservative profile from
             # the same limits is always feasible (and slower only on this run).
-            sd = None if v_start > 0 else _conservative_profile(x_grid, dq_st, ddq_st, vmax, amax, feed_grid / S)
+            sd = None if v_start > 0 or not conservative else _conservative_profile(
+                x_grid, dq_st, ddq_st, vmax, amax, feed_grid / S)
             if sd is None:
-                raise PlanningError(_infeasible(printer, spec, path, s_grid, 0, vmax, dq_st))
+                raise PlanningError(_infeasible(printer, layer, path, s_grid, 0, vmax, dq_st))
         sd = np.maximum(sd, 0.0)
         dx = np.diff(x_grid)
         vsum = sd[:-1] + sd[1:]
         if not np.all(vsum > 0):
-            raise PlanningError(_infeasible(printer, spec, path, s_grid, int(np.flatnonzero(vsum <= 0)[0]), vmax, dq_st))
+            raise PlanningError(_infeasible(printer, layer, path, s_grid, int(np.flatnonzero(vsum <= 0)[0]), vmax, dq_st))
         dt = 2 * dx / vsum
         # Constant acceleration per stage consistent with the end speeds.
         xdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2 * dx)
@@ -659,7 +716,7 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
             st = int(check.stage_v[ch] if kind == "velocity" else check.stage_a[ch])
             p = path.evaluate(np.array([s_grid[st]]))[0]
             raise PlanningError(
-                f"layer {spec.layer}: {_describe(printer, ch)} {kind} reaches "
+                f"layer {layer}: {_describe(printer, ch)} {kind} reaches "
                 f"{100 * max(check.velocity[ch], check.acceleration[ch]):.2f} % of its limit between grid points "
                 f"at x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm after {REFINE_PASSES} grid refinements"
             )
@@ -675,29 +732,7 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
     cap2 = rows[3] if rows is not None else constraints[0].cap2(rp, x_grid)
     acc = np.abs(dq_st[:, 0] * xdd[:, None] + ddq_st[:, 0] * (sd[:-1] ** 2)[:, None]) / amax[None]
     active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
-    power = nominal = None
-    if poly.power is not None:
-        power = poly.power[path.segment]
-        nominal = feed[path.segment]
-    stop, g = len(path.kind), len(s_grid) - 1
-    if cap is not None:
-        # Keep the window up to its cut; what follows was the lookahead.
-        stop = int(np.searchsorted(path.segment, cap[0]))
-        g = int(cut_g(s_grid))
-        path = path.head(stop)
-        scale = S / path.length
-        S = path.length
-        x_grid, sd, xdd, t = x_grid[: g + 1] * scale, sd[: g + 1] * scale, xdd[:g] * scale, t[: g + 1]
-        x_grid[-1] = 1.0
-        cum_e, e_ratio, active = cum_e[: stop + 1], e_ratio[:stop], active[:g]
-        dt = dt[:g]
-        power = None if power is None else power[:stop]
-        nominal = None if nominal is None else nominal[:stop]
-        rp = RunPath(kin, path, e_ratio if extruder else None, spec.layer)
-    q_ends = rp(np.array([0.0, 1.0]))[:, : kin.n_joints]
-    piece = RunPiece(path, S, x_grid, sd, xdd, t, cum_e, e_ratio, spec.tool, spec.layer, float(dt[active].sum()), kind,
-                     q_ends[0], q_ends[1], power=power, nominal_feed=nominal, dynamic_power=spec.dynamic_power)
-    return piece, float(sd[-1] * S)
+    return _Profile(s_grid, x_grid, sd, xdd, t, dt, active, -1 if cap is None else cut_g(s_grid))
 
 
 def _fast_rows(constraints, rp, x_grid, amax):
@@ -723,16 +758,28 @@ def _root(top: float) -> float:
     return float(np.sqrt(top)) if np.isfinite(top) and top > 0 else 0.0
 
 
-def _speeds(constraints, rp, x_grid, rows, sd_start=0.0):
+def _speeds(constraints, rp, x_grid, rows, sd_start=0.0, unit=None):
     """(path speeds x_dot (n+1,) on the grid from sd_start to rest under the path-velocity cap and
     the stage-wise acceleration rows, or None where the solver finds no profile; the top of the
     start's controllable set, x_dot^2, or None when the solver does not give it). "fast": the
     compiled reachability solver on the same rows (collocation: each stage's rows in its
-    start's (u, x); ``rows``: :func:`_fast_rows`); rows None: toppra's seidel solver, the reference."""
+    start's (u, x); ``rows``: :func:`_fast_rows`); rows None: toppra's seidel solver, the reference.
+    unit: (n+1,) for the compiled solver, the scale c = S / L from the path's units to those of the
+    move each grid point's stage belongs to (a batch of moves, each of length L, that meet at rest:
+    :func:`plan_lines`), or None."""
     if rows is not None:
         a, b, bound, cap2 = rows
-        x, _u, K = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), x_start=sd_start**2, interpolation=False)
-        return (np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None), float(K[0, 1])
+        ds = np.diff(x_grid)
+        if unit is not None:
+            # Each stage in its own move's units (x' = c^2 x, u' = c u): what solving the move alone
+            # computes, toppra's shrink of the forward pass included (it is a constant in x).
+            c = unit[:, None]
+            a, b, cap2, ds = a / c, b / (c * c), cap2 * unit**2, ds * unit[:-1]
+        x, _u, K = fast_solve(a, b, -bound, bound, cap2, ds, x_start=sd_start**2, interpolation=False)
+        top = float(K[0, 1])
+        if unit is not None:
+            x, top = x / unit**2, top / unit[0] ** 2
+        return (np.sqrt(np.maximum(x, 0.0)) if np.all(np.isfinite(x)) else None), top
     return _toppra(constraints, rp, x_grid).compute_parameterization(sd_start, 0.0)[1], None
 
 
@@ -764,7 +811,7 @@ def _segment_power(spec: RunSpec, pts: np.ndarray) -> np.ndarray:
     return spec.power[k]
 
 
-def _infeasible(printer, spec, path, s_grid, i, vmax, dq_st) -> str:
+def _infeasible(printer, layer, path, s_grid, i, vmax, dq_st) -> str:
     """Why the path speed is zero on the stage from grid point i: a forced stop with no room
     on either side, or the limit with the smallest speed cap there."""
     p = path.evaluate(np.array([s_grid[min(i, len(s_grid) - 1)]]))[0]
@@ -774,6 +821,67 @@ def _infeasible(printer, spec, path, s_grid, i, vmax, dq_st) -> str:
         cap = vmax / f
     ch = int(np.argmin(cap))
     return (
-        f"layer {spec.layer}: no feasible speed along the run near {where}: "
+        f"layer {layer}: no feasible speed along the run near {where}: "
         f"{_describe(printer, ch)} velocity limit {vmax[ch]:.4g} allows {cap[ch] * path.length:.3g} mm/s of path there"
     )
+
+
+def plan_lines(kin, printer, starts: np.ndarray, ends: np.ndarray, feed: np.ndarray, layers: np.ndarray, speed_limit: str,
+               kind: str = "travel", solver: str = "fast") -> list:
+    """Many straight tool-off moves, each from rest to rest: what ``plan_run`` returns for each
+    (a list of pieces per move, empty for a move shorter than dedupe's micron), solved as one path.
+
+    starts, ends: (k, 3) float, mm; feed: (k,) mm/s; layers: (k,) int. The moves' lines are laid
+    end to end in arc length as the pieces of one path, each join a forced stop, so one grid, one
+    set of derivatives, one solve and one stage-wise check serve them all (a travel alone is
+    about a millisecond of per-problem set-up for twenty stages); each move's RunPiece is then its
+    stretch of the solution in its own path units. The grid around a join is what each move's own
+    grid has at its ends, so the profiles match planning each alone (to rounding, and to the odd
+    extra refinement a neighbour's check adds). Where the joint solve fails (a move out of
+    reach, a limit the refinements cannot meet) every move is planned alone, which raises
+    the error that move's own plan raises. toppra's solver (the reference) plans each alone."""
+    starts, ends = np.asarray(starts, float).reshape(-1, 3), np.asarray(ends, float).reshape(-1, 3)
+    feed, layers = np.asarray(feed, float).reshape(-1), np.asarray(layers).reshape(-1)
+    length = np.linalg.norm(ends - starts, axis=1)
+    out = [[] for _ in range(len(starts))]
+    moving = np.flatnonzero(length > DEDUPE_EPS)  # shorter: dedupe leaves one point, and no filament moves
+    if len(moving) == 0:
+        return out
+
+    def alone(i):
+        spec = RunSpec(np.array([starts[i], ends[i]]), feed[i : i + 1], np.zeros(1), 0.0, int(layers[i]))
+        return plan_run(kin, printer, spec, speed_limit, kind=kind, solver=solver)
+
+    if solver != "fast" or len(moving) == 1:
+        for i in moving:
+            out[i] = alone(i)
+        return out
+    a, L = starts[moving], length[moving]
+    d = (ends[moving] - a) / L[:, None]
+    k = len(moving)
+    piece_start = np.concatenate([[0.0], np.cumsum(L)])
+    path = BlendedPath(piece_start, np.zeros(k, dtype=np.int8), a, d, np.zeros((k, 3)), np.full(k, np.inf), np.arange(k))
+    piece_feed = feed[moving] if speed_limit == "feed" else np.full(k, np.inf)
+    try:
+        sol = _solve_path(kin, printer, int(layers[moving[0]]), path, None, piece_feed, piece_start[1:-1], solver,
+                          conservative=False, unit_length=L)
+    except DeltasliceError:
+        for i in moving:
+            out[i] = alone(i)
+        return out
+    S = path.length
+    at = np.searchsorted(sol.s, piece_start)  # every join is a grid point (grid keeps the joins)
+    q = kin.inverse(np.concatenate([a, a + L[:, None] * d]))
+    zero = np.zeros(1)
+    for r, i in enumerate(moving):
+        g0, g1 = int(at[r]), int(at[r + 1])
+        scale = S / L[r]
+        x = (sol.s[g0 : g1 + 1] - sol.s[g0]) / L[r]
+        x[0], x[-1] = 0.0, 1.0
+        dt = sol.dt[g0:g1]
+        line = BlendedPath(np.array([0.0, L[r]]), path.kind[r : r + 1], a[r : r + 1], d[r : r + 1], path.normal[r : r + 1],
+                           path.radius[r : r + 1], np.zeros(1, dtype=path.segment.dtype))
+        out[i] = [RunPiece(line, float(L[r]), x, sol.sd[g0 : g1 + 1] * scale, sol.xdd[g0:g1] * scale,
+                           np.concatenate([[0.0], np.cumsum(dt)]), np.zeros(2), zero, 0.0, int(layers[i]),
+                           float(dt[sol.active[g0:g1]].sum()), kind, q[r], q[k + r])]
+    return out

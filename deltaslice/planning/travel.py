@@ -17,7 +17,7 @@ import ruckig
 from ..errors import PlanningError
 from .pieces import FilamentPiece, JointMovePiece
 from .ruckig_profile import RuckigProfile
-from .topp import RunSpec, plan_run
+from .topp import RunSpec, plan_lines, plan_run
 
 CHECK_SAMPLES = 48
 
@@ -50,11 +50,20 @@ def _ruckig_move(printer, q0, q1, layer):
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
     """True when the move's tool point stays at or above z_min and inside the reachable volume."""
-    tau = np.linspace(0.0, piece.duration, CHECK_SAMPLES)
-    q, _, _ = piece.sample(kin, tau)
+    return bool(joint_moves_clear(kin, [piece], np.array([z_min]))[0])
+
+
+def joint_moves_clear(kin, pieces, z_min: np.ndarray) -> np.ndarray:
+    """:func:`joint_move_clear` of many moves at once (one forward kinematics and one reach check
+    of all their samples): (k,) bool. z_min: (k,) mm."""
+    if not pieces:
+        return np.zeros(0, dtype=bool)
+    q = np.concatenate([p.sample(kin, np.linspace(0.0, p.duration, CHECK_SAMPLES))[0] for p in pieces])
     p = kin.forward(q)
-    ok = np.all(np.isfinite(p)) and np.all(p[:, 2] >= z_min - 1e-6)
-    return bool(ok and kin.reachable(p).all())
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(p).all(axis=1) & (p[:, 2] >= np.repeat(np.asarray(z_min, float), CHECK_SAMPLES) - 1e-6)
+    ok[ok] = kin.reachable(p[ok])
+    return ok.reshape(len(pieces), CHECK_SAMPLES).all(axis=1)
 
 
 def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit, via=None, feed=None,
@@ -66,53 +75,105 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     printed_top: height of the top of what is printed so far, mm; retract/unretract: filament mm
     (retract <= 0 <= unretract) taken from the toolpath's travel moves.
     """
-    pieces = []
-    q_a = kin.inverse(a[None])[0]
-    q_b = kin.inverse(b[None])[0]
+    job = dict(a=a, b=b, layer=layer, printed_top=printed_top, retract=retract, unretract=unretract, via=via, feed=feed)
+    return plan_travels(kin, printer, [job], speed_limit=speed_limit, solver=solver)[0]
+
+
+def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
+    """:func:`plan_travel`'s pieces for many travels (each a dict of its keywords), one list per
+    travel, in order. The straight-line moves they are made of are planned a batch at a time
+    (:func:`.topp.plan_lines`): first every travel's own move, then the lift and lower moves of
+    those whose joint-space candidate is faster and clears the part."""
     tool = printer.tool
-    if retract < 0:
-        pieces.append(FilamentPiece(q_a, retract, tool.retract_speed, float(printer.limits.acceleration[-1]), layer))
-    dist = float(np.linalg.norm(b - a))
-    own = np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
-    # The travel's own length, not the distance between its ends: a travel that leaves and
-    # comes back to where it started (a job ending at its start point) still moves.
-    if np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9:
-        lift = tool.travel_lift(printer.planning)
-        short = dist < tool.retract_min_travel and retract == 0
-        top = max(a[2], b[2], printed_top)
-        z_travel = top + (0.0 if short else lift)
+    lift = tool.travel_lift(printer.planning)
+    ends = [(np.asarray(j["a"], float), np.asarray(j["b"], float)) for j in jobs]
+    owns = [_own_polyline(a, b, j.get("via")) for (a, b), j in zip(ends, jobs)]
+    feeds = [j.get("feed") or printer.slicing.travel_speed for j in jobs]
+    moving = [np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9 for own in owns]
+    # The travel's own length, not the distance between its ends: a travel that leaves and comes
+    # back to where it started (a job ending at its start point) still moves.
+    best = _straight(kin, printer, [own if m else own[:1] for own, m in zip(owns, moving)], feeds,
+                     [j["layer"] for j in jobs], speed_limit, solver)
+    links = []  # (job, a, a_up, b_up, b, joint move, own time) of the faster joint-space candidates
+    z_clear = []  # theirs: the lowest their tool point may go
+    for n, ((a, b), job) in enumerate(zip(ends, jobs)):
+        retract = job["retract"]
+        dist = float(np.linalg.norm(b - a))
+        if not moving[n] or (dist < tool.retract_min_travel and retract == 0):
+            continue
+        # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.
+        top = max(a[2], b[2], job["printed_top"])
+        z_travel = top + lift
         a_up = np.array([a[0], a[1], max(a[2], z_travel)])
         b_up = np.array([b[0], b[1], max(b[2], z_travel)])
-        z_clear = top + (0.5 * lift if lift > 0 else 0.0) if not short else min(a[2], b[2])
-        # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
-        cartesian = _cartesian(kin, printer, own, layer, speed_limit, feed=feed, solver=solver)
-        best = cartesian
-        # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.
-        if not short:
-            q_up_a, q_up_b = kin.inverse(a_up[None])[0], kin.inverse(b_up[None])[0]
-            if np.all(np.isfinite(q_up_a)) and np.all(np.isfinite(q_up_b)):
-                joint = _ruckig_move(printer, q_up_a, q_up_b, layer)
-                # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
-                # travel, its clearance check and its lift and lower moves need not be planned.
-                own_time = sum(p.duration for p in cartesian)
-                if joint.duration < own_time and joint_move_clear(kin, joint, z_clear):
-                    cand = [joint]
-                    if a_up[2] > a[2] + 1e-9:
-                        cand = _cartesian(kin, printer, np.array([a, a_up]), layer, speed_limit, feed=feed, solver=solver) + cand
-                    if b_up[2] > b[2] + 1e-9 and sum(p.duration for p in cand) < own_time:
-                        cand = cand + _cartesian(kin, printer, np.array([b_up, b]), layer, speed_limit, feed=feed, solver=solver)
-                    if sum(p.duration for p in cand) < own_time:
-                        best = cand
-        pieces.extend(best)
-    if unretract > 0:
-        pieces.append(FilamentPiece(q_b, unretract, tool.retract_speed, float(printer.limits.acceleration[-1]), layer))
-    return pieces
+        q_up = kin.inverse(np.array([a_up, b_up]))
+        if not np.all(np.isfinite(q_up)):
+            continue
+        joint = _ruckig_move(printer, q_up[0], q_up[1], job["layer"])
+        # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
+        # travel, its clearance check and its lift and lower moves need not be planned.
+        own_time = sum(p.duration for p in best[n])
+        if joint.duration < own_time:
+            links.append((n, a, a_up, b_up, b, joint, own_time))
+            z_clear.append(top + (0.5 * lift if lift > 0 else 0.0))
+    clear = joint_moves_clear(kin, [link[5] for link in links], np.array(z_clear))
+    links = [link for link, ok in zip(links, clear) if ok]
+    ups = [np.array([a, a_up]) if a_up[2] > a[2] + 1e-9 else a[None] for _n, a, a_up, _bu, _b, _j, _t in links]
+    downs = [np.array([b_up, b]) if b_up[2] > b[2] + 1e-9 else b[None] for _n, _a, _au, b_up, b, _j, _t in links]
+    moves = _straight(kin, printer, ups + downs, [feeds[n] for n, *_ in links] * 2,
+                      [jobs[n]["layer"] for n, *_ in links] * 2, speed_limit, solver)
+    for k, (n, *_rest, joint, own_time) in enumerate(links):
+        cand = moves[k] + [joint]
+        if len(downs[k]) == 2 and sum(p.duration for p in cand) < own_time:
+            cand = cand + moves[len(links) + k]
+        if sum(p.duration for p in cand) < own_time:
+            best[n] = cand
+    out = []
+    for n, ((a, b), job) in enumerate(zip(ends, jobs)):
+        pieces = []
+        acc = float(printer.limits.acceleration[-1])
+        if job["retract"] < 0:
+            pieces.append(FilamentPiece(kin.inverse(a[None])[0], job["retract"], tool.retract_speed, acc, job["layer"]))
+        pieces.extend(best[n] if moving[n] else [])
+        if job["unretract"] > 0:
+            pieces.append(FilamentPiece(kin.inverse(b[None])[0], job["unretract"], tool.retract_speed, acc, job["layer"]))
+        out.append(pieces)
+    return out
+
+
+def _own_polyline(a, b, via) -> np.ndarray:
+    """The toolpath's own travel from a through via to b, (m+1, 3) mm."""
+    return np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
+
+
+def _straight(kin, printer, polylines, feeds, layers, speed_limit, solver) -> list:
+    """The pieces of straight tool-off travels along each polyline ((m+1, 3) mm; one point: no
+    move), one list per polyline: the straight lines (two points once repeated points are
+    dropped) as one batch, the rest (a slicer's z-hop) each alone."""
+    polylines = [_distinct(p) for p in polylines]
+    out = [[] for _ in polylines]
+    lines = [i for i, p in enumerate(polylines) if len(p) == 2]
+    if lines:
+        planned = plan_lines(kin, printer, np.array([polylines[i][0] for i in lines]),
+                             np.array([polylines[i][1] for i in lines]), np.array([feeds[i] for i in lines], float),
+                             np.array([layers[i] for i in lines]), speed_limit, solver=solver)
+        for i, pieces in zip(lines, planned):
+            out[i] = pieces
+    for i, p in enumerate(polylines):
+        if len(p) > 2:
+            out[i] = _cartesian(kin, printer, p, layers[i], speed_limit, feed=feeds[i], solver=solver)
+    return out
+
+
+def _distinct(pts) -> np.ndarray:
+    """pts without points repeated within 1e-9 mm of the one before."""
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
+    return pts[keep]
 
 
 def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None, solver="fast") -> list:
     """A straight Cartesian travel (tool off) planned with toppra."""
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
-    pts = pts[keep]
+    pts = _distinct(pts)
     m = len(pts) - 1
     feed = np.full(m, feed or printer.slicing.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
