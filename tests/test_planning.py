@@ -297,6 +297,41 @@ def test_toppra_degenerate_stage_falls_back_to_a_safe_profile():
     assert np.allclose(s.q[-1], printer.rest_pose)  # then parks
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_limit_monitor_in_one_pass_equals_brute_force_over_the_whole_signal(seed):
+    """The monitor's compiled pass over blocks of any size (one and two samples included) gives
+    the peaks, the samples beyond a limit and the stretches of them that a brute-force numpy
+    evaluation of the whole signal gives."""
+    from types import SimpleNamespace
+
+    from deltaslice.machine import LimitMonitor
+
+    printer = load_printer("printers/delta_etitc.toml")
+    rate, J = 1000.0, printer.n_joints
+    rng = np.random.default_rng(seed)
+    n = 3000
+    t = np.arange(n) / rate
+    # Smooth motion near the limits, with a few spikes beyond them.
+    amp = printer.limits.velocity[:J] / (2 * np.pi * 3.0) * rng.uniform(0.5, 1.2, J)
+    q = amp[None] * np.sin(2 * np.pi * 3.0 * t[:, None] + rng.uniform(0, 6, J))
+    q[rng.integers(2, n - 2, 6), rng.integers(0, J, 6)] += rng.uniform(-0.05, 0.05, 6)
+    e = np.cumsum(rng.uniform(0, 2e-3, n))
+    tool = (rng.uniform(size=n) > 0.3).astype(float)
+    cuts = np.unique(np.concatenate([[0, 1, 3, 4, n], rng.integers(0, n, 40)]))
+    m = LimitMonitor(printer.limits, printer.tool, rate)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        m.observe(SimpleNamespace(q=q[a:b], e=e[a:b], tool=tool[a:b]))
+    v = (q[2:] - q[:-2]) * rate / 2
+    acc = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate**2
+    rv, ra = np.abs(v) / printer.limits.velocity[:J], np.abs(acc) / printer.limits.acceleration[:J]
+    assert np.allclose(m.peak_v, rv.max(axis=0), rtol=1e-12) and np.allclose(m.peak_a, ra.max(axis=0), rtol=1e-12)
+    bad = (rv.max(axis=1) > 1) | (ra.max(axis=1) > 1)
+    assert m.violating_samples == int(bad.sum()) > 0
+    assert m.events == int((np.diff(np.concatenate([[0], bad.astype(int)])) == 1).sum()) > 1
+    tv = np.abs(e[2:] - e[:-2]) * rate / 2 * (tool[1:-1] > 0)
+    assert m.peak_tool_v == pytest.approx(tv.max() / printer.limits.velocity[-1], rel=1e-12)
+
+
 def test_limit_monitor_over_blocks_equals_whole_array_differences():
     from deltaslice.machine import LimitMonitor
 
