@@ -872,7 +872,6 @@ def plan_lines(kin, printer, starts: np.ndarray, ends: np.ndarray, feed: np.ndar
     S = path.length
     at = np.searchsorted(sol.s, piece_start)  # every join is a grid point (grid keeps the joins)
     q = kin.inverse(np.concatenate([a, a + L[:, None] * d]))
-    zero = np.zeros(1)
     for r, i in enumerate(moving):
         g0, g1 = int(at[r]), int(at[r + 1])
         scale = S / L[r]
@@ -882,6 +881,6 @@ def plan_lines(kin, printer, starts: np.ndarray, ends: np.ndarray, feed: np.ndar
         line = BlendedPath(np.array([0.0, L[r]]), path.kind[r : r + 1], a[r : r + 1], d[r : r + 1], path.normal[r : r + 1],
                            path.radius[r : r + 1], np.zeros(1, dtype=path.segment.dtype))
         out[i] = [RunPiece(line, float(L[r]), x, sol.sd[g0 : g1 + 1] * scale, sol.xdd[g0:g1] * scale,
-                           np.concatenate([[0.0], np.cumsum(dt)]), np.zeros(2), zero, 0.0, int(layers[i]),
+                           np.concatenate([[0.0], np.cumsum(dt)]), np.zeros(2), np.zeros(1), 0.0, int(layers[i]),
                            float(dt[sol.active[g0:g1]].sum()), kind, q[r], q[k + r])]
     return out
