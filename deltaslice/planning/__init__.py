@@ -28,6 +28,8 @@ from .travel import from_rest, plan_travels, to_rest
 __all__ = ["plan", "Piece", "Trajectory", "split_runs", "check_reachable"]
 
 _WORKER = {}
+# Jobs per chunk handed to a worker: an eighth of the print's, at most 64 (small prints still make 8 chunks).
+CHUNKS_PER_PRINT = 8
 
 
 def check_reachable(toolpath: Toolpath, printer) -> None:
@@ -255,7 +257,9 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
     ranges = split_runs(toolpath)
     workers = max(1, workers or os.cpu_count() or 1)
     n_jobs = 2 * len(ranges) + 1  # at most: a travel before every run, one after the last
-    chunk = max(1, min(64, n_jobs // (4 * workers) or 1))
+    # The chunks do not depend on the number of workers: a chunk's travels are solved as one batch
+    # (travel.plan_travels), so the same chunks give the same bytes whatever --workers is.
+    chunk = max(1, min(64, n_jobs // CHUNKS_PER_PRINT))
     slots = _slots(_jobs(toolpath, ranges), chunk)
 
     pieces = PieceSpool() if spool else []
