@@ -84,59 +84,59 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     travel, in order. The straight-line moves they are made of are planned a batch at a time
     (:func:`.topp.plan_lines`): first every travel's own move, then the lift and lower moves of
     those whose joint-space candidate is faster and clears the part."""
+    if not jobs:
+        return []
     tool = printer.tool
     lift = tool.travel_lift(printer.planning)
-    ends = [(np.asarray(j["a"], float), np.asarray(j["b"], float)) for j in jobs]
-    owns = [_own_polyline(a, b, j.get("via")) for (a, b), j in zip(ends, jobs)]
+    k = len(jobs)
+    a = np.array([j["a"] for j in jobs], float).reshape(k, 3)
+    b = np.array([j["b"] for j in jobs], float).reshape(k, 3)
+    layers = [j["layer"] for j in jobs]
     feeds = [j.get("feed") or printer.slicing.travel_speed for j in jobs]
-    moving = [np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9 for own in owns]
+    retract = np.array([j["retract"] for j in jobs], float)
+    owns = [_own_polyline(a[n], b[n], j.get("via")) for n, j in enumerate(jobs)]
     # The travel's own length, not the distance between its ends: a travel that leaves and comes
     # back to where it started (a job ending at its start point) still moves.
-    best = _straight(kin, printer, [own if m else own[:1] for own, m in zip(owns, moving)], feeds,
-                     [j["layer"] for j in jobs], speed_limit, solver)
-    links = []  # (job, a, a_up, b_up, b, joint move, own time) of the faster joint-space candidates
-    z_clear = []  # theirs: the lowest their tool point may go
-    for n, ((a, b), job) in enumerate(zip(ends, jobs)):
-        retract = job["retract"]
-        dist = float(np.linalg.norm(b - a))
-        if not moving[n] or (dist < tool.retract_min_travel and retract == 0):
-            continue
-        # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it clears the part.
-        top = max(a[2], b[2], job["printed_top"])
-        z_travel = top + lift
-        a_up = np.array([a[0], a[1], max(a[2], z_travel)])
-        b_up = np.array([b[0], b[1], max(b[2], z_travel)])
-        q_up = kin.inverse(np.array([a_up, b_up]))
-        if not np.all(np.isfinite(q_up)):
-            continue
-        joint = _ruckig_move(printer, q_up[0], q_up[1], job["layer"])
+    moving = np.array([np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9 for own in owns])
+    # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
+    best = _straight(kin, printer, [own if m else own[:1] for own, m in zip(owns, moving)], feeds, layers, speed_limit,
+                     solver)
+    # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it is faster and
+    # clears the part (half the lift above the top printed so far).
+    top = np.maximum(np.maximum(a[:, 2], b[:, 2]), [j["printed_top"] for j in jobs])
+    a_up, b_up = a.copy(), b.copy()
+    a_up[:, 2] = np.maximum(a[:, 2], top + lift)
+    b_up[:, 2] = np.maximum(b[:, 2], top + lift)
+    q = kin.inverse(np.concatenate([a, b, a_up, b_up])).reshape(4, k, -1)
+    short = (np.linalg.norm(b - a, axis=1) < tool.retract_min_travel) & (retract == 0)
+    cands = []  # (travel, joint move, its own travel's time)
+    for n in np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2))):
+        joint = _ruckig_move(printer, q[2, n], q[3, n], layers[n])
         # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
         # travel, its clearance check and its lift and lower moves need not be planned.
         own_time = sum(p.duration for p in best[n])
         if joint.duration < own_time:
-            links.append((n, a, a_up, b_up, b, joint, own_time))
-            z_clear.append(top + (0.5 * lift if lift > 0 else 0.0))
-    clear = joint_moves_clear(kin, [link[5] for link in links], np.array(z_clear))
-    links = [link for link, ok in zip(links, clear) if ok]
-    ups = [np.array([a, a_up]) if a_up[2] > a[2] + 1e-9 else a[None] for _n, a, a_up, _bu, _b, _j, _t in links]
-    downs = [np.array([b_up, b]) if b_up[2] > b[2] + 1e-9 else b[None] for _n, _a, _au, b_up, b, _j, _t in links]
-    moves = _straight(kin, printer, ups + downs, [feeds[n] for n, *_ in links] * 2,
-                      [jobs[n]["layer"] for n, *_ in links] * 2, speed_limit, solver)
-    for k, (n, *_rest, joint, own_time) in enumerate(links):
-        cand = moves[k] + [joint]
-        if len(downs[k]) == 2 and sum(p.duration for p in cand) < own_time:
-            cand = cand + moves[len(links) + k]
+            cands.append((n, joint, own_time))
+    idx = [n for n, _j, _t in cands]
+    clear = joint_moves_clear(kin, [joint for _n, joint, _t in cands], top[idx] + (0.5 * lift if lift > 0 else 0.0))
+    cands = [c for c, ok in zip(cands, clear) if ok]
+    idx = [n for n, _j, _t in cands]
+    # A lift or lower of no height is one point once repeated points are dropped: no move.
+    moves = _straight(kin, printer, [np.array([a[n], a_up[n]]) for n in idx] + [np.array([b_up[n], b[n]]) for n in idx],
+                      [feeds[n] for n in idx] * 2, [layers[n] for n in idx] * 2, speed_limit, solver)
+    for r, (n, joint, own_time) in enumerate(cands):
+        cand = moves[r] + [joint] + moves[len(cands) + r]
         if sum(p.duration for p in cand) < own_time:
             best[n] = cand
+    acc = float(printer.limits.acceleration[-1])
     out = []
-    for n, ((a, b), job) in enumerate(zip(ends, jobs)):
+    for n, job in enumerate(jobs):
         pieces = []
-        acc = float(printer.limits.acceleration[-1])
         if job["retract"] < 0:
-            pieces.append(FilamentPiece(kin.inverse(a[None])[0], job["retract"], tool.retract_speed, acc, job["layer"]))
-        pieces.extend(best[n] if moving[n] else [])
+            pieces.append(FilamentPiece(q[0, n], job["retract"], tool.retract_speed, acc, layers[n]))
+        pieces.extend(best[n])
         if job["unretract"] > 0:
-            pieces.append(FilamentPiece(kin.inverse(b[None])[0], job["unretract"], tool.retract_speed, acc, job["layer"]))
+            pieces.append(FilamentPiece(q[1, n], job["unretract"], tool.retract_speed, acc, layers[n]))
         out.append(pieces)
     return out
 
