@@ -1,0 +1,66 @@
+"""Limits on real parts at 10 kHz (not a test): parts from ../shared/parts sliced for every printer
+with an extruder (the laser gets the star-and-zig-zag part of tests/test_planning_limits.py),
+planned with both speed limits, sampled at 10 kHz. Prints, per printer, part and mode, the
+analytic stage-wise bound and the peak joint velocity / acceleration ratios by finite differences.
+A part too large for a printer is tried at half and a quarter of its size.
+
+    python benchmarks/bench_limits_parts.py [PRINTER ...]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from deltaslice.errors import MeshError, UnreachableError  # noqa: E402
+from deltaslice.pipeline import load_toolpath  # noqa: E402
+from deltaslice.planning import plan  # noqa: E402
+from test_planning_limits import peak_ratios, printer_at, star_part  # noqa: E402
+
+PARTS_DIR = ROOT.parent / "shared" / "parts"
+PARTS = ("pyramid.obj", "small_dorito.obj", "extruder_idler.obj", "20mm_cube.obj")
+PRINTERS = ("delta_etitc", "delta_uady", "delta_ucb", "fivebar_atlas", "linear_kossel", "delta_espe_laser")
+RATE = 10000
+
+
+def toolpaths(printer, name):
+    """(part, scale, toolpath) for each part that fits the printer at full, half or quarter size."""
+    if printer.tool.channel_kind != "extruder":
+        yield "star", 1.0, star_part(name, 4)
+        return
+    for part in PARTS:
+        if not (PARTS_DIR / part).exists():
+            continue
+        for scale in (1.0, 0.5, 0.25):
+            try:
+                yield part, scale, load_toolpath(str(PARTS_DIR / part), printer, scale=scale)
+                break
+            except (MeshError, UnreachableError):
+                continue
+
+
+def main():
+    worst = 0.0
+    for name in sys.argv[1:] or PRINTERS:
+        printer = printer_at(name, RATE)
+        for part, scale, tp in toolpaths(printer, name):
+            for mode in ("feed", "machine"):
+                t0 = time.perf_counter()
+                traj = plan(tp, printer, speed_limit=mode, workers=2)
+                sv, sa = traj.stage_maxima()
+                rv, ra = peak_ratios(printer, traj.samples(), RATE)
+                worst = max(worst, rv.max(), ra.max())
+                travels = sum(p.kind == "travel" for p in traj.pieces)
+                print(f"{name:17s} {part:20s} x{scale:<5g} {mode:7s} travels {travels:5d} stage-wise "
+                      f"{max(sv.max(), sa.max()):.6f}  10 kHz v {rv.max():.4f} a {ra.max():.4f} "
+                      f"({time.perf_counter() - t0:.1f} s)", flush=True)
+    print(f"worst 10 kHz ratio {worst:.4f}")
+
+
+if __name__ == "__main__":
+    main()
