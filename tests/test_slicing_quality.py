@@ -227,3 +227,55 @@ def test_wavering_wall_gets_one_gap_line_not_specks(etitc):
     m = layer_moves(tp, layer)
     g = m[tp.role[m] == Role.GAP_FILL]
     assert seg_lengths(tp, g).sum() > 15.0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_voronoi_edges_are_geos_voronoi_and_equidistant(seed):
+    """The Delaunay-dual edges are the Voronoi diagram: each end is a vertex of it (its
+    nearest input points, three or more, are all at the same distance), and the finite
+    edges are GEOS's, edge for edge."""
+    import shapely
+    from scipy.spatial import cKDTree
+
+    from deltaslice.slicing.gapfill import voronoi_edges
+
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-10, 10, (300, 2))
+    a, b = voronoi_edges(pts)
+    assert len(a) > 300
+    d, _ = cKDTree(pts).query(np.vstack([a, b]), k=3)
+    np.testing.assert_allclose(d[:, 2], d[:, 0], rtol=1e-9)
+    # GEOS's edges with both ends well inside the cloud (away from its clipping envelope)
+    segs = shapely.get_parts(shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(pts), only_edges=True)))
+    c = shapely.get_coordinates(segs)
+    ga, gb = c[0::2], c[1::2]
+    inner = (np.abs(ga).max(axis=1) < 8) & (np.abs(gb).max(axis=1) < 8)
+    ours = {tuple(np.round(np.sort(np.r_[p, q].reshape(2, 2), axis=0).ravel(), 6)) for p, q in zip(a, b)}
+    theirs = [tuple(np.round(np.sort(np.r_[p, q].reshape(2, 2), axis=0).ravel(), 6)) for p, q in zip(ga[inner], gb[inner])]
+    assert len(theirs) > 200
+    assert all(t in ours for t in theirs)
+
+
+def test_voronoi_edges_of_points_on_a_line_are_none():
+    from deltaslice.slicing.gapfill import voronoi_edges
+
+    a, b = voronoi_edges(np.c_[np.arange(10.0), np.zeros(10)])
+    assert a.shape == b.shape == (0, 2)
+
+
+def test_gap_line_down_a_straight_slot_is_straight():
+    """A 20 x 0.3 mm slot: one line down its middle, two points after simplification
+    (the Voronoi of the densified outline must not leave a zig-zag of the dense points),
+    0.3 mm wide."""
+    import shapely
+
+    from deltaslice.slicing.gapfill import medial_lines
+
+    slot = shapely.box(0, 0, 20, 0.3)
+    lines = medial_lines(slot, 0.09, 0.9, 0.045, 0.0125, 0.45)
+    assert len(lines) == 1
+    p, w = lines[0]
+    assert len(p) == 2
+    np.testing.assert_allclose(p[:, 1], 0.15, atol=1e-9)
+    assert abs(p[:, 0].max() - p[:, 0].min()) > 19.6
+    np.testing.assert_allclose(w, 0.3, atol=1e-6)

@@ -3,11 +3,11 @@
 A region too narrow for another perimeter loop (a 2-2.7 mm wall after its loops,
 a thin fin, a tiny island thinner than a bead) is filled by one line down its
 middle whose width follows the local thickness. The medial axis is taken from
-shapely's Voronoi diagram (GEOS) of the densified outline: edges of the diagram
-that lie inside the region and stay away from the outline at both ends are the
-skeleton (edges between neighbouring points of one side run out to the outline
-and are dropped). manifold3d has offsets and booleans but no Voronoi, hence
-shapely here.
+the Voronoi diagram of the densified outline (the dual of qhull's Delaunay
+triangulation): edges of the diagram that lie inside the region and stay away
+from the outline at both ends are the skeleton (edges between neighbouring points
+of one side run out to the outline and are dropped). manifold3d has offsets and booleans but no Voronoi, hence
+scipy and shapely here.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 from manifold3d import CrossSection
+from scipy.spatial import Delaunay, QhullError
 
 
 def to_shapely(region: CrossSection):
@@ -72,6 +73,38 @@ def _blob_line(part, min_width: float, max_width: float) -> list[tuple[np.ndarra
     return [(np.array([c - u * length / 2, c + u * length / 2]), np.array([width]))]
 
 
+def voronoi_edges(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The finite edges of the Voronoi diagram of ``pts`` ((n, 2) float, mm), as their
+    ends ``a, b`` ((m, 2) float, mm each): the segment between the circumcentres of each
+    pair of neighbouring Delaunay triangles. Rays to infinity are left out (they end
+    outside any region the points outline). Cocircular points give edges of (nearly)
+    zero length, which the caller's chaining absorbs.
+
+    The dual of qhull's triangulation, not GEOS's ``voronoi_polygons``: GEOS clips the
+    diagram to its envelope with a full overlay, 20x the cost of the triangulation.
+    """
+    empty = np.empty((0, 2))
+    try:
+        tri = Delaunay(pts)
+    except QhullError:  # all points on one line: no triangle, no edge
+        return empty, empty
+    origin = pts.mean(axis=0)  # circumcentres relative to the cloud, against cancellation
+    p = tri.points[tri.simplices] - origin  # (t, 3, 2)
+    bv, cv = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    d = 2.0 * (bv[:, 0] * cv[:, 1] - bv[:, 1] * cv[:, 0])
+    b2, c2 = np.sum(bv**2, axis=1), np.sum(cv**2, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a flat triangle's centre is at infinity
+        ux = (cv[:, 1] * b2 - bv[:, 1] * c2) / d
+        uy = (bv[:, 0] * c2 - cv[:, 0] * b2) / d
+    centre = p[:, 0] + np.c_[ux, uy] + origin
+    i = np.repeat(np.arange(len(p)), 3)
+    j = tri.neighbors.ravel()
+    pair = j > i  # each shared side once; -1 (no neighbour) is a ray
+    a, b = centre[i[pair]], centre[j[pair]]
+    ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    return a[ok], b[ok]
+
+
 def _skeleton(region, min_width, max_width, step, tolerance, min_length):
     dense = shapely.segmentize(region, step)
     pts = shapely.get_coordinates(shapely.get_exterior_ring(shapely.get_parts(dense)))
@@ -81,13 +114,9 @@ def _skeleton(region, min_width, max_width, step, tolerance, min_length):
         pts = np.vstack([pts] + holes)
     if len(pts) < 3:
         return []
-    edges = shapely.voronoi_polygons(shapely.multipoints(pts), only_edges=True)
-    segs = shapely.get_parts(shapely.get_parts(edges))
-    if len(segs) == 0:
+    a, b = voronoi_edges(pts)
+    if len(a) == 0:
         return []
-    coords, idx = shapely.get_coordinates(segs, return_index=True)
-    # each Voronoi edge is a 2-point line
-    a, b = coords[0::2], coords[1::2]
     shapely.prepare(region)
     inside = shapely.contains_xy(region, a[:, 0], a[:, 1]) & shapely.contains_xy(region, b[:, 0], b[:, 1])
     a, b = a[inside], b[inside]
