@@ -299,11 +299,12 @@ def _bytes_per_sample(fmt, n_channels):
 
 
 def write_output(trajectory, output, fmt: str | None = None, watch=None, *, max_duration_s=MAX_DURATION_S,
-                 max_bytes=MAX_BYTES, check=None) -> int:
+                 max_bytes=MAX_BYTES, check=None, workers: int = 1) -> int:
     """Write a planned trajectory to ``output`` (format from the extension unless given),
     atomically. Refuses a job beyond ``max_duration_s`` or ``max_bytes`` (None: no bound)
     before writing. check: called after the last byte and before the file replaces
-    ``output``; an exception from it leaves any previous output untouched. Returns bytes written."""
+    ``output``; an exception from it leaves any previous output untouched. workers: processes
+    sampling ahead of the writer (the bytes are the same for any number). Returns bytes written."""
     from .emit import write_trajectory
 
     if not all(hasattr(trajectory, a) for a in ("printer", "duration", "iter_samples", "metadata")) or not isinstance(
@@ -317,7 +318,7 @@ def write_output(trajectory, output, fmt: str | None = None, watch=None, *, max_
     check_job(trajectory.duration, printer.planning.output_rate, _bytes_per_sample(fmt, printer.n_joints + 1),
               max_duration_s=max_duration_s, max_bytes=max_bytes, output=str(output))
     with atomic_output(output, "wb", max_bytes=max_bytes) as f:
-        size = write_trajectory(trajectory, f, fmt, watch=watch)
+        size = write_trajectory(trajectory, f, fmt, watch=watch, workers=workers)
         if check is not None:
             check()
         return size
@@ -429,7 +430,7 @@ def compile_part(
 
     watch = _watch_progress(monitor.watch, progress, trajectory.duration)
     size = write_output(trajectory, output, fmt=fmt, watch=watch, max_duration_s=max_duration_s, max_bytes=max_bytes,
-                        check=within_limits)
+                        check=within_limits, workers=workers or os.cpu_count() or 1)
     return CompileResult(
         printer=printer.name, output=str(output), fmt=fmt, size_bytes=size, layers=s["layers"], moves=s["moves"],
         pieces=trajectory.piece_counts(), planner=trajectory.planner, speed_limit=speed_limit,

@@ -150,6 +150,29 @@ def test_a_spooled_trajectory_samples_exactly_as_one_in_memory(small_windows):
 
 
 
+@pytest.mark.parametrize("spool", [False, True])
+def test_samples_from_forked_workers_are_the_blocks_sampled_here(spool, small_windows, monkeypatch):
+    """Sampling workers give the same blocks, in order, as sampling in this process; from a spool
+    too, whose file the forked workers read at their own offsets (seek-then-read would race on
+    the shared file position and unpickle garbage)."""
+    from deltaslice.planning import trajectory as trajectory_module
+
+    from deltaslice.planning import spool as spool_module
+
+    monkeypatch.setattr(trajectory_module, "PARALLEL_BLOCKS", 2)
+    monkeypatch.setattr(trajectory_module, "TASK_BLOCKS", 1)
+    monkeypatch.setattr(spool_module, "BATCH_PIECES", 1)  # a batch per piece: every block reads the file
+    traj = plan(_two_layer_spiral_toolpath(), load_printer("linear_kossel"), workers=1, spool=spool)
+    assert isinstance(traj.pieces, PieceSpool) == spool
+    here = list(traj.iter_samples(block=64))
+    forked = list(traj.iter_samples(block=64, workers=3))
+    assert len(here) == len(forked) > 6 * 3  # more tasks than the workers hold ahead
+    for a, b in zip(here, forked):
+        for name in ("t", "q", "e", "tool"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert not trajectory_module._FORKED  # the parent keeps no reference for the next pool
+
+
 def test_workers_plan_around_a_long_run_exactly_as_one_process(small_windows):
     """A long run planned in the main process while the pool plans the runs before and after it."""
     printer = load_printer("linear_kossel")

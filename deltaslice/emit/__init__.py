@@ -83,12 +83,14 @@ def write_samples(blocks, printer, f, *, fmt: str, rate: float, metadata: dict |
     return writer(_checked_blocks(blocks, printer), printer, f, rate=rate, metadata=metadata, events=events)
 
 
-def write_trajectory(trajectory, f, fmt: str, watch=None) -> int:
+def write_trajectory(trajectory, f, fmt: str, watch=None, workers: int = 1) -> int:
     """Sample a planned trajectory at its printer's output rate and write it to ``f``, a binary
     file object.
 
     watch: optional callable wrapping the block iterator (e.g. ``LimitMonitor.watch``), so
-    the samples are examined as they are written instead of being computed twice."""
+    the samples are examined as they are written instead of being computed twice.
+    workers: processes sampling ahead of the writer (``Trajectory.iter_samples(rate, workers=)``;
+    1: ``iter_samples(rate)``, in this process); the bytes are the same for any number."""
     if not _is_trajectory(trajectory):
         raise DeltasliceError(f"write_trajectory: trajectory: expected a planned Trajectory, got {type(trajectory).__name__}")
     _check_file(f, "write_trajectory")
@@ -96,7 +98,8 @@ def write_trajectory(trajectory, f, fmt: str, watch=None) -> int:
     rate = printer.planning.output_rate
     metadata = dict(trajectory.metadata())
     metadata.setdefault("duration_s", f"{trajectory.duration:.6f}")
-    blocks = trajectory.iter_samples(rate)
+    # a trajectory of another planner need only take the rate when sampled in this process
+    blocks = trajectory.iter_samples(rate, workers=workers) if workers > 1 else trajectory.iter_samples(rate)
     if watch is not None:
         blocks = watch(blocks)
     return write_samples(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata,

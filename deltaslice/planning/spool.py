@@ -10,6 +10,7 @@ numbers a piece.
 
 from __future__ import annotations
 
+import os
 import pickle
 import tempfile
 from array import array
@@ -60,6 +61,7 @@ class PieceSpool:
             return
         self._file.seek(self._offsets[-1])
         pickle.dump(self._pending, self._file, protocol=pickle.HIGHEST_PROTOCOL)
+        self._file.flush()  # batches are read back with os.pread, past the file object's buffer
         self._offsets.append(self._file.tell())
         self._first.append(self._first[-1] + len(self._pending))
         self._pending, self._pending_points = [], 0
@@ -70,10 +72,15 @@ class PieceSpool:
     def __len__(self) -> int:
         return self._first[-1] + len(self._pending)
 
+    def sync(self) -> None:
+        """Write out the pieces still waiting, so a forked process reads every piece from the file."""
+        self._flush()
+
     def _batch(self, b: int) -> list:
         if self._cached[0] != b:
-            self._file.seek(self._offsets[b])
-            self._cached = (b, pickle.load(self._file))
+            # read at an offset, not seek-then-read: forked samplers share the file position
+            lo, hi = self._offsets[b], self._offsets[b + 1]
+            self._cached = (b, pickle.loads(os.pread(self._file.fileno(), hi - lo, lo)))
         return self._cached[1]
 
     def __getitem__(self, i: int):

@@ -9,6 +9,9 @@ so a long print streams to disk without holding its samples in memory.
 
 from __future__ import annotations
 
+import multiprocessing
+from collections import deque
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,6 +20,11 @@ from ..samples import Samples
 from .spool import PieceSpool
 
 BLOCK = 8192  # samples per block handed to emitters
+# Sampling in worker processes pays for itself from this many blocks (about 2 minutes at 1 kHz):
+# a forked pool costs some tens of milliseconds to start.
+PARALLEL_BLOCKS = 16
+TASK_BLOCKS = 4  # blocks per task handed to a sampling worker
+_FORKED: dict = {}  # the trajectory the forked sampling workers inherit
 
 
 @dataclass
@@ -68,14 +76,53 @@ class Trajectory:
             q[lo:hi], e[lo:hi], tool[lo:hi] = qq, self.e_offsets[i] + de, tl
         return Samples(t, q, e, tool)
 
-    def iter_samples(self, rate: float | None = None, block: int = BLOCK):
+    def iter_samples(self, rate: float | None = None, block: int = BLOCK, workers: int = 1):
         """Blocks of Samples at ``rate`` Hz (default: the printer's output rate), from t = 0
-        through the end (the last sample is at or after the end, holding the final pose)."""
+        through the end (the last sample is at or after the end, holding the final pose).
+
+        workers: processes sampling blocks ahead while the caller consumes them (forked, so they
+        share the planned pieces without copying them; where the platform cannot fork, and for
+        short trajectories, the blocks are sampled here). The blocks are the same either way."""
         rate = rate or self.printer.planning.output_rate
         n_total = int(np.ceil(self.duration * rate - 1e-9)) + 1
+        if workers > 1 and n_total > PARALLEL_BLOCKS * block and "fork" in multiprocessing.get_all_start_methods():
+            yield from self._forked_blocks(rate, block, n_total, workers)
+            return
         for i0 in range(0, n_total, block):
-            idx = np.arange(i0, min(i0 + block, n_total))
-            yield self.sample_at(idx / rate)
+            yield self._block(i0, min(i0 + block, n_total), rate)
+
+    def _block(self, i0: int, i1: int, rate: float) -> Samples:
+        return self.sample_at(np.arange(i0, i1) / rate)
+
+    def _forked_blocks(self, rate: float, block: int, n_total: int, workers: int):
+        """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task,
+        at most 2 tasks per worker ahead of the consumer (memory bounded by what is in flight)."""
+        if isinstance(self.pieces, PieceSpool):
+            self.pieces.sync()  # the workers read the spool file as it is now
+        span = block * TASK_BLOCKS
+        tasks = iter(range(0, n_total, span))
+        queue = deque()
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
+
+        def submit():
+            i0 = next(tasks, None)
+            if i0 is not None:
+                queue.append(pool.submit(_sample_task, i0, min(i0 + span, n_total), block, rate))
+
+        try:
+            _FORKED["trajectory"] = self
+            try:
+                submit()  # a forking pool starts all its workers at the first task
+            finally:
+                _FORKED.clear()  # the children have their copy; the parent keeps no reference
+            for _ in range(2 * workers - 1):
+                submit()
+            while queue:
+                blocks = queue.popleft().result()
+                submit()
+                yield from blocks
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def samples(self, rate: float | None = None) -> Samples:
         """All samples at once (tests and small parts; long prints should use iter_samples)."""
@@ -116,3 +163,9 @@ class Trajectory:
                 m = run_stage_maxima(p, self.kin, vmax, amax)
                 pv, pa = np.maximum(pv, m.velocity), np.maximum(pa, m.acceleration)
         return pv, pa
+
+
+def _sample_task(i0: int, i1: int, block: int, rate: float) -> list:
+    """In a forked sampling worker: the blocks of samples i0..i1 of the inherited trajectory."""
+    traj = _FORKED["trajectory"]
+    return [traj._block(a, min(a + block, i1), rate) for a in range(i0, i1, block)]
