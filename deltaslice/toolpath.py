@@ -344,6 +344,10 @@ class ToolpathBuilder:
             return
 
         def b(v, dt):
+            # one number for the whole chunk (travels, retracts, a path's tool): no checks to run
+            # beyond its type and range (the slicer adds thousands of chunks)
+            if (isinstance(v, int) and 0 <= v <= 255) or (dt is float and isinstance(v, float)):
+                return np.full(k, v, dt)
             arr = _column(f"ToolpathBuilder.add: {_names[dt]}", v, dt)
             try:
                 return np.broadcast_to(arr, (k,))
