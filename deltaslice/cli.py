@@ -24,6 +24,7 @@ from . import interrupt
 # imports this module first. Its end installs the recording handler the commands run under.
 interrupt.install(at_once=True)
 
+import gc  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
@@ -485,6 +486,10 @@ def run():
             sys.stderr.flush()
             os._exit(EXIT_INTERRUPTED)
         raise
+    finally:
+        # the interpreter's last collections would walk numba's and llvmlite's object graphs for
+        # half a second; at exit there is nothing left for them to free that exiting does not
+        gc.freeze()
 
 
 interrupt.install()  # this module is defined: from here on Ctrl-C is recorded and stops the work cleanly

@@ -13,13 +13,13 @@ from __future__ import annotations
 import os
 from array import array
 from collections import deque
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .pieces import Piece
+from .pool import start_pool
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_run
 from .trajectory import Trajectory
@@ -303,7 +303,7 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
     else:
         ahead = 4 * workers  # chunks in flight; slots queued at most twice that
         queue, in_flight = deque(), 0
-        with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(printer,)) as pool:
+        with start_pool(workers, initializer=_init_worker, initargs=(printer,)) as pool:
             for where, item in slots:
                 future = pool.submit(_plan_chunk, as_chunk(item)) if where == "pool" else None
                 queue.append((item, future))

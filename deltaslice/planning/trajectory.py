@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import multiprocessing
 from collections import deque
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..samples import Samples
+from .pool import start_pool
 from .spool import PieceSpool
 
 BLOCK = 8192  # samples per block handed to emitters
@@ -102,7 +102,11 @@ class Trajectory:
         span = block * TASK_BLOCKS
         tasks = iter(range(0, n_total, span))
         queue = deque()
-        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
+        _FORKED["trajectory"] = self
+        try:
+            pool = start_pool(workers, mp_context=multiprocessing.get_context("fork"))
+        finally:
+            _FORKED.clear()  # the children have their copy; the parent keeps no reference
 
         def submit():
             i0 = next(tasks, None)
@@ -110,12 +114,7 @@ class Trajectory:
                 queue.append(pool.submit(_sample_task, i0, min(i0 + span, n_total), block, rate))
 
         try:
-            _FORKED["trajectory"] = self
-            try:
-                submit()  # a forking pool starts all its workers at the first task
-            finally:
-                _FORKED.clear()  # the children have their copy; the parent keeps no reference
-            for _ in range(2 * workers - 1):
+            for _ in range(2 * workers):
                 submit()
             while queue:
                 blocks = queue.popleft().result()
