@@ -184,7 +184,7 @@ def check_job(duration_s: float, n_samples_per_s: float, bytes_per_sample: float
 
 
 def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None,
-                  center=False):
+                  center=False, workers=1):
     """A Toolpath from a mesh (sliced here), a G-code file (read) or, for a laser, an
     image or SVG (engraved: :mod:`deltaslice.engrave`), in the bed frame.
 
@@ -192,6 +192,7 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     engrave: :class:`~deltaslice.engrave.EngraveOptions` or a dict of its fields (images only).
     progress: callable(done, total) or None; echo: callable(str) for notes (repairs, skipped commands).
     center: move a G-code part's footprint to the bed centre (meshes are centred unless keep_position).
+    workers: processes slicing a mesh's layers (the toolpath is the same for any number).
     """
     printer = _printer(printer)
     kind = part_kind(part)
@@ -215,7 +216,7 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
         echo(f"mesh: {mesh.placement}")
     with warnings.catch_warnings(record=True) as caught:  # the slicer's MeshWarnings become notes
         warnings.simplefilter("always", MeshWarning)
-        toolpath = slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name)
+        toolpath = slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name, workers=workers)
     for w in caught:
         if not issubclass(w.category, MeshWarning):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -269,13 +270,15 @@ def write_firmware_config(printer, output=None) -> str:
     return text
 
 
-def slice_to_gcode(part, printer, output, *, progress=False, echo=None, **mesh_options) -> str:
-    """Slice a mesh and write G-code. Returns a summary line."""
+def slice_to_gcode(part, printer, output, *, progress=False, echo=None, workers=None, **mesh_options) -> str:
+    """Slice a mesh and write G-code (workers: slicing processes, default all cores; the G-code is
+    the same for any number). Returns a summary line."""
     _check_path(part, "part")
     check_output(output, inputs=[part])
     printer = _printer(printer)
     t0 = time.perf_counter()
-    toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo, **mesh_options)
+    toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo,
+                             workers=workers or os.cpu_count() or 1, **mesh_options)
     interrupt.check()
     write_gcode(toolpath, output, printer)
     return slice_summary(str(output), toolpath.summary(), time.perf_counter() - t0)
@@ -398,7 +401,7 @@ def compile_part(
     t0 = time.perf_counter()
     stage = ("reading G-code", "lines") if part_kind(part) == "gcode" else ("slicing layers", "it")
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, stage[0], unit=stage[1]), echo=echo,
-                             **mesh_options)
+                             workers=workers or os.cpu_count() or 1, **mesh_options)
     interrupt.check()
     t_slice = time.perf_counter() - t0
     s = toolpath.summary()

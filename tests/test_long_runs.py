@@ -157,6 +157,7 @@ def test_samples_from_forked_workers_are_the_blocks_sampled_here(spool, small_wi
     the shared file position and unpickle garbage)."""
     from deltaslice.planning import trajectory as trajectory_module
 
+    from deltaslice import pool
     from deltaslice.planning import spool as spool_module
 
     monkeypatch.setattr(trajectory_module, "PARALLEL_BLOCKS", 2)
@@ -170,7 +171,7 @@ def test_samples_from_forked_workers_are_the_blocks_sampled_here(spool, small_wi
     for a, b in zip(here, forked):
         for name in ("t", "q", "e", "tool"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
-    assert not trajectory_module._FORKED  # the parent keeps no reference for the next pool
+    assert not pool._INHERITED  # the parent keeps no reference for the next pool
 
 
 def test_workers_plan_around_a_long_run_exactly_as_one_process(small_windows):

@@ -245,3 +245,39 @@ def test_solid_box_volume_conserved(etitc, x, y, z):
     sliced_height = tp.layer_z[-1]
     got = tp.extruded_volume(etitc.tool.filament_diameter)
     assert got == pytest.approx(x * y * sliced_height, rel=0.06)
+
+
+def _same_toolpath(a, b):
+    for name in ("xyz", "feed", "e", "tool", "role", "layer", "layer_z"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    np.testing.assert_array_equal(a.events, b.events)
+
+
+@pytest.mark.parametrize("make", [lambda: meshes.box(30, 30, 8), lambda: meshes.towers_with_deck(gap=20.0, height=4.0),
+                                  lambda: meshes.ring(), lambda: meshes.blind_hole()])
+def test_layers_sliced_in_workers_are_the_layers_sliced_here(etitc, make, monkeypatch):
+    """Forked workers plan ranges of layers while this process orders them: the same toolpath as
+    slicing here, one layer a range (every layer starts from the sparse infill of the layer below
+    recomputed on its own: the box's internal bridge over sparse infill needs it)."""
+    from deltaslice import pool
+    from deltaslice.slicing import slicer
+
+    monkeypatch.setattr(slicer, "LAYERS_PER_TASK", 1)
+    mesh = make()
+    here = slice_mesh(mesh, etitc.slicing, etitc.tool)
+    forked = slice_mesh(mesh, etitc.slicing, etitc.tool, workers=2)
+    _same_toolpath(here, forked)
+    assert not pool._INHERITED  # the parent keeps no reference
+
+
+def test_a_real_part_sliced_in_workers_is_the_part_sliced_here(etitc):
+    """featuretype at 5x: 68 layers of islands, gap fill, bridges and solid/sparse switches."""
+    from pathlib import Path
+
+    from deltaslice.mesh import load_mesh
+
+    part = Path(__file__).resolve().parents[2] / "shared" / "parts" / "featuretype.STL"
+    if not part.exists():
+        pytest.skip("../shared/parts is not here")
+    mesh = load_mesh(part, scale=5.0)
+    _same_toolpath(slice_mesh(mesh, etitc.slicing, etitc.tool), slice_mesh(mesh, etitc.slicing, etitc.tool, workers=2))

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .pieces import Piece
-from .pool import start_pool
+from ..pool import start_pool
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_run
 from .trajectory import Trajectory

@@ -9,14 +9,12 @@ so a long print streams to disk without holding its samples in memory.
 
 from __future__ import annotations
 
-import multiprocessing
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..samples import Samples
-from .pool import start_pool
+from ..pool import can_fork, forked_map, inherited
 from .spool import PieceSpool
 
 BLOCK = 8192  # samples per block handed to emitters
@@ -24,7 +22,6 @@ BLOCK = 8192  # samples per block handed to emitters
 # a forked pool costs some tens of milliseconds to start.
 PARALLEL_BLOCKS = 16
 TASK_BLOCKS = 4  # blocks per task handed to a sampling worker
-_FORKED: dict = {}  # the trajectory the forked sampling workers inherit
 
 
 @dataclass
@@ -85,7 +82,7 @@ class Trajectory:
         short trajectories, the blocks are sampled here). The blocks are the same either way."""
         rate = rate or self.printer.planning.output_rate
         n_total = int(np.ceil(self.duration * rate - 1e-9)) + 1
-        if workers > 1 and n_total > PARALLEL_BLOCKS * block and "fork" in multiprocessing.get_all_start_methods():
+        if workers > 1 and n_total > PARALLEL_BLOCKS * block and can_fork():
             yield from self._forked_blocks(rate, block, n_total, workers)
             return
         for i0 in range(0, n_total, block):
@@ -95,33 +92,13 @@ class Trajectory:
         return self.sample_at(np.arange(i0, i1) / rate)
 
     def _forked_blocks(self, rate: float, block: int, n_total: int, workers: int):
-        """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task,
-        at most 2 tasks per worker ahead of the consumer (memory bounded by what is in flight)."""
+        """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task."""
         if isinstance(self.pieces, PieceSpool):
             self.pieces.sync()  # the workers read the spool file as it is now
         span = block * TASK_BLOCKS
-        tasks = iter(range(0, n_total, span))
-        queue = deque()
-        _FORKED["trajectory"] = self
-        try:
-            pool = start_pool(workers, mp_context=multiprocessing.get_context("fork"))
-        finally:
-            _FORKED.clear()  # the children have their copy; the parent keeps no reference
-
-        def submit():
-            i0 = next(tasks, None)
-            if i0 is not None:
-                queue.append(pool.submit(_sample_task, i0, min(i0 + span, n_total), block, rate))
-
-        try:
-            for _ in range(2 * workers):
-                submit()
-            while queue:
-                blocks = queue.popleft().result()
-                submit()
-                yield from blocks
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+        tasks = ((i0, min(i0 + span, n_total), block, rate) for i0 in range(0, n_total, span))
+        for blocks in forked_map(_sample_task, tasks, workers, trajectory=self):
+            yield from blocks
 
     def samples(self, rate: float | None = None) -> Samples:
         """All samples at once (tests and small parts; long prints should use iter_samples)."""
@@ -166,5 +143,5 @@ class Trajectory:
 
 def _sample_task(i0: int, i1: int, block: int, rate: float) -> list:
     """In a forked sampling worker: the blocks of samples i0..i1 of the inherited trajectory."""
-    traj = _FORKED["trajectory"]
+    traj = inherited("trajectory")
     return [traj._block(a, min(a + block, i1), rate) for a in range(i0, i1, block)]

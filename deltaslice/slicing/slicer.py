@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
 from manifold3d import CrossSection, JoinType, OpType
 
 from ..errors import DeltasliceError, MeshError
+from ..pool import can_fork, forked_map, inherited
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .bridges import bridge_angle, bridge_region
 from .extrusion import bead_spacing, bridge_flow, feed_for
@@ -23,13 +25,16 @@ from .skirt import skirt_loops
 
 INFILL_ANCHOR_MAX = 50.0  # mm: infill lines are joined along the outline up to this far apart (PrusaSlicer's infill_anchor_max)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
+LAYERS_PER_TASK = 4  # layers a slicing worker plans at a time (each range recomputes one sparse region)
 
 
-def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer") -> Toolpath:
+def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer", workers: int = 1) -> Toolpath:
     """Slice ``mesh`` (a placed :class:`~deltaslice.mesh.Mesh`) with ``settings``
     (:class:`~deltaslice.machine.SlicingSettings`) for ``tool`` (an
     :class:`~deltaslice.machine.Extruder`); name: the printer's, for messages;
-    progress: ``callable(done, total)`` called once per layer.
+    progress: ``callable(done, total)`` called once per layer; workers: processes computing
+    the layers' regions and paths (forked: they share the sections) while this process orders
+    them and writes the moves; the toolpath is the same for any number.
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
     the skirt (first layer), then island by island perimeters (innermost first,
     external last, overhang segments flagged), gap fill, then bridges, solid
@@ -54,26 +59,265 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     builder = ToolpathBuilder(start=(0.0, 0.0, 0.0))
     start_heating(builder, tool)
     writer = MoveWriter(builder, s, tool, tool.filament_area)
-    P = int(s.perimeters)
-    # each layer's section less its perimeter band: what counts as covering the layers
-    # around it (vertical shells)
-    band = s.perimeter_width / 2 + (P - 0.5) * bead_spacing(s.perimeter_width, s.layer_height) if P else 0.0
-    shells = [c.offset(-band, JoinType.Miter, 3.0) for c in sections] if band > 0 else sections
-    prev_sparse = CrossSection()
-    for li in range(n):
+    layers = _Layers(sections, thick, s, tool)
+    for li, plan in enumerate(_layer_plans(layers, workers)):
         first = li == 0
         writer.new_layer(float(top[li]), first)
-        here = sections[li]
-        if not here.is_empty():
-            prev_sparse = _slice_layer(writer, sections, li, float(thick[li]), s, P, first, tool.nozzle_diameter, prev_sparse,
-                                       shells)
-        else:
-            prev_sparse = CrossSection()
+        _order_layer(writer, plan, float(thick[li]), s, first)
         if progress is not None:
             progress(li + 1, n)
     if writer.retracted:
         builder.add(builder.pos, tool.retract_speed, tool.retract_length, 0.0, Role.RETRACT)
     return builder.build()
+
+
+@dataclass(frozen=True)
+class _Island:
+    """What one island of a layer prints, before it is ordered: ``centre`` (2,) mm of its
+    bounding box (islands are visited nearest first); ``inside``: the shapely region travels may
+    cross without retracting, or None; perimeter paths by depth (innermost first), gap-fill
+    paths, and the infill groups printed one after the other (bridges, solid, sparse)."""
+
+    centre: np.ndarray
+    inside: object
+    perimeters: list
+    gaps: list
+    groups: list
+
+
+@dataclass(frozen=True)
+class _LayerPlan:
+    """A layer's paths, independent of where the tool comes from: the skirt (first layer only)
+    and the islands."""
+
+    skirt: list
+    islands: list
+
+
+class _Layers:
+    """Everything a layer's paths are made from: the sections, what each counts as covering its
+    neighbours (vertical shells), the layer thicknesses, the settings and the tool."""
+
+    def __init__(self, sections, thick, s, tool):
+        self.sections, self.thick, self.s, self.tool = sections, thick, s, tool
+        self.P = int(s.perimeters)
+        # each layer's section less its perimeter band: what counts as covering the layers
+        # around it (vertical shells)
+        band = s.perimeter_width / 2 + (self.P - 0.5) * bead_spacing(s.perimeter_width, s.layer_height) if self.P else 0.0
+        self.shells = [c.offset(-band, JoinType.Miter, 3.0) for c in sections] if band > 0 else sections
+
+    def plan(self, li: int, prev_sparse: CrossSection) -> tuple[_LayerPlan, CrossSection]:
+        """Layer ``li``'s plan and its sparse infill region (what the next layer's internal
+        bridges count as no support); prev_sparse: the layer below's."""
+        if self.sections[li].is_empty():
+            return _LayerPlan([], []), CrossSection()
+        return _layer_plan(self, li, prev_sparse)
+
+    def sparse(self, li: int) -> CrossSection:
+        """Layer ``li``'s sparse infill region alone (the start of a range of layers planned in
+        another process): the same region :meth:`plan` gives, without the paths."""
+        if li < 0 or self.sections[li].is_empty() or not 0 < float(self.s.fill_density) < 0.999:
+            return CrossSection()  # solid or no infill: nothing counts as sparse
+        g = _LayerGeometry(self, li)
+        return _union([g.fill_regions(island)[2] for island in self.sections[li].decompose()])
+
+
+def _union(regions: list) -> CrossSection:
+    regions = [r for r in regions if not r.is_empty()]
+    if not regions:
+        return CrossSection()
+    return CrossSection.batch_boolean(regions, OpType.Add) if len(regions) > 1 else regions[0]
+
+
+class _LayerGeometry:
+    """Widths, spacings and the regions shared by the islands of one layer."""
+
+    def __init__(self, layers: _Layers, li: int):
+        s, sections = layers.s, layers.sections
+        self.layers, self.li = layers, li
+        self.first = li == 0
+        self.h = float(layers.thick[li])
+        self.w_p = s.first_layer_width if self.first else s.perimeter_width
+        self.w_i = s.first_layer_width if self.first else s.infill_width
+        self.sp_p, self.sp_i = bead_spacing(self.w_p, self.h), bead_spacing(self.w_i, self.h)
+        self.here = sections[li]
+        near_top, near_bottom = solid_masks(sections, li, s.top_solid_layers, s.bottom_solid_layers, layers.shells)
+        self.need_solid = near_top + near_bottom
+
+    def fill_regions(self, island) -> tuple[CrossSection, CrossSection, CrossSection, CrossSection]:
+        """(fill, solid, sparse, scraps) of one island: its infill region, the part of it filled
+        solid (near the top or bottom, or too small for sparse infill), the rest, sparse, less
+        the scraps of it left between solid regions (small surfaces too: filled solid)."""
+        s, w_p, w_i = self.layers.s, self.w_p, self.w_i
+        fill = infill_boundary(island, w_p, self.layers.P, s.infill_overlap * w_p - self.sp_i / 2, self.sp_p)
+        if fill.is_empty():
+            return fill, CrossSection(), CrossSection(), CrossSection()
+        # small regions are filled solid (PrusaSlicer's solid_infill_below_area)
+        solid_here = self.need_solid
+        if s.solid_infill_below_area > 0:
+            small = [c for c in fill.decompose() if c.area() < s.solid_infill_below_area]
+            if small:
+                solid_here = solid_here + CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else solid_here + small[0]
+        solid = clean(fill ^ solid_here, w_i / 4) if not solid_here.is_empty() else CrossSection()
+        scraps = CrossSection()
+        if solid.is_empty():
+            return fill, solid, fill, scraps
+        sparse = fill - solid
+        if s.solid_infill_below_area > 0 and not sparse.is_empty():
+            small = [c for c in sparse.decompose() if c.area() < s.solid_infill_below_area]
+            if small:
+                scraps = CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else small[0]
+                sparse = sparse - scraps
+        return fill, solid, sparse, scraps
+
+
+def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_LayerPlan, CrossSection]:
+    s, sections = layers.s, layers.sections
+    g = _LayerGeometry(layers, li)
+    here, first, h, w_p, w_i, sp_p, sp_i = g.here, g.first, g.h, g.w_p, g.w_i, g.sp_p, g.sp_i
+    nozzle = layers.tool.nozzle_diameter
+    angle = s.fill_angle + (math.pi / 2 if li % 2 else 0.0)
+    res = float(s.gcode_resolution)
+
+    skirt = []
+    if first and s.skirt_loops > 0:
+        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(here, s.skirt_loops, s.skirt_distance, w_p)]
+
+    exposed = here - sections[li + 1] if li + 1 < len(sections) else here
+    below = sections[li - 1] if li > 0 else CrossSection()
+    # what holds up a solid layer: the layer below, except where that layer is sparse infill
+    support = (below - prev_sparse) if not prev_sparse.is_empty() else below
+    overhang_test = None
+    if not below.is_empty():
+        overhang_test = to_shapely(below.offset(w_p / 2, JoinType.Miter, 3.0))
+        shapely.prepare(overhang_test)
+    bridge_fpm = bridge_flow(nozzle, layers.tool.filament_area, s.bridge_flow)
+    support_sh = None
+    sparse_all = []
+    islands = []
+    for island in here.decompose():
+        b = island.bounds()
+        # travels that stay inside the external perimeter's centre line cross no visible
+        # surface: no retraction (PrusaSlicer's "retract only when crossing perimeters")
+        inner = island.offset(-w_p / 4, JoinType.Miter, 3.0)
+        inside = None if inner.is_empty() else to_shapely(inner)
+
+        # perimeters: innermost depth first, the external loop last; external segments over air
+        # are overhang perimeters
+        loops = perimeter_loops(island, w_p, layers.P, sp_p)
+        perimeters = []
+        for depth in sorted({d for d, _ in loops}, reverse=True):
+            paths = []
+            for d, p in loops:
+                if d != depth:
+                    continue
+                role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
+                if depth == 0 and overhang_test is not None:
+                    dense, over = overhang_segments(p, overhang_test, w_p / 4)
+                    if over.any():
+                        p = dense
+                        role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
+                paths.append(Path(p, role, w_p, closed=True))
+            perimeters.append(paths)
+
+        # gap fill: what neither the perimeter beads nor the infill reach (narrow walls, thin
+        # features, tiny islands), one variable-width line down its middle
+        # (printed right after the perimeters, as PrusaSlicer does)
+        fill, solid, sparse, scraps = g.fill_regions(island)
+        covered = _coverage(loops, sp_p)
+        if not fill.is_empty():
+            covered = covered + fill.offset(sp_i / 2, JoinType.Miter, 3.0)
+        gap = island - covered if not covered.is_empty() else island
+        min_w = GAP_MIN_WIDTH * w_p
+        gap = clean(gap, min_w / 2)
+        gaps = []
+        if not gap.is_empty():
+            # a whole island too small for a loop is always printed; inside an island, a blob
+            # smaller than a bead is not worth a travel
+            blob = 0.0 if not loops else w_p**2
+            for pts, widths in medial_lines(to_shapely(gap), min_w, 2.0 * w_p, min_w / 2, max(res, 1e-4), w_p, blob):
+                # the gap is measured between bead spacings: fill its rectangle, width x height
+                flow = widths * h / layers.tool.filament_area * s.extrusion_multiplier
+                gaps.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
+
+        groups: list[list[Path]] = []  # printed group after group: bridges, solid, sparse
+        if not fill.is_empty():
+            bridge = CrossSection()
+            if li > 0 and not solid.is_empty():
+                bridge, _ = bridge_region(solid, support, 2 * w_i, w_i)
+                if not bridge.is_empty() and support_sh is None and not support.is_empty():
+                    support_sh = to_shapely(support)
+                    shapely.prepare(support_sh)
+                if not bridge.is_empty():
+                    b_angle = bridge_angle(bridge, support_sh, nozzle, angle)
+                    groups.append([Path(p, Role.BRIDGE_INFILL, nozzle, flow=bridge_fpm)
+                                   for p in rectilinear(bridge, b_angle, nozzle, nozzle)])
+                    solid = solid - bridge
+            top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
+            internal = solid - top_region if not top_region.is_empty() else solid
+            if not scraps.is_empty():
+                internal = internal + scraps
+            groups.append([Path(p, role, w_i) for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL))
+                           for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX)])
+            if s.fill_density > 0 and not sparse.is_empty():
+                dens = min(float(s.fill_density), 1.0)
+                role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
+                groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
+                if dens < 0.999:
+                    sparse_all.append(sparse)
+        islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
+    return _LayerPlan(skirt, islands), _union(sparse_all)
+
+
+def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s, first: bool) -> None:
+    """Write a layer's paths: the skirt, then the islands nearest first (by their bounding-box
+    centre), each from where the tool is: perimeters, gap fill, infill groups."""
+    if plan.skirt:
+        _emit(writer, nearest_order(plan.skirt, writer.b.pos, "nearest"), h, s, first)
+    islands = plan.islands
+    centres = np.array([isl.centre for isl in islands]).reshape(-1, 2)
+    alive = np.ones(len(islands), bool)
+    for _ in range(len(islands)):
+        idx = np.flatnonzero(alive)
+        pos = writer.b.pos[:2]
+        j = int(idx[np.argmin(np.sum((centres[idx] - pos) ** 2, axis=1))])
+        alive[j] = False
+        island = islands[j]
+        writer.inside = island.inside
+        if writer.inside is not None:
+            shapely.prepare(writer.inside)
+        for paths in island.perimeters:
+            _emit(writer, nearest_order(paths, writer.b.pos, s.seam), h, s, first)
+        _emit(writer, nearest_order(island.gaps, writer.b.pos), h, s, first)
+        for group in island.groups:
+            _emit(writer, nearest_order(group, writer.b.pos), h, s, first)
+    writer.inside = None
+
+
+def _layer_plans(layers: _Layers, workers: int):
+    """Every layer's plan, in order: computed here, or by forked workers a range of layers at a
+    time (each range starts from its first layer's :meth:`_Layers.sparse` of the layer below)."""
+    n = len(layers.sections)
+    if workers <= 1 or n < 2 * LAYERS_PER_TASK or not can_fork():
+        prev_sparse = CrossSection()
+        for li in range(n):
+            plan, prev_sparse = layers.plan(li, prev_sparse)
+            yield plan
+        return
+    tasks = ((a, min(a + LAYERS_PER_TASK, n)) for a in range(0, n, LAYERS_PER_TASK))
+    for plans in forked_map(_plan_range, tasks, workers, layers=layers):
+        yield from plans
+
+
+def _plan_range(a: int, b: int) -> list:
+    """In a forked worker: the plans of layers a..b of the inherited layers."""
+    layers = inherited("layers")
+    prev_sparse = layers.sparse(a - 1)
+    plans = []
+    for li in range(a, b):
+        plan, prev_sparse = layers.plan(li, prev_sparse)
+        plans.append(plan)
+    return plans
 
 
 def _emit(writer: MoveWriter, ordered, height: float, s, first: bool) -> None:
@@ -93,133 +337,3 @@ def _coverage(loops: list[tuple[int, np.ndarray]], spacing: float) -> CrossSecti
     if not beads:
         return CrossSection()
     return CrossSection.batch_boolean(beads, OpType.Add) if len(beads) > 1 else beads[0]
-
-
-def _slice_layer(writer: MoveWriter, sections: list[CrossSection], li: int, h: float, s, P: int, first: bool,
-                 nozzle: float, prev_sparse: CrossSection, shells: list[CrossSection]) -> CrossSection:
-    """Emit layer ``li``; returns its sparse infill region (for internal bridges on the next layer)."""
-    here = sections[li]
-    w_p = s.first_layer_width if first else s.perimeter_width
-    w_i = s.first_layer_width if first else s.infill_width
-    sp_p, sp_i = bead_spacing(w_p, h), bead_spacing(w_i, h)
-    angle = s.fill_angle + (math.pi / 2 if li % 2 else 0.0)
-    res = float(s.gcode_resolution)
-
-    if first and s.skirt_loops > 0:
-        loops = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(here, s.skirt_loops, s.skirt_distance, w_p)]
-        _emit(writer, nearest_order(loops, writer.b.pos, "nearest"), h, s, first)
-
-    near_top, near_bottom = solid_masks(sections, li, s.top_solid_layers, s.bottom_solid_layers, shells)
-    need_solid = near_top + near_bottom
-    exposed = here - sections[li + 1] if li + 1 < len(sections) else here
-    below = sections[li - 1] if li > 0 else CrossSection()
-    # what holds up a solid layer: the layer below, except where that layer is sparse infill
-    support = (below - prev_sparse) if not prev_sparse.is_empty() else below
-    overhang_test = None
-    if not below.is_empty():
-        overhang_test = to_shapely(below.offset(w_p / 2, JoinType.Miter, 3.0))
-        shapely.prepare(overhang_test)
-    bridge_fpm = bridge_flow(nozzle, writer.area, s.bridge_flow)
-    support_sh = None
-    sparse_all = []
-
-    islands = here.decompose()
-    # islands nearest first (by their bounding-box centre)
-    centres = np.array([[(b[0] + b[2]) / 2, (b[1] + b[3]) / 2] for b in (isl.bounds() for isl in islands)])
-    alive = np.ones(len(islands), bool)
-    for _ in range(len(islands)):
-        idx = np.flatnonzero(alive)
-        pos = writer.b.pos[:2]
-        j = int(idx[np.argmin(np.sum((centres[idx] - pos) ** 2, axis=1))])
-        alive[j] = False
-        island = islands[j]
-        writer.inside = None
-        # travels that stay inside the external perimeter's centre line cross no visible
-        # surface: no retraction (PrusaSlicer's "retract only when crossing perimeters")
-        inner = island.offset(-w_p / 4, JoinType.Miter, 3.0)
-        if not inner.is_empty():
-            writer.inside = to_shapely(inner)
-            shapely.prepare(writer.inside)
-
-        # perimeters: innermost depth first, the external loop last; external segments over air
-        # are overhang perimeters
-        loops = perimeter_loops(island, w_p, P, sp_p)
-        for depth in sorted({d for d, _ in loops}, reverse=True):
-            paths = []
-            for d, p in loops:
-                if d != depth:
-                    continue
-                role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
-                if depth == 0 and overhang_test is not None:
-                    dense, over = overhang_segments(p, overhang_test, w_p / 4)
-                    if over.any():
-                        p = dense
-                        role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
-                paths.append(Path(p, role, w_p, closed=True))
-            _emit(writer, nearest_order(paths, writer.b.pos, s.seam), h, s, first)
-
-        # gap fill: what neither the perimeter beads nor the infill reach (narrow walls, thin
-        # features, tiny islands), one variable-width line down its middle
-        # (printed right after the perimeters, as PrusaSlicer does)
-        fill = infill_boundary(island, w_p, P, s.infill_overlap * w_p - sp_i / 2, sp_p)
-        covered = _coverage(loops, sp_p)
-        if not fill.is_empty():
-            covered = covered + fill.offset(sp_i / 2, JoinType.Miter, 3.0)
-        gap = island - covered if not covered.is_empty() else island
-        min_w = GAP_MIN_WIDTH * w_p
-        gap = clean(gap, min_w / 2)
-        paths = []
-        if not gap.is_empty():
-            # a whole island too small for a loop is always printed; inside an island, a blob
-            # smaller than a bead is not worth a travel
-            blob = 0.0 if not loops else w_p**2
-            for pts, widths in medial_lines(to_shapely(gap), min_w, 2.0 * w_p, min_w / 2, max(res, 1e-4), w_p, blob):
-                # the gap is measured between bead spacings: fill its rectangle, width x height
-                flow = widths * h / writer.area * s.extrusion_multiplier
-                paths.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
-        _emit(writer, nearest_order(paths, writer.b.pos), h, s, first)
-
-        # infill region; small regions are filled solid (PrusaSlicer's solid_infill_below_area)
-        solid_here = need_solid
-        if not fill.is_empty() and s.solid_infill_below_area > 0:
-            small = [c for c in fill.decompose() if c.area() < s.solid_infill_below_area]
-            if small:
-                solid_here = solid_here + CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else solid_here + small[0]
-        groups: list[list[Path]] = []  # printed group after group: bridges, solid, sparse
-        if not fill.is_empty():
-            solid = clean(fill ^ solid_here, w_i / 4) if not solid_here.is_empty() else CrossSection()
-            bridge = CrossSection()
-            if li > 0 and not solid.is_empty():
-                bridge, _ = bridge_region(solid, support, 2 * w_i, w_i)
-                if not bridge.is_empty() and support_sh is None and not support.is_empty():
-                    support_sh = to_shapely(support)
-                    shapely.prepare(support_sh)
-                if not bridge.is_empty():
-                    b_angle = bridge_angle(bridge, support_sh, nozzle, angle)
-                    groups.append([Path(p, Role.BRIDGE_INFILL, nozzle, flow=bridge_fpm)
-                                   for p in rectilinear(bridge, b_angle, nozzle, nozzle)])
-                    solid = solid - bridge
-            top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
-            internal = solid - top_region if not top_region.is_empty() else solid
-            sparse = fill - solid - bridge if not solid.is_empty() or not bridge.is_empty() else fill
-            if s.solid_infill_below_area > 0 and not sparse.is_empty() and (not solid.is_empty() or not bridge.is_empty()):
-                # sparse scraps left between solid regions are small surfaces too: solid
-                small = [c for c in sparse.decompose() if c.area() < s.solid_infill_below_area]
-                if small:
-                    scraps = CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else small[0]
-                    internal, sparse = internal + scraps, sparse - scraps
-            groups.append([Path(p, role, w_i) for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL))
-                           for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX)])
-            if s.fill_density > 0 and not sparse.is_empty():
-                dens = min(float(s.fill_density), 1.0)
-                role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
-                groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
-                if dens < 0.999:
-                    sparse_all.append(sparse)
-
-        for group in groups:
-            _emit(writer, nearest_order(group, writer.b.pos), h, s, first)
-    writer.inside = None
-    if not sparse_all:
-        return CrossSection()
-    return CrossSection.batch_boolean(sparse_all, OpType.Add) if len(sparse_all) > 1 else sparse_all[0]

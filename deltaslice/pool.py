@@ -1,0 +1,73 @@
+"""Process pools for slicing, planning and sampling, started with the garbage collector frozen.
+
+A forked worker inherits the parent's objects (numba's and llvmlite's compiled-code graphs, the
+toolpath, the planned pieces). Its collections would walk all of them, and touching their headers
+copies the pages they live on, so each worker would pay in time and memory for what it only reads.
+Freezing the collector while the workers fork keeps those objects out of the workers' collections
+(Python's advice for fork without exec, ``gc.freeze``); the parent unfreezes at once, unchanged.
+"""
+
+from __future__ import annotations
+
+import gc
+import multiprocessing
+from collections import deque
+from concurrent.futures import ProcessPoolExecutor
+
+
+def start_pool(workers: int, mp_context=None, initializer=None, initargs=()) -> ProcessPoolExecutor:
+    """A ProcessPoolExecutor of ``workers`` processes, started now. With the fork start method
+    (Linux's default) every worker forks at the first task, which runs here with the collector
+    frozen; with spawn the freeze costs nothing and changes nothing."""
+    pool = ProcessPoolExecutor(workers, mp_context=mp_context, initializer=initializer, initargs=initargs)
+    gc.freeze()
+    try:
+        pool.submit(int).result()
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    finally:
+        gc.unfreeze()
+    return pool
+
+
+_INHERITED: dict = {}  # what forked_map's workers inherit, set only while they fork
+
+
+def can_fork() -> bool:
+    """Whether worker processes can be forked here (not on Windows; macOS's default is spawn)."""
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
+def inherited(name: str):
+    """In a worker of :func:`forked_map`: the object the parent passed as ``name``."""
+    return _INHERITED[name]
+
+
+def forked_map(fn, tasks, workers: int, **inherit):
+    """``fn(*task)`` for every task (an iterable of argument tuples) in ``workers`` forked
+    processes, the results yielded in task order, at most two tasks per worker in flight (memory
+    bounded by what is in flight). ``inherit``: objects the workers read with :func:`inherited`,
+    passed by forking (shared, never pickled); the parent keeps no reference to them after."""
+    tasks = iter(tasks)
+    queue = deque()
+    _INHERITED.update(inherit)
+    try:
+        pool = start_pool(workers, mp_context=multiprocessing.get_context("fork"))
+    finally:
+        _INHERITED.clear()
+
+    def submit():
+        task = next(tasks, None)
+        if task is not None:
+            queue.append(pool.submit(fn, *task))
+
+    try:
+        for _ in range(2 * workers):
+            submit()
+        while queue:
+            result = queue.popleft().result()
+            submit()
+            yield result
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
