@@ -108,15 +108,16 @@ def split_runs(toolpath: Toolpath):
 
 
 def _run_spec(toolpath: Toolpath, i: int, j: int) -> RunSpec:
-    start = toolpath.start if i == 0 else toolpath.xyz[i - 1]
-    pts = np.concatenate([start[None], toolpath.xyz[i:j]])
+    """Moves i..j-1 as a run: views of the toolpath's read-only columns, not copies (a spiral
+    vase's one run would hold its moves twice), the run's start point being the move before."""
+    pts = toolpath.xyz[i - 1 : j] if i > 0 else np.concatenate([toolpath.start[None], toolpath.xyz[:j]])
     roles = toolpath.role[i:j]
     if np.isin(roles, LASER_ROLES).any():
-        power = toolpath.tool[i:j].copy()
+        power = toolpath.tool[i:j]
         dynamic = bool(np.any(roles == int(Role.LASER_DYNAMIC)))
-        return RunSpec(pts, toolpath.feed[i:j].copy(), toolpath.e[i:j].copy(), float(power.max()), int(toolpath.layer[i]),
+        return RunSpec(pts, toolpath.feed[i:j], toolpath.e[i:j], float(power.max()), int(toolpath.layer[i]),
                        power=power, dynamic_power=dynamic)
-    return RunSpec(pts, toolpath.feed[i:j].copy(), toolpath.e[i:j].copy(), float(toolpath.tool[i]), int(toolpath.layer[i]))
+    return RunSpec(pts, toolpath.feed[i:j], toolpath.e[i:j], float(toolpath.tool[i]), int(toolpath.layer[i]))
 
 
 def _init_worker(printer):
