@@ -360,10 +360,17 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
 
 
 def _records(counts: np.ndarray, block_samples: int, max_record: int, orders=(1, 2)) -> list[bytes]:
+    data, rec_end = _encoded(counts, block_samples, max_record, orders)
+    return [data[a:b] for a, b in zip([0, *rec_end[:-1]], rec_end)]
+
+
+def _encoded(counts: np.ndarray, block_samples: int, max_record: int, orders=(1, 2)) -> tuple[bytes, list[int]]:
+    """The block records of ``counts`` end to end, CRCs in place, and where each ends: what a
+    writer puts in one write instead of a write per record."""
     counts = np.ascontiguousarray(counts, dtype=np.int64)
     n = len(counts)
     if n == 0:
-        return []
+        return b"", []
     if np.abs(counts).max() >= COUNT_LIMIT:
         raise StreamError(f"an actuator count beyond +-2^29 ({int(np.abs(counts).max())}) cannot be stored")
     # at most one record per sample; each at most max_record bytes and its rows' bits
@@ -373,14 +380,15 @@ def _records(counts: np.ndarray, block_samples: int, max_record: int, orders=(1,
     count = _encode_kernel(counts, int(block_samples), int(max_record), 1 in orders, 2 in orders, buf, rec_end)
     if count < 0:
         raise StreamError(f"one sample of {counts.shape[1]} channels does not fit a {max_record}-byte block")
-    data = buf[: rec_end[count - 1]].tobytes()
-    out = []
+    ends = rec_end[:count].tolist()
+    data = bytearray(buf[: ends[-1]].tobytes())
+    view = memoryview(data)
     start = 0
-    for end in rec_end[:count].tolist():
-        body = data[start : end - 4]
-        out.append(body + struct.pack("<I", zlib.crc32(body)))
+    for end in ends:
+        struct.pack_into("<I", data, end - 4, zlib.crc32(view[start : end - 4]))
         start = end
-    return out
+    view.release()
+    return bytes(data), ends
 
 
 def encode_block(x: np.ndarray) -> bytes:
@@ -536,8 +544,7 @@ class StreamWriter:
 
     def _emit(self, counts):
         if len(counts):
-            for rec in encode_blocks(counts, self.block_samples):
-                self._put(rec)
+            self._put(_encoded(counts, self.block_samples, MAX_RECORD)[0])
             self.n_written += len(counts)
 
     def close(self) -> int:
