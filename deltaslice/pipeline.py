@@ -25,6 +25,7 @@ from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, St
 from .formats import format_for, holds_samples, part_kind
 from .machine import LimitMonitor, Printer, load_printer
 from .machine.limits import TOLERANCE
+from .pool import check_workers
 from .progress import stderr_progress
 from .report import CompileResult, slice_summary
 
@@ -313,6 +314,7 @@ def write_output(trajectory, output, fmt: str | None = None, watch=None, *, max_
     if not all(hasattr(trajectory, a) for a in ("printer", "duration", "iter_samples", "metadata")) or not isinstance(
             getattr(trajectory, "printer", None), Printer):
         raise DeltasliceError(f"trajectory: expected a planned Trajectory, got {type(trajectory).__name__}")
+    check_workers(workers, "write_output")
     fmt = fmt or format_for(output)
     if fmt not in ("csv", "stream"):
         raise DeltasliceError(f"{output}: a trajectory is written as csv or stream, not {fmt!r}")

@@ -14,6 +14,18 @@ import multiprocessing
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 
+from .errors import DeltasliceError
+
+
+def check_workers(workers, where: str, none_ok: bool = False):
+    """``workers`` if it is a number of processes (an integer >= 1; or None where ``none_ok``: all
+    cores), else DeltasliceError naming ``where`` (the function given it)."""
+    if workers is None and none_ok:
+        return workers
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise DeltasliceError(f"{where}: workers = {workers!r}: expected an integer >= 1{' or None' if none_ok else ''}")
+    return workers
+
 
 def start_pool(workers: int, mp_context=None, initializer=None, initargs=()) -> ProcessPoolExecutor:
     """A ProcessPoolExecutor of ``workers`` processes, started now. With the fork start method

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DeltasliceError, UnreachableError
 from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .pieces import Piece
-from ..pool import start_pool
+from ..pool import check_workers, start_pool
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_run
 from .trajectory import Trajectory
@@ -169,8 +169,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
     if solver not in SOLVERS:
         raise DeltasliceError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise DeltasliceError(f"plan: workers = {workers!r}: expected an integer >= 1 or None")
+    check_workers(workers, "plan", none_ok=True)
     if progress is not None and not callable(progress):
         raise DeltasliceError(f"plan: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
     if spool is not None and not isinstance(spool, bool):

@@ -10,7 +10,7 @@ import shapely
 from manifold3d import CrossSection, JoinType, OpType
 
 from ..errors import DeltasliceError, MeshError
-from ..pool import can_fork, forked_map, inherited
+from ..pool import can_fork, check_workers, forked_map, inherited
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .bridges import bridge_angle, bridge_region
 from .extrusion import bead_spacing, bridge_flow, feed_for
@@ -41,6 +41,7 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     (top and internal) and sparse infill.
     """
     s = settings
+    check_workers(workers, "slice_mesh")
     if tool.channel_kind != "extruder":
         raise DeltasliceError(
             f"{name}: slicing a mesh needs an extruder, this printer has a {tool.channel_kind}: "
