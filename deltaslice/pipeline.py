@@ -25,7 +25,7 @@ from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, St
 from .formats import format_for, holds_samples, part_kind
 from .machine import LimitMonitor, Printer, load_printer
 from .machine.limits import TOLERANCE
-from .pool import check_workers
+from .pool import check_workers, resolve_workers
 from .progress import stderr_progress
 from .report import CompileResult, slice_summary
 
@@ -279,7 +279,7 @@ def slice_to_gcode(part, printer, output, *, progress=False, echo=None, workers=
     printer = _printer(printer)
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo,
-                             workers=workers or os.cpu_count() or 1, **mesh_options)
+                             workers=resolve_workers(workers, "slice_to_gcode"), **mesh_options)
     interrupt.check()
     write_gcode(toolpath, output, printer)
     return slice_summary(str(output), toolpath.summary(), time.perf_counter() - t0)
@@ -399,11 +399,12 @@ def compile_part(
         output = default_output(part)
     fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
     check_output(output, inputs=[part, getattr(printer, "path", printer)])
+    workers = resolve_workers(workers, "compile_part")
     printer = _printer(printer)
     t0 = time.perf_counter()
     stage = ("reading G-code", "lines") if part_kind(part) == "gcode" else ("slicing layers", "it")
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, stage[0], unit=stage[1]), echo=echo,
-                             workers=workers or os.cpu_count() or 1, **mesh_options)
+                             workers=workers, **mesh_options)
     interrupt.check()
     t_slice = time.perf_counter() - t0
     s = toolpath.summary()
@@ -417,7 +418,7 @@ def compile_part(
         speed_limit=speed_limit,
         planner=planner,
         solver=solver,
-        workers=workers or os.cpu_count() or 1,
+        workers=workers,
         progress=stderr_progress(progress, "planning", unit="moves"),
     )
     interrupt.check()
@@ -435,7 +436,7 @@ def compile_part(
 
     watch = _watch_progress(monitor.watch, progress, trajectory.duration)
     size = write_output(trajectory, output, fmt=fmt, watch=watch, max_duration_s=max_duration_s, max_bytes=max_bytes,
-                        check=within_limits, workers=workers or os.cpu_count() or 1)
+                        check=within_limits, workers=workers)
     return CompileResult(
         printer=printer.name, output=str(output), fmt=fmt, size_bytes=size, layers=s["layers"], moves=s["moves"],
         pieces=trajectory.piece_counts(), planner=trajectory.planner, speed_limit=speed_limit,

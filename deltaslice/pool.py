@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import gc
 import multiprocessing
+import os
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 
@@ -25,6 +26,12 @@ def check_workers(workers, where: str, none_ok: bool = False):
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise DeltasliceError(f"{where}: workers = {workers!r}: expected an integer >= 1{' or None' if none_ok else ''}")
     return workers
+
+
+def resolve_workers(workers, where: str) -> int:
+    """The number of processes ``workers`` asks for: itself (checked as :func:`check_workers`
+    does), or every core for None."""
+    return check_workers(workers, where, none_ok=True) or os.cpu_count() or 1
 
 
 def start_pool(workers: int, mp_context=None, initializer=None, initargs=()) -> ProcessPoolExecutor:

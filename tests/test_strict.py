@@ -211,6 +211,7 @@ BAD_CALLS = {
     "load_toolpath workers=0": lambda: load_toolpath(CUBE, printer("delta_etitc"), workers=0),
     "load_toolpath workers='2'": lambda: load_toolpath(CUBE, printer("delta_etitc"), workers="2"),
     "write_output workers=1.5": lambda: write_output(_planned(), "/tmp/x.dsl", workers=1.5),
+    "compile_part workers=0": lambda: compile_part(CUBE, printer("delta_etitc"), output="/tmp/x.dsl", workers=0),
     "plan(extruding toolpath, laser printer)": lambda: plan(_add(), printer("delta_espe_laser")),
     "plan(laser toolpath, extruder printer)": lambda: plan(_add(e=0.0, role=Role.LASER), printer("delta_etitc")),
     "plan spool='yes'": lambda: plan(_add(), printer("delta_etitc"), spool="yes"),

@@ -10,16 +10,15 @@ Cartesian planner instead (:mod:`.trapezoid`), made safe for the joint limits.
 
 from __future__ import annotations
 
-import os
 from array import array
 from collections import deque
 
 import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
+from ..pool import resolve_workers, start_pool
 from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .pieces import Piece
-from ..pool import check_workers, start_pool
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_run
 from .trajectory import Trajectory
@@ -169,7 +168,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
     if solver not in SOLVERS:
         raise DeltasliceError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
-    check_workers(workers, "plan", none_ok=True)
+    resolve_workers(workers, "plan")
     if progress is not None and not callable(progress):
         raise DeltasliceError(f"plan: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
     if spool is not None and not isinstance(spool, bool):
@@ -255,7 +254,7 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
     long run (:func:`.topp.is_long`) is planned here, window by window, while the workers go on
     with what follows it, so its pieces can be put away one by one."""
     ranges = split_runs(toolpath)
-    workers = max(1, workers or os.cpu_count() or 1)
+    workers = resolve_workers(workers, "plan")
     n_jobs = 2 * len(ranges) + 1  # at most: a travel before every run, one after the last
     # The chunks do not depend on the number of workers: a chunk's travels are solved as one batch
     # (travel.plan_travels), so the same chunks give the same bytes whatever --workers is.

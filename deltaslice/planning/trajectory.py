@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..samples import Samples
 from ..pool import can_fork, forked_map, inherited
+from ..samples import Samples
 from .spool import PieceSpool
 
 BLOCK = 8192  # samples per block handed to emitters

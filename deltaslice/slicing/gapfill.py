@@ -6,8 +6,8 @@ middle whose width follows the local thickness. The medial axis is taken from
 the Voronoi diagram of the densified outline (the dual of qhull's Delaunay
 triangulation): edges of the diagram that lie inside the region and stay away
 from the outline at both ends are the skeleton (edges between neighbouring points
-of one side run out to the outline and are dropped). manifold3d has offsets and booleans but no Voronoi, hence
-scipy and shapely here.
+of one side run out to the outline and are dropped). manifold3d has offsets and
+booleans but no Voronoi, hence scipy and shapely here.
 """
 
 from __future__ import annotations

@@ -106,6 +106,9 @@ class _Layers:
         # around it (vertical shells)
         band = s.perimeter_width / 2 + (self.P - 0.5) * bead_spacing(s.perimeter_width, s.layer_height) if self.P else 0.0
         self.shells = [c.offset(-band, JoinType.Miter, 3.0) for c in sections] if band > 0 else sections
+        # whether the sparse region is infill the next layer's bridges do not count as support
+        # (none at 0 %, solid lines at 100 %)
+        self.sparse_infill = 0 < min(float(s.fill_density), 1.0) < 0.999
 
     def plan(self, li: int, prev_sparse: CrossSection) -> tuple[_LayerPlan, CrossSection]:
         """Layer ``li``'s plan and its sparse infill region (what the next layer's internal
@@ -117,8 +120,8 @@ class _Layers:
     def sparse(self, li: int) -> CrossSection:
         """Layer ``li``'s sparse infill region alone (the start of a range of layers planned in
         another process): the same region :meth:`plan` gives, without the paths."""
-        if li < 0 or self.sections[li].is_empty() or not 0 < float(self.s.fill_density) < 0.999:
-            return CrossSection()  # solid or no infill: nothing counts as sparse
+        if li < 0 or self.sections[li].is_empty() or not self.sparse_infill:
+            return CrossSection()
         g = _LayerGeometry(self, li)
         return _union([g.fill_regions(island)[2] for island in self.sections[li].decompose()])
 
@@ -158,7 +161,7 @@ class _LayerGeometry:
         if s.solid_infill_below_area > 0:
             small = [c for c in fill.decompose() if c.area() < s.solid_infill_below_area]
             if small:
-                solid_here = solid_here + CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else solid_here + small[0]
+                solid_here = solid_here + _union(small)
         solid = clean(fill ^ solid_here, w_i / 4) if not solid_here.is_empty() else CrossSection()
         scraps = CrossSection()
         if solid.is_empty():
@@ -167,7 +170,7 @@ class _LayerGeometry:
         if s.solid_infill_below_area > 0 and not sparse.is_empty():
             small = [c for c in sparse.decompose() if c.area() < s.solid_infill_below_area]
             if small:
-                scraps = CrossSection.batch_boolean(small, OpType.Add) if len(small) > 1 else small[0]
+                scraps = _union(small)
                 sparse = sparse - scraps
         return fill, solid, sparse, scraps
 
@@ -264,7 +267,7 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
                 dens = min(float(s.fill_density), 1.0)
                 role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
                 groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
-                if dens < 0.999:
+                if layers.sparse_infill:
                     sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
     return _LayerPlan(skirt, islands), _union(sparse_all)
