@@ -254,6 +254,107 @@ def test_a_batch_of_lines_with_one_out_of_reach_raises_that_lines_error():
         topp.plan_lines(kin, p, a, b, np.full(3, 100.0), np.array([10, 11, 12]), "feed")
 
 
+def _runs(p, rng, n):
+    """n extrusion runs over the bed: zigzags of 3 to 30 segments with blended corners, feeds
+    of 5 to 150 mm/s, an exact reversal (a stop), a width change (a stop on the filament),
+    segments shorter than MERGE_LENGTH, one run without filament and one shorter than a micron."""
+    specs = []
+    anchors = _bed_points(p, rng, n)
+    for k in range(n):
+        m = int(rng.integers(3, 31))
+        pts = anchors[k] + np.column_stack([np.cumsum(rng.uniform(-3, 3, (m + 1, 2)), axis=0), np.zeros(m + 1)])
+        pts[0] = anchors[k]
+        if k % 4 == 1:
+            pts[3] = pts[1]  # back along the segment before: an exact reversal
+        if k % 5 == 2:
+            pts[2] = pts[1] + [0.005, 0.0, 0.0]  # shorter than MERGE_LENGTH
+        e = 0.03 * np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        if k % 6 == 3:
+            e[m // 2 :] *= 1.5  # a new extrusion width
+        if k == 5:
+            e[:] = 0.0  # a working move that pushes no filament
+        feed = rng.choice([5.0, 40.0, 150.0], m)
+        specs.append(topp.RunSpec(pts, feed, e, 200.0, k))
+    if n > 7:
+        specs[7] = topp.RunSpec(specs[7].points[:2].copy(), specs[7].feed[:1], np.array([0.4]), 200.0, 7)
+        specs[7].points[1] = specs[7].points[0] + [0.0002, 0.0, 0.0]  # filament pushed at rest
+    return specs
+
+
+@pytest.mark.parametrize("name", ["delta_etitc", "fivebar_atlas", "linear_kossel", "delta_uady"])
+def test_runs_planned_as_one_path_are_each_planned_alone(name):
+    """plan_runs solves a chunk's runs laid end to end as one path, each in its own units and
+    refined only within itself: every run's pieces (grid, profile, duration, certificate,
+    filament, end poses) are what plan_run gives it alone, to rounding."""
+    p = printer(name)
+    kin = p.kinematics()
+    specs = _runs(p, np.random.default_rng(5), 16)
+    for speed_limit in ("feed", "machine"):
+        batch = topp.plan_runs(kin, p, specs, speed_limit)
+        for i, spec in enumerate(specs):
+            alone = topp.plan_run(kin, p, spec, speed_limit)
+            assert [type(x).__name__ for x in batch[i]] == [type(x).__name__ for x in alone], i
+            for got, want in zip(batch[i], alone):
+                assert got.kind == want.kind and got.layer == i
+                assert got.duration == pytest.approx(want.duration, rel=1e-9, abs=1e-12), i
+                assert got.active_time == pytest.approx(want.active_time, rel=1e-9, abs=1e-12), i
+                assert got.filament_total == pytest.approx(want.filament_total, rel=1e-12), i
+                assert np.allclose(got.q_start, want.q_start, atol=1e-12) and np.allclose(got.q_end, want.q_end, atol=1e-12)
+                if isinstance(want, RunPiece):
+                    assert len(got.x) == len(want.x), i
+                    assert np.allclose(got.x, want.x, rtol=0, atol=1e-9)
+                    # the speeds to rounding (1e-9 where a limit switches), the durations to 1e-14
+                    assert np.allclose(got.xd, want.xd, rtol=1e-7, atol=1e-12)
+                    # xdd divides speed differences by a stage's width: rounding of the peak's order
+                    assert np.allclose(got.xdd, want.xdd, rtol=0, atol=1e-6 * np.abs(want.xdd).max())
+    kinds = {type(x).__name__ for pieces in batch for x in pieces}
+    assert kinds == {"RunPiece", "FilamentPiece"}, kinds
+
+
+def test_a_refined_run_in_a_batch_refines_only_itself(monkeypatch):
+    """Refinement splits a failing stage and its neighbours; in a batch the neighbour across a
+    join belongs to another run, which must keep the grid it has alone. The check is made to fail
+    the first stage of the middle run (and nothing else): alone and in the batch, that run gets
+    the same refined grid, and the run before it keeps its own."""
+    p = printer("delta_etitc")
+    kin = p.kinematics()
+    specs = _runs(p, np.random.default_rng(5), 3)
+    start = specs[1].points[0]
+    real = topp.stage_maxima
+
+    def failing_at_start(rp, x, *args, **kwargs):
+        out = real(rp, x, *args, **kwargs)
+        s = np.asarray(x) * rp.S
+        first = np.linalg.norm(rp.path.evaluate(s[:-1]) - start, axis=1) < 1e-9
+        first &= np.diff(s) > 0.005  # the grid's first stage (0.01 mm), not its refined quarters
+        per_stage = np.where(first, 2.0, out.per_stage)
+        return topp.StageMaxima(out.velocity, out.acceleration, out.stage_v, out.stage_a, per_stage)
+
+    monkeypatch.setattr(topp, "stage_maxima", failing_at_start)
+    alone = [topp.plan_run(kin, p, s, "feed") for s in specs]
+    batch = topp.plan_runs(kin, p, specs, "feed")
+    unrefined = [len(topp.grid(topp._path_inputs(*topp._prepare(p, s, None), "feed").path)) for s in specs]
+    assert len(alone[1][0].x) == unrefined[1] + 6  # the first stage and the one after it, split in four
+    assert [len(x[0].x) for x in alone] == [unrefined[0], unrefined[1] + 6, unrefined[2]]
+    for got, want in zip(batch, alone):
+        assert len(got[0].x) == len(want[0].x)
+        assert got[0].duration == pytest.approx(want[0].duration, rel=1e-9)
+
+
+def test_a_batch_of_runs_with_one_out_of_reach_raises_that_runs_error():
+    """A run out of reach in a batch: each run then plans alone, so the error names that run's
+    layer and point."""
+    p = printer("delta_etitc")
+    kin = p.kinematics()
+    specs = _runs(p, np.random.default_rng(9), 6)
+    bad = specs[4]
+    pts = bad.points.copy()
+    pts[2, 2] = 10 * p.bed.max_height
+    specs[4] = topp.RunSpec(pts, bad.feed, bad.e, bad.tool, 44)
+    with pytest.raises(UnreachableError, match="layer 44: point"):
+        topp.plan_runs(kin, p, specs, "feed")
+
+
 def test_travels_planned_together_are_each_planned_alone():
     """plan_travels over many travels (lifts, joint-space moves, retracts, a z-hop, travels that
     do not move) gives every travel the pieces plan_travel gives it alone."""

@@ -20,7 +20,7 @@ from ..pool import resolve_workers, start_pool
 from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .pieces import Piece
 from .spool import SPOOL_MOVES, PieceSpool
-from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_run
+from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_runs
 from .trajectory import Trajectory
 from .travel import from_rest, plan_travels, to_rest
 
@@ -135,9 +135,10 @@ def _plan_chunk(args):
     for i, pieces in zip(travels, plan_travels(kin, printer, [jobs[i][1] for i in travels], speed_limit=speed_limit,
                                                solver=solver)):
         out[i] = pieces
-    for i, (kind, job) in enumerate(jobs):
-        if kind != "travel":
-            out[i] = plan_run(kin, printer, job, speed_limit, solver=solver)
+    # and its runs: the short ones are solved as batches (topp.plan_runs).
+    runs = [i for i, (kind, _job) in enumerate(jobs) if kind != "travel"]
+    for i, pieces in zip(runs, plan_runs(kin, printer, [jobs[i][1] for i in runs], speed_limit, solver=solver)):
+        out[i] = pieces
     return out
 
 

@@ -566,11 +566,23 @@ def _iter_windows(kin, printer, spec: RunSpec, box: list, speed_limit, tol, kind
     yield held, 1.0
 
 
-def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: str, tol: float, kind: str, solver: str,
-                   v_start: float = 0.0, cap: tuple | None = None):
-    """One RunPiece along a polyline from the path speed v_start (mm/s) to rest; with
-    ``cap = (vertex, speed)`` the path speed at that vertex is capped (mm/s) and the piece is
-    cut there (the part after it was only the lookahead). Returns (piece, speed at its end)."""
+@dataclass(frozen=True)
+class _PathInputs:
+    """What the solver takes of a prepared run besides the limits: the blended path; e_ratio (k,)
+    filament per mm of each piece and cum_e (k+1,) filament at each piece start, mm; extruder:
+    whether filament moves (else the tool channel is not planned); piece_feed (k,) mm/s feed cap
+    per piece; stop_at: arc lengths (mm) where the path must be at rest."""
+
+    path: BlendedPath
+    e_ratio: np.ndarray
+    cum_e: np.ndarray
+    extruder: bool
+    piece_feed: np.ndarray
+    stop_at: np.ndarray
+
+
+def _path_inputs(poly: _Polyline, tol: float, speed_limit: str) -> _PathInputs:
+    """A prepared polyline blended within ``tol`` (mm) and what the solver needs along it."""
     pts, feed, e = poly.points, poly.feed, poly.e
     path = blend_polyline(pts, tol)
 
@@ -596,9 +608,20 @@ def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: st
         # inside one run).
         jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
         stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
+    return _PathInputs(path, e_ratio, cum_e, extruder, piece_feed, stop_at)
+
+
+def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: str, tol: float, kind: str, solver: str,
+                   v_start: float = 0.0, cap: tuple | None = None):
+    """One RunPiece along a polyline from the path speed v_start (mm/s) to rest; with
+    ``cap = (vertex, speed)`` the path speed at that vertex is capped (mm/s) and the piece is
+    cut there (the part after it was only the lookahead). Returns (piece, speed at its end)."""
+    inputs = _path_inputs(poly, tol, speed_limit)
+    path, e_ratio, cum_e, extruder = inputs.path, inputs.e_ratio, inputs.cum_e, inputs.extruder
+    feed = poly.feed
     s_cut = None if cap is None else float(path.piece_start[np.searchsorted(path.segment, cap[0])])
-    sol = _solve_path(kin, printer, spec.layer, path, e_ratio if extruder else None, piece_feed, stop_at, solver,
-                      v_start=v_start, cap=None if cap is None else (s_cut, cap[1]))
+    sol = _solve_path(kin, printer, spec.layer, path, e_ratio if extruder else None, inputs.piece_feed, inputs.stop_at,
+                      solver, v_start=v_start, cap=None if cap is None else (s_cut, cap[1]))
     S, x_grid, sd, xdd, t, dt, active = path.length, sol.x, sol.sd, sol.xdd, sol.t, sol.dt, sol.active
     power = nominal = None
     if poly.power is not None:
@@ -642,7 +665,7 @@ class _Profile:
 
 def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed, stop_at, solver: str,
                 v_start: float = 0.0, cap: tuple | None = None, conservative: bool = True,
-                unit_length: np.ndarray | None = None) -> _Profile:
+                unit_length: np.ndarray | None = None, unit_id: np.ndarray | None = None) -> _Profile:
     """The time-optimal speed profile along a blended path from path speed v_start (mm/s) to rest,
     refined where the stage-wise check finds a limit exceeded.
 
@@ -652,8 +675,9 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
     window's cut); conservative: fall back to one constant-acceleration profile when the solver
     finds none (else PlanningError); unit_length: (k,) mm, for a path of moves that meet at rest
     (:func:`plan_lines`), the length of the move each piece belongs to: the compiled solver works
-    in each move's own units. The planner plans to the margin-reduced limits and checks the real
-    ones."""
+    in each move's own units; unit_id: (k,) int, which move each piece belongs to, so a stage is
+    refined with its neighbours in its own move only (as planning that move alone would). The
+    planner plans to the margin-reduced limits and checks the real ones."""
     S = path.length
     planned, limits = printer.planned_limits(), printer.limits
     channels = limits.n_channels if e_ratio is not None else limits.n_joints
@@ -722,7 +746,11 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
             )
         # Split the offending stages (and their neighbours) in four and plan again.
         idx = np.flatnonzero(bad)
-        idx = np.unique(np.clip(np.concatenate([idx - 1, idx, idx + 1]), 0, len(dx) - 1))
+        near = np.clip(np.concatenate([idx - 1, idx, idx + 1]), 0, len(dx) - 1)
+        if unit_id is not None:
+            owner = unit_id[path.locate(0.5 * (s_grid[:-1] + s_grid[1:]))]
+            near = near[owner[near] == np.tile(owner[idx], 3)]
+        idx = np.unique(near)
         extra = (s_grid[idx, None] + np.diff(s_grid)[idx, None] * SHORT_FRACTIONS[None]).ravel()
         s_grid = np.unique(np.concatenate([s_grid, extra]))
     t = np.concatenate([[0.0], np.cumsum(dt)])
@@ -864,7 +892,7 @@ def plan_lines(kin, printer, starts: np.ndarray, ends: np.ndarray, feed: np.ndar
     piece_feed = feed[moving] if speed_limit == "feed" else np.full(k, np.inf)
     try:
         sol = _solve_path(kin, printer, int(layers[moving[0]]), path, None, piece_feed, piece_start[1:-1], solver,
-                          conservative=False, unit_length=L)
+                          conservative=False, unit_length=L, unit_id=np.arange(k))
     except DeltasliceError:
         for i in moving:
             out[i] = alone(i)
@@ -884,3 +912,91 @@ def plan_lines(kin, printer, starts: np.ndarray, ends: np.ndarray, feed: np.ndar
                            np.concatenate([[0.0], np.cumsum(dt)]), np.zeros(2), np.zeros(1), 0.0, int(layers[i]),
                            float(dt[sol.active[g0:g1]].sum()), kind, q[r], q[k + r])]
     return out
+
+
+BATCH_PIECES = 16384  # path pieces (lines and arcs) solved at once by plan_runs
+
+
+def plan_runs(kin, printer, specs, speed_limit: str, solver: str = "fast") -> list:
+    """``plan_run`` of every spec (a list of pieces each, in order), the short ones solved as one
+    path: a run of a few dozen segments spends most of its time in a solve's per-problem set-up
+    (grid, derivatives, rows, solve, check: about 2 ms), not in the kernels.
+
+    Each run is prepared and blended alone, as ``plan_run`` does; the runs' blended paths are then
+    laid end to end (each join a forced stop, each run in its own path units, refined only within
+    itself), so one grid, one set of derivatives, one solve and one stage-wise check serve a batch
+    of up to BATCH_PIECES pieces, and each run's RunPiece is its stretch of the solution: what
+    planning it alone gives, to rounding (``plan_lines`` does the same for straight travels).
+    Long runs (windows), laser runs, runs that push filament at rest and the reference solver
+    plan alone; where a batch's solve fails, each of its runs plans alone, which raises that
+    run's own error."""
+    out = [None] * len(specs)
+    batches = {True: [], False: []}  # by extruder: a batch plans the tool channel for all or none
+    for i, spec in enumerate(specs):
+        deduped = None if solver != "fast" or spec.power is not None or is_long(spec) else dedupe(spec.points, spec.feed, spec.e)
+        if deduped is None or len(deduped[0]) < 2:
+            out[i] = plan_run(kin, printer, spec, speed_limit, solver=solver)
+            continue
+        poly, tol = _prepare(printer, spec, None, deduped)
+        inputs = _path_inputs(poly, tol, speed_limit)
+        group = batches[inputs.extruder]
+        if group and sum(len(x[1].path.kind) for x in group[-1]) + len(inputs.path.kind) > BATCH_PIECES:
+            group.append([])
+        if not group:
+            group.append([])
+        group[-1].append((i, inputs))
+    for extruder, groups in batches.items():
+        for group in groups:
+            for (i, _inputs), pieces in zip(group, _plan_batch(kin, printer, specs, group, extruder, speed_limit, solver)):
+                out[i] = pieces
+    return out
+
+
+def _plan_batch(kin, printer, specs, group, extruder: bool, speed_limit: str, solver: str) -> list:
+    """The runs of ``group`` [(index in specs, _PathInputs)] solved as one path: a list of pieces
+    per run (see :func:`plan_runs`)."""
+    if len(group) == 1:
+        return [plan_run(kin, printer, specs[group[0][0]], speed_limit, solver=solver)]
+    paths = [inputs.path for _i, inputs in group]
+    lengths = np.array([p.length for p in paths])
+    offsets = np.concatenate([[0.0], np.cumsum(lengths)])
+    counts = np.array([len(p.kind) for p in paths])
+    path = BlendedPath(
+        np.concatenate([p.piece_start[:-1] + o for p, o in zip(paths, offsets[:-1].tolist())] + [offsets[-1:]]),
+        np.concatenate([p.kind for p in paths]), np.concatenate([p.p0 for p in paths]),
+        np.concatenate([p.d0 for p in paths]), np.concatenate([p.normal for p in paths]),
+        np.concatenate([p.radius for p in paths]), np.concatenate([p.segment for p in paths]))
+    stop_at = np.concatenate([offsets[1:-1]] + [inp.stop_at + o for (_i, inp), o in zip(group, offsets[:-1].tolist())])
+    e_ratio = np.concatenate([inp.e_ratio for _i, inp in group]) if extruder else None
+    feed = np.concatenate([inp.piece_feed for _i, inp in group])
+    run_of_piece = np.repeat(np.arange(len(group)), counts)
+    try:
+        sol = _solve_path(kin, printer, specs[group[0][0]].layer, path, e_ratio, feed, stop_at, solver,
+                          conservative=False, unit_length=lengths[run_of_piece], unit_id=run_of_piece)
+        at = np.searchsorted(sol.s, offsets)
+        if not np.array_equal(sol.s[np.minimum(at, len(sol.s) - 1)], offsets):
+            raise PlanningError("a run's end is not a grid point")  # each run alone keeps its own ends
+        last = np.cumsum(counts) - 1
+        ends = np.concatenate([path.p0[last - counts + 1],
+                               path.evaluate(offsets[1:], 0, last)])
+        q = kin.inverse(ends)
+        if not np.isfinite(q).all():
+            raise PlanningError("a run's end is out of reach")
+    except DeltasliceError:
+        return [plan_run(kin, printer, specs[i], speed_limit, solver=solver) for i, inputs in group]
+    S, k = path.length, len(group)
+    out = []
+    for r, (i, inputs) in enumerate(group):
+        spec = specs[i]
+        g0, g1 = int(at[r]), int(at[r + 1])
+        x = (sol.s[g0 : g1 + 1] - sol.s[g0]) / lengths[r]
+        x[0], x[-1] = 0.0, 1.0
+        scale = S / lengths[r]
+        dt = sol.dt[g0:g1]
+        out.append([RunPiece(inputs.path, float(lengths[r]), x, sol.sd[g0 : g1 + 1] * scale, sol.xdd[g0:g1] * scale,
+                             np.concatenate([[0.0], np.cumsum(dt)]), inputs.cum_e, inputs.e_ratio, spec.tool, spec.layer,
+                             float(dt[sol.active[g0:g1]].sum()), "run", q[r], q[k + r],
+                             dynamic_power=spec.dynamic_power)])
+    return out
+
+
