@@ -61,8 +61,9 @@ MERGE_LENGTH = 0.02  # mm: segments shorter than this are merged where the path 
 MERGE_DEVIATION = 0.25  # of the blend tolerance: what merging may move the path
 EVAL = np.array([0.0, 0.25, 0.5, 0.75, 1.0])  # stage fractions where toppra constrains acceleration
 CHECK = np.linspace(0.0, 1.0, 9)  # stage fractions of the stage-wise limit check
-# EVAL's fractions are CHECK's even ones (exactly: k/8): the derivatives are computed once per grid.
-EVAL_IN_CHECK = np.searchsorted(CHECK, EVAL)
+# EVAL's fractions are CHECK's even ones (exactly: k/8): the derivatives are computed once per grid,
+# and the constraints take a view of them.
+EVAL_IN_CHECK = slice(0, None, 2)
 DERIVATIVE_BLOCK = 32768  # points per inverse-kinematics call in RunPath.derivatives
 CHECK_TOLERANCE = 1e-6  # a stage-wise ratio beyond 1 + this fails the run
 REFINE_PASSES = 3  # times a run's violating stages are split before it fails
@@ -143,17 +144,18 @@ class RunPath:
         kappa(s) (piece-wise; the inverse kinematics itself is smooth across joins), scaled
         from mm to path units. Evaluated DERIVATIVE_BLOCK points at a time: a long window's
         arrays would otherwise take hundreds of MB at once."""
-        if len(s) > DERIVATIVE_BLOCK:
-            parts = [self.derivatives(s[i : i + DERIVATIVE_BLOCK], piece[i : i + DERIVATIVE_BLOCK])
-                     for i in range(0, len(s), DERIVATIVE_BLOCK)]
-            return np.concatenate([d for d, _ in parts]), np.concatenate([dd for _, dd in parts])
-        p, t, kappa = self.path.frame(s, piece)
-        q, dq, ddq = self.kin.inverse_path_derivatives(p, t, kappa)
-        self._check_reach(p, q)
-        dq, ddq = dq * self.S, ddq * (self.S * self.S)
+        dq, ddq = np.empty((len(s), self._dof)), np.empty((len(s), self._dof))
+        J, S = self.kin.n_joints, self.S
+        for i in range(0, len(s), DERIVATIVE_BLOCK):
+            block = slice(i, i + DERIVATIVE_BLOCK)
+            p, t, kappa = self.path.frame(s[block], piece[block])
+            q, dq_b, ddq_b = self.kin.inverse_path_derivatives(p, t, kappa)
+            self._check_reach(p, q)
+            np.multiply(dq_b, S, out=dq[block, :J])
+            np.multiply(ddq_b, S * S, out=ddq[block, :J])
         if self.e_ratio is not None:
-            dq = np.column_stack([dq, self.e_ratio[piece] * self.S])
-            ddq = np.column_stack([ddq, np.zeros(len(s))])
+            np.multiply(self.e_ratio[piece], S, out=dq[:, J])
+            ddq[:, J] = 0.0
         return dq, ddq
 
     def stage_derivatives(self, x: np.ndarray, frac: np.ndarray):
