@@ -117,6 +117,65 @@ def test_window_memory_does_not_grow_with_the_run(small_windows):
     assert peaks[1] < 1.3 * peaks[0], peaks
 
 
+def test_a_long_run_is_not_copied_while_its_windows_are_planned(monkeypatch):
+    """What a long run holds besides the window being planned grows by the arc length at every
+    vertex (8 bytes a segment), not by copies of its polyline (points, feed and filament: 40 bytes
+    a segment each time): measured between the windows, on runs of 12,000 and 36,000 segments."""
+    monkeypatch.setattr(topp, "LONG_RUN", 3000)
+    monkeypatch.setattr(topp, "WINDOW", 2000)
+    monkeypatch.setattr(topp, "LOOKAHEAD", 300)
+    monkeypatch.setattr(topp, "LOOKAHEAD_MM", 5.0)
+    printer = load_printer("linear_kossel")
+    kin = printer.kinematics()
+    held = []
+    for n in (3600, 12000, 36000):  # the first warms the caches up
+        pts, e = spiral(n)
+        spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
+        tracemalloc.start()
+        between = []
+        for piece, _done in topp.iter_run(kin, printer, spec, "feed"):
+            del piece
+            between.append(tracemalloc.get_traced_memory()[0])
+        tracemalloc.stop()
+        held.append(max(between))
+    per_segment = (held[2] - held[1]) / (36000 - 12000)
+    assert per_segment < 16, per_segment
+
+
+def test_a_cut_polylines_stretches_are_those_of_the_polyline_split_whole():
+    """_Cut.part builds a window's stretch of the polyline with its cut segments split at their
+    middles; it must be, bit for bit, that stretch of the split polyline built whole (np.insert)."""
+    rng = np.random.default_rng(4)
+    m = 500
+    pts = np.cumsum(rng.uniform(-1, 1, (m + 1, 3)), axis=0)
+    poly = topp._Polyline(pts, rng.uniform(5, 50, m), rng.uniform(0, 0.1, m), rng.uniform(0, 1, m))
+    cuts = np.array([0, 57, 58, 200, 499])
+    cut = topp._Cut(poly, cuts)
+    mid = 0.5 * (pts[cuts] + pts[cuts + 1])
+    e = poly.e.copy()
+    e[cuts] *= 0.5
+    whole = topp._Polyline(np.insert(pts, cuts + 1, mid, axis=0), np.insert(poly.feed, cuts + 1, poly.feed[cuts]),
+                           np.insert(e, cuts + 1, e[cuts]), np.insert(poly.power, cuts + 1, poly.power[cuts]))
+    assert np.array_equal(cut.at, cuts + 1 + np.arange(len(cuts)))
+    n = len(whole.points) - 1
+    for a, b in [(0, n), (0, 1), (1, 2), (58, 62), (cut.at[1], cut.at[3] + 7), (n - 3, n), (300, 301)]:
+        got, want = cut.part(a, b), whole.part(a, b)
+        for name in ("points", "feed", "e", "power"):
+            assert np.array_equal(getattr(got, name), getattr(want, name)), (a, b, name)
+
+
+def test_dedupe_hands_back_a_polyline_with_nothing_to_drop():
+    """A run with no segment under a micron is not copied (a spiral vase's million segments)."""
+    pts, e = spiral(50)
+    feed = np.full(50, 30.0)
+    out = topp.dedupe(pts, feed, e)
+    assert out[0] is pts and out[1] is feed and out[2] is e
+    pts2 = np.insert(pts, 10, pts[10] + 1e-4, axis=0)
+    e2 = np.insert(e, 10, 0.002)
+    kept = topp.dedupe(pts2, np.full(51, 30.0), e2)
+    assert len(kept[0]) == 51 and kept[2].sum() == pytest.approx(e2.sum())
+
+
 def _two_layer_spiral_toolpath():
     b = ToolpathBuilder((0.0, 0.0, 2.0))
     pts, e = spiral(700)

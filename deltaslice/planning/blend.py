@@ -204,8 +204,11 @@ def dedupe(points: np.ndarray, feed: np.ndarray, e: np.ndarray, eps: float = DED
     """Drop segments shorter than eps (mm) from a polyline, keeping the filament.
 
     points (m+1,3); feed, e: per segment (m,). A dropped segment's filament goes to the
-    segment kept before it (or after it, at the start). Returns (points, feed, e)."""
+    segment kept before it (or after it, at the start). Returns (points, feed, e): the arrays
+    given when every segment is kept (a spiral vase's run is not copied)."""
     keep = np.linalg.norm(np.diff(points, axis=0), axis=1) > eps
+    if keep.all():
+        return points, feed, e
     if not keep.any():
         return points[:1], feed[:0], e[:0]
     owner = np.maximum(np.cumsum(keep) - 1, 0)  # kept segment index that absorbs each segment

@@ -511,8 +511,8 @@ def _iter_windows(kin, printer, spec: RunSpec, box: list, speed_limit, tol, kind
     A window that cannot start that fast (its grid refined differently) makes the previous one
     re-plan to the speed it can start at (so each piece is handed out only once its successor
     has started). Yields (piece, fraction of the run's segments done). ``box``: a list holding
-    the run's polyline (prepared), taken out of it so that the polyline with the cut vertices
-    replaces it rather than adds to it (a spiral vase's run is millions of segments)."""
+    the run's polyline (prepared), taken out of it so that only the windows hold it (a spiral
+    vase's run is millions of segments)."""
     poly = box.pop()
     pts, m = poly.points, len(poly.points) - 1
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
@@ -523,19 +523,17 @@ def _iter_windows(kin, printer, spec: RunSpec, box: list, speed_limit, tol, kind
         cuts.append(c)
         target = c + WINDOW
     cuts = np.array(cuts, dtype=int)
-    # Split every cut segment at its middle: a new vertex, half the filament on each side.
-    mid = 0.5 * (pts[cuts] + pts[cuts + 1])
-    at = cuts + 1
-    pts = np.insert(pts, at, mid, axis=0)
-    e = poly.e.copy()
-    e[cuts] *= 0.5
-    e = np.insert(e, at, e[cuts])
-    feed = np.insert(poly.feed, at, poly.feed[cuts])
-    power = None if poly.power is None else np.insert(poly.power, at, poly.power[cuts])
-    del seg
-    poly = _Polyline(pts, feed, e, power)
-    seg_end = np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))
-    vertices = np.concatenate([[0], cuts + 1 + np.arange(len(cuts)), [len(pts) - 1]])
+    # Split every cut segment at its middle: a new vertex, half the filament on each side. The
+    # polyline with the new vertices is never built whole (a spiral vase's run would be copied):
+    # each window takes its stretch of it (_Cut.part), and only the arc length at every vertex
+    # is kept for the lookahead.
+    cut = _Cut(poly, cuts)
+    halves = np.linalg.norm(np.diff(np.stack([pts[cuts], cut.mid, pts[cuts + 1]], axis=1), axis=1), axis=2)
+    seg[cuts] = halves[:, 0]
+    seg_end = np.cumsum(np.insert(seg, cuts + 1, halves[:, 1]))
+    del seg, halves
+    n_vertices = m + 1 + len(cuts)
+    vertices = np.concatenate([[0], cut.at, [n_vertices - 1]])
 
     held, starts, k = None, [0.0], 0  # held: the last window's piece, until the next one starts
     caps = {}  # window -> the fastest its successor can start, after a re-plan
@@ -546,10 +544,10 @@ def _iter_windows(kin, printer, spec: RunSpec, box: list, speed_limit, tol, kind
         if not last:
             # Look ahead LOOKAHEAD segments and at least LOOKAHEAD_MM past the cut.
             far = int(np.searchsorted(seg_end, seg_end[b - 1] + LOOKAHEAD_MM)) + 1
-            end = min(len(pts) - 1, max(b + LOOKAHEAD, far))
+            end = min(n_vertices - 1, max(b + LOOKAHEAD, far))
         cap = None if last else (b - a, caps.get(k, np.inf))
         try:
-            piece, cut_speed = _plan_polyline(kin, printer, spec, poly.part(a, end), speed_limit, tol, kind, solver,
+            piece, cut_speed = _plan_polyline(kin, printer, spec, cut.part(a, end), speed_limit, tol, kind, solver,
                                               v_start=starts[k], cap=cap)
         except _StartTooFast as exc:
             if held is None or k - 1 in caps:  # the previous piece is gone already, or was re-planned once
@@ -561,7 +559,7 @@ def _iter_windows(kin, printer, spec: RunSpec, box: list, speed_limit, tol, kind
             k -= 1
             continue
         if held is not None:
-            yield held, a / (len(pts) - 1)
+            yield held, a / (n_vertices - 1)
         held = piece
         starts.append(cut_speed)
         k += 1
@@ -611,6 +609,34 @@ def _path_inputs(poly: _Polyline, tol: float, speed_limit: str) -> _PathInputs:
         jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
         stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
     return _PathInputs(path, e_ratio, cum_e, extruder, piece_feed, stop_at)
+
+
+class _Cut:
+    """A polyline with the segments ``cuts`` (c,) split at their middles: mid (c, 3) the new
+    vertices, at (c,) their indices in the split polyline (each cut segment's filament halved
+    on its two halves), whose stretches :meth:`part` builds without building it whole."""
+
+    def __init__(self, poly: _Polyline, cuts: np.ndarray):
+        self.poly, self.cuts = poly, cuts
+        self.mid = 0.5 * (poly.points[cuts] + poly.points[cuts + 1])
+        self.at = cuts + 1 + np.arange(len(cuts))
+
+    def part(self, a: int, b: int) -> _Polyline:
+        """Vertices a..b (segments a..b-1) of the split polyline."""
+        poly, j = self.poly, np.arange(a, b + 1)
+        if len(self.at) == 0:
+            return poly.part(a, b)
+        k = np.searchsorted(self.at, j, side="right")  # new vertices at or before each
+        new = (k > 0) & (self.at[np.maximum(k - 1, 0)] == j)
+        points = poly.points[np.where(new, 0, j - k)]
+        points[new] = self.mid[k[new] - 1]
+        # segment j starts at vertex j: an original vertex's own segment, or a new vertex's cut one
+        orig = np.where(new, self.cuts[np.maximum(k - 1, 0)], j - k)[:-1]
+        halved = np.isin(orig, self.cuts)
+        e = poly.e[orig]
+        e[halved] *= 0.5
+        power = None if poly.power is None else poly.power[orig]
+        return _Polyline(points, poly.feed[orig], e, power)
 
 
 def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: str, tol: float, kind: str, solver: str,
