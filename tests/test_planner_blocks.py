@@ -341,6 +341,37 @@ def test_a_refined_run_in_a_batch_refines_only_itself(monkeypatch):
         assert got[0].duration == pytest.approx(want[0].duration, rel=1e-9)
 
 
+def _segmented_arc(centre, r=1.0, m=20, turn=3.0):
+    """An arc cut into m equal segments (a slicer's circle): its blend leaves lines of a few ulps."""
+    th = np.linspace(0.0, turn, m + 1)
+    return np.asarray(centre, float) + np.column_stack([r * np.cos(th), r * np.sin(th), np.zeros(m + 1)])
+
+
+@pytest.mark.parametrize("speed_limit", ["feed", "machine"])
+def test_a_width_change_on_a_finely_segmented_arc_is_taken_at_rest(speed_limit):
+    """On an arc of equal segments each corner's blend takes half of every segment, leaving lines
+    of a few ulps whose two joins are closer than the grid keeps apart: a width change (a stop)
+    at the second join had no grid point, so the filament speed stepped by half at speed. The
+    blend drops such lines; the run stops there, alone and wherever it sits in a batch."""
+    p = printer("linear_kossel")
+    kin = p.kinematics()
+    pts = _segmented_arc([10.0, 0.0, 1.0])
+    path = blend_polyline(pts, p.planning.blend_tolerance)
+    assert np.all(np.diff(path.piece_start) > 1e-12)
+    e = 0.03 * np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    e[10:] *= 1.5
+    spec = topp.RunSpec(pts, np.full(20, 40.0), e, 200.0, 0)
+    other = topp.RunSpec(_segmented_arc([-10.0, 5.0, 1.0], m=13), np.full(13, 40.0), np.full(13, 0.004), 200.0, 0)
+    alone = topp.plan_run(kin, p, spec, speed_limit)[0]
+    jump = np.flatnonzero(np.abs(np.diff(alone.e_ratio)) > 0.01 * alone.e_ratio[1:])
+    assert len(jump) == 1
+    s_stop = alone.path.piece_start[jump[0] + 1]
+    at = np.flatnonzero(np.abs(alone.x * alone.S - s_stop) < 1e-9)
+    assert len(at) == 1 and alone.xd[at[0]] == 0.0
+    batch = topp.plan_runs(kin, p, [other, spec], speed_limit)[1][0]
+    assert batch.duration == pytest.approx(alone.duration, rel=1e-9)
+
+
 def test_a_batch_of_runs_with_one_out_of_reach_raises_that_runs_error():
     """A run out of reach in a batch: each run then plans alone, so the error names that run's
     layer and point."""

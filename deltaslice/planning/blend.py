@@ -194,8 +194,10 @@ def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     rad = np.full(n_pieces, np.inf)
     rad[1::2] = radius
     segment = np.repeat(np.arange(m), 2)[1:]
-    keep = (kind == 0) | (lengths > 0)
-    keep &= (lengths > 1e-12) | (kind == 0)
+    # Pieces of a picometre go, lines too: between two corners that each take half of an equal
+    # segment a line is left of a few ulps, and its two joins, closer than the grid keeps apart,
+    # would make a stop or a feed cap at the second one miss its grid point.
+    keep = lengths > 1e-12
     lengths, kind, p0, d0, nrm, rad, segment = (a[keep] for a in (lengths, kind, p0, d0, nrm, rad, segment))
     return BlendedPath(np.concatenate([[0.0], np.cumsum(lengths)]), kind, p0, d0, nrm, rad, segment)
 
