@@ -374,7 +374,7 @@ def test_a_width_change_on_a_finely_segmented_arc_is_taken_at_rest(speed_limit):
 
 def test_a_batch_of_runs_with_one_out_of_reach_raises_that_runs_error():
     """A run out of reach in a batch: each run then plans alone, so the error names that run's
-    layer and point."""
+    layer and point; of two such runs, the first in print order."""
     p = printer("delta_etitc")
     kin = p.kinematics()
     specs = _runs(p, np.random.default_rng(9), 6)
@@ -383,6 +383,15 @@ def test_a_batch_of_runs_with_one_out_of_reach_raises_that_runs_error():
     pts[2, 2] = 10 * p.bed.max_height
     specs[4] = topp.RunSpec(pts, bad.feed, bad.e, bad.tool, 44)
     with pytest.raises(UnreachableError, match="layer 44: point"):
+        topp.plan_runs(kin, p, specs, "feed")
+    # Two runs out of reach in different batches (one pushes no filament, so it is batched apart
+    # and after the others): the first in print order is named, as planning each alone would.
+    first = specs[1]
+    pts = first.points.copy()
+    pts[1, 2] = 10 * p.bed.max_height
+    specs[1] = topp.RunSpec(pts, first.feed, np.zeros(len(first.e)), first.tool, 41)
+    specs.append(topp.RunSpec(specs[0].points.copy(), specs[0].feed, np.zeros(len(specs[0].e)), 200.0, 50))
+    with pytest.raises(UnreachableError, match="layer 41: point"):
         topp.plan_runs(kin, p, specs, "feed")
 
 

@@ -956,8 +956,16 @@ def plan_runs(kin, printer, specs, speed_limit: str, solver: str = "fast") -> li
     of up to BATCH_PIECES pieces, and each run's RunPiece is its stretch of the solution: what
     planning it alone gives, to rounding (``plan_lines`` does the same for straight travels).
     Long runs (windows), laser runs, runs that push filament at rest and the reference solver
-    plan alone; where a batch's solve fails, each of its runs plans alone, which raises that
-    run's own error."""
+    plan alone; where a batch's solve fails, each of its runs plans alone, and where a run fails
+    alone too, every run is planned alone in order: the error raised is that of the first run in
+    print order that fails, as without batches."""
+    try:
+        return _plan_runs(kin, printer, specs, speed_limit, solver)
+    except DeltasliceError:
+        return [plan_run(kin, printer, spec, speed_limit, solver=solver) for spec in specs]
+
+
+def _plan_runs(kin, printer, specs, speed_limit: str, solver: str) -> list:
     out = [None] * len(specs)
     batches = {True: [], False: []}  # by extruder: a batch plans the tool channel for all or none
     for i, spec in enumerate(specs):
