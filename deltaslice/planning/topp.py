@@ -919,26 +919,47 @@ def plan_lines(kin, printer, starts: np.ndarray, ends: np.ndarray, feed: np.ndar
     path = BlendedPath(piece_start, np.zeros(k, dtype=np.int8), a, d, np.zeros((k, 3)), np.full(k, np.inf), np.arange(k))
     piece_feed = feed[moving] if speed_limit == "feed" else np.full(k, np.inf)
     try:
-        sol = _solve_path(kin, printer, int(layers[moving[0]]), path, None, piece_feed, piece_start[1:-1], solver,
-                          conservative=False, unit_length=L, unit_id=np.arange(k))
+        profiles = _solve_units(kin, printer, int(layers[moving[0]]), path, None, piece_feed, np.zeros(0), solver, L,
+                                np.arange(k))
     except DeltasliceError:
         for i in moving:
             out[i] = alone(i)
         return out
-    S = path.length
-    at = np.searchsorted(sol.s, piece_start)  # every join is a grid point (grid keeps the joins)
     q = kin.inverse(np.concatenate([a, a + L[:, None] * d]))
-    for r, i in enumerate(moving):
-        g0, g1 = int(at[r]), int(at[r + 1])
-        scale = S / L[r]
-        x = (sol.s[g0 : g1 + 1] - sol.s[g0]) / L[r]
-        x[0], x[-1] = 0.0, 1.0
-        dt = sol.dt[g0:g1]
+    for r, (i, (x, xd, xdd, t, active_time)) in enumerate(zip(moving, profiles)):
         line = BlendedPath(np.array([0.0, L[r]]), path.kind[r : r + 1], a[r : r + 1], d[r : r + 1], path.normal[r : r + 1],
                            path.radius[r : r + 1], np.zeros(1, dtype=path.segment.dtype))
-        out[i] = [RunPiece(line, float(L[r]), x, sol.sd[g0 : g1 + 1] * scale, sol.xdd[g0:g1] * scale,
-                           np.concatenate([[0.0], np.cumsum(dt)]), np.zeros(2), np.zeros(1), 0.0, int(layers[i]),
-                           float(dt[sol.active[g0:g1]].sum()), kind, q[r], q[k + r])]
+        out[i] = [RunPiece(line, float(L[r]), x, xd, xdd, t, np.zeros(2), np.zeros(1), 0.0, int(layers[i]), active_time,
+                           kind, q[r], q[k + r])]
+    return out
+
+
+def _solve_units(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed, stop_at, solver: str,
+                 lengths: np.ndarray, unit_of_piece: np.ndarray) -> list:
+    """Units (moves or runs) that each go from rest to rest, laid end to end as the pieces of one
+    path (``path.piece_start`` at unit r's start: the sum of ``lengths`` (u,) mm before it), solved
+    as one: one grid, one set of derivatives, one solve and one stage-wise check serve them all,
+    each stage in its own unit's path units and refined with its neighbours in its own unit only,
+    so every unit's profile is what solving it alone gives, to rounding. unit_of_piece (k,) int;
+    stop_at: stops inside the units (the joins are stops already). Returns per unit
+    (x, xd, xdd, t, active_time) in its own path units (x = s / its length). Raises a
+    DeltasliceError where the joint solve fails or a unit's end is not a grid point: the caller
+    then plans each unit alone."""
+    offsets = np.concatenate([[0.0], np.cumsum(lengths)])
+    sol = _solve_path(kin, printer, layer, path, e_ratio, piece_feed, np.concatenate([offsets[1:-1], stop_at]), solver,
+                      conservative=False, unit_length=lengths[unit_of_piece], unit_id=unit_of_piece)
+    at = np.searchsorted(sol.s, offsets)
+    if not np.array_equal(sol.s[np.minimum(at, len(sol.s) - 1)], offsets):
+        raise PlanningError("a unit's end is not a grid point")
+    out = []
+    for r, length in enumerate(lengths.tolist()):
+        g0, g1 = int(at[r]), int(at[r + 1])
+        x = (sol.s[g0 : g1 + 1] - sol.s[g0]) / length
+        x[0], x[-1] = 0.0, 1.0
+        scale = path.length / length
+        dt = sol.dt[g0:g1]
+        out.append((x, sol.sd[g0 : g1 + 1] * scale, sol.xdd[g0:g1] * scale, np.concatenate([[0.0], np.cumsum(dt)]),
+                    float(dt[sol.active[g0:g1]].sum())))
     return out
 
 
@@ -950,11 +971,10 @@ def plan_runs(kin, printer, specs, speed_limit: str, solver: str = "fast") -> li
     path: a run of a few dozen segments spends most of its time in a solve's per-problem set-up
     (grid, derivatives, rows, solve, check: about 2 ms), not in the kernels.
 
-    Each run is prepared and blended alone, as ``plan_run`` does; the runs' blended paths are then
-    laid end to end (each join a forced stop, each run in its own path units, refined only within
-    itself), so one grid, one set of derivatives, one solve and one stage-wise check serve a batch
-    of up to BATCH_PIECES pieces, and each run's RunPiece is its stretch of the solution: what
-    planning it alone gives, to rounding (``plan_lines`` does the same for straight travels).
+    Each run is prepared and blended alone, as ``plan_run`` does; batches of up to BATCH_PIECES
+    of their pieces are then solved as one path (:func:`_solve_units`, as ``plan_lines`` does
+    for straight travels), each run's RunPiece its stretch of the solution: what planning it
+    alone gives, to rounding.
     Long runs (windows), laser runs, runs that push filament at rest and the reference solver
     plan alone; where a batch's solve fails, each of its runs plans alone, and where a run fails
     alone too, every run is planned alone in order: the error raised is that of the first run in
@@ -967,21 +987,21 @@ def plan_runs(kin, printer, specs, speed_limit: str, solver: str = "fast") -> li
 
 def _plan_runs(kin, printer, specs, speed_limit: str, solver: str) -> list:
     out = [None] * len(specs)
-    batches = {True: [], False: []}  # by extruder: a batch plans the tool channel for all or none
+    # by extruder (a batch plans the tool channel for all its runs or none): [[(index, inputs)]], pieces
+    batches = {True: ([], [0]), False: ([], [0])}
     for i, spec in enumerate(specs):
         deduped = None if solver != "fast" or spec.power is not None or is_long(spec) else dedupe(spec.points, spec.feed, spec.e)
         if deduped is None or len(deduped[0]) < 2:
             out[i] = plan_run(kin, printer, spec, speed_limit, solver=solver)
             continue
-        poly, tol = _prepare(printer, spec, None, deduped)
-        inputs = _path_inputs(poly, tol, speed_limit)
-        group = batches[inputs.extruder]
-        if group and sum(len(x[1].path.kind) for x in group[-1]) + len(inputs.path.kind) > BATCH_PIECES:
-            group.append([])
-        if not group:
-            group.append([])
-        group[-1].append((i, inputs))
-    for extruder, groups in batches.items():
+        inputs = _path_inputs(*_prepare(printer, spec, None, deduped), speed_limit)
+        groups, pieces = batches[inputs.extruder]
+        if not groups or pieces[0] + len(inputs.path.kind) > BATCH_PIECES:
+            groups.append([])
+            pieces[0] = 0
+        groups[-1].append((i, inputs))
+        pieces[0] += len(inputs.path.kind)
+    for extruder, (groups, _pieces) in batches.items():
         for group in groups:
             for (i, _inputs), pieces in zip(group, _plan_batch(kin, printer, specs, group, extruder, speed_limit, solver)):
                 out[i] = pieces
@@ -989,10 +1009,8 @@ def _plan_runs(kin, printer, specs, speed_limit: str, solver: str) -> list:
 
 
 def _plan_batch(kin, printer, specs, group, extruder: bool, speed_limit: str, solver: str) -> list:
-    """The runs of ``group`` [(index in specs, _PathInputs)] solved as one path: a list of pieces
-    per run (see :func:`plan_runs`)."""
-    if len(group) == 1:
-        return [plan_run(kin, printer, specs[group[0][0]], speed_limit, solver=solver)]
+    """The runs of ``group`` [(index in specs, _PathInputs)] solved as one path (:func:`_solve_units`):
+    a list of pieces per run, each run planned alone where the batch fails."""
     paths = [inputs.path for _i, inputs in group]
     lengths = np.array([p.length for p in paths])
     offsets = np.concatenate([[0.0], np.cumsum(lengths)])
@@ -1002,37 +1020,19 @@ def _plan_batch(kin, printer, specs, group, extruder: bool, speed_limit: str, so
         np.concatenate([p.kind for p in paths]), np.concatenate([p.p0 for p in paths]),
         np.concatenate([p.d0 for p in paths]), np.concatenate([p.normal for p in paths]),
         np.concatenate([p.radius for p in paths]), np.concatenate([p.segment for p in paths]))
-    stop_at = np.concatenate([offsets[1:-1]] + [inp.stop_at + o for (_i, inp), o in zip(group, offsets[:-1].tolist())])
+    stop_at = np.concatenate([inp.stop_at + o for (_i, inp), o in zip(group, offsets[:-1].tolist())])
     e_ratio = np.concatenate([inp.e_ratio for _i, inp in group]) if extruder else None
     feed = np.concatenate([inp.piece_feed for _i, inp in group])
-    run_of_piece = np.repeat(np.arange(len(group)), counts)
     try:
-        sol = _solve_path(kin, printer, specs[group[0][0]].layer, path, e_ratio, feed, stop_at, solver,
-                          conservative=False, unit_length=lengths[run_of_piece], unit_id=run_of_piece)
-        at = np.searchsorted(sol.s, offsets)
-        if not np.array_equal(sol.s[np.minimum(at, len(sol.s) - 1)], offsets):
-            raise PlanningError("a run's end is not a grid point")  # each run alone keeps its own ends
+        profiles = _solve_units(kin, printer, specs[group[0][0]].layer, path, e_ratio, feed, stop_at, solver, lengths,
+                                np.repeat(np.arange(len(group)), counts))
         last = np.cumsum(counts) - 1
-        ends = np.concatenate([path.p0[last - counts + 1],
-                               path.evaluate(offsets[1:], 0, last)])
-        q = kin.inverse(ends)
+        q = kin.inverse(np.concatenate([path.p0[last - counts + 1], path.evaluate(offsets[1:], 0, last)]))
         if not np.isfinite(q).all():
             raise PlanningError("a run's end is out of reach")
     except DeltasliceError:
-        return [plan_run(kin, printer, specs[i], speed_limit, solver=solver) for i, inputs in group]
-    S, k = path.length, len(group)
-    out = []
-    for r, (i, inputs) in enumerate(group):
-        spec = specs[i]
-        g0, g1 = int(at[r]), int(at[r + 1])
-        x = (sol.s[g0 : g1 + 1] - sol.s[g0]) / lengths[r]
-        x[0], x[-1] = 0.0, 1.0
-        scale = S / lengths[r]
-        dt = sol.dt[g0:g1]
-        out.append([RunPiece(inputs.path, float(lengths[r]), x, sol.sd[g0 : g1 + 1] * scale, sol.xdd[g0:g1] * scale,
-                             np.concatenate([[0.0], np.cumsum(dt)]), inputs.cum_e, inputs.e_ratio, spec.tool, spec.layer,
-                             float(dt[sol.active[g0:g1]].sum()), "run", q[r], q[k + r],
-                             dynamic_power=spec.dynamic_power)])
-    return out
-
-
+        return [plan_run(kin, printer, specs[i], speed_limit, solver=solver) for i, _inputs in group]
+    k = len(group)
+    return [[RunPiece(inputs.path, float(lengths[r]), x, xd, xdd, t, inputs.cum_e, inputs.e_ratio, specs[i].tool,
+                      specs[i].layer, active_time, "run", q[r], q[k + r], dynamic_power=specs[i].dynamic_power)]
+            for r, ((i, inputs), (x, xd, xdd, t, active_time)) in enumerate(zip(group, profiles))]
