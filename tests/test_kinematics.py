@@ -404,3 +404,33 @@ def test_reachable_in_blocks_equals_reachable_at_once(name, monkeypatch):
     assert whole.any() and not whole.all()
     monkeypatch.setattr(base, "REACH_BLOCK", 37)
     np.testing.assert_array_equal(kin.reachable(pts), whole)
+
+
+@pytest.mark.parametrize("name", PRINTER_NAMES)
+def test_well_conditioned_is_the_svd_condition_below_the_limit(name):
+    """The bound that decides most points must never decide one the SVD would not, wherever
+    reachable() asks (real inverse, within the joint limits): points everywhere, and points
+    walked out along rays to where the mechanism is lost, so that conditions lie on both sides
+    of the limit."""
+    kin = printer(name).kinematics()
+    rng = np.random.default_rng(5)
+    centre = kin.forward(0.5 * (kin.position_min + kin.position_max)[None])[0]
+    if not np.all(np.isfinite(centre)):
+        centre = np.zeros(3)
+    rays = rng.normal(size=(200, 3))
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
+    steps = np.linspace(0.0, 600.0, 3000)
+    pts = np.concatenate([(centre + steps[:, None, None] * rays[None]).reshape(-1, 3),
+                          rng.uniform([-300, -300, -50], [300, 300, 400], (20000, 3))])
+    q = _quiet(kin.inverse, pts)
+    keep = np.all(np.isfinite(q), axis=1)
+    pts, q = pts[keep], q[keep]
+    keep = kin.within_joint_limits(q) & kin.extra_ok(pts, q)  # where reachable() asks for the condition
+    pts, q = pts[keep], q[keep]
+    cond = _quiet(kin.condition, q)
+    assert len(cond) > 1000
+    # the printer's own limit, and limits that cut through the sample (most of it is well
+    # conditioned inside the joint limits), each with many points within a factor 3 of it
+    for limit in (kin.singularity_limit, *np.quantile(cond, [0.2, 0.5, 0.9, 0.999])):
+        kin.singularity_limit = limit
+        np.testing.assert_array_equal(_quiet(kin.well_conditioned, pts, q), cond < limit)

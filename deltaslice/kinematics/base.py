@@ -188,5 +188,22 @@ class Kinematics:
             ok[sub] &= self.extra_ok(points[sub], q[sub])
         if ok.any():
             sub = np.flatnonzero(ok)
-            ok[sub] &= self.condition(q[sub]) < self.singularity_limit
+            ok[sub] &= self.well_conditioned(points[sub], q[sub])
+        return ok
+
+    def well_conditioned(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """points (N,3) mm, q = inverse(points) (N,3) -> (N,) bool: ``condition(q) < singularity_limit``,
+        the same decisions at a fraction of the SVD's cost. A bound decides most points:
+        cond(J) = cond(J^-1) <= |J^-1|_F |J|_F, with J = adj(J^-1) / det(J^-1) in closed form from
+        the inverse Jacobian (analytic for most families); only points whose bound is not below
+        the limit (less than a millionth of margin) get the exact SVD."""
+        ji = self.inverse_jacobian_at(points, q)
+        adj = np.cross(ji[:, [1, 2, 0]], ji[:, [2, 0, 1]])  # row i: the cofactors of row i
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            det = np.einsum("ni,ni->n", ji[:, 0], adj[:, 0])
+            bound = np.sqrt(np.einsum("nij,nij->n", ji, ji) * np.einsum("nij,nij->n", adj, adj)) / np.abs(det)
+            ok = bound * (1 + 1e-6) < self.singularity_limit
+        rest = np.flatnonzero(~ok)
+        if rest.size:
+            ok[rest] = self.condition(q[rest]) < self.singularity_limit
         return ok
