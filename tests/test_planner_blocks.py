@@ -195,6 +195,28 @@ def test_frame_equals_evaluate_and_check_derivatives_hold_the_constraint_ones(se
     assert np.array_equal(dq_c[:, topp.EVAL_IN_CHECK], dq_e) and np.array_equal(ddq_c[:, topp.EVAL_IN_CHECK], ddq_e)
 
 
+@pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel"])
+def test_a_run_pieces_samples_are_its_profile_path_and_filament_bit_for_bit(name):
+    """RunPiece.sample's compiled pass gives the very values of arc_length_at, locate, frame and
+    filament_at composed in numpy, at times before, inside and after the piece, in any order,
+    on exact grid times (a stage boundary belongs to the stage after it)."""
+    p = printer(name)
+    kin = p.kinematics()
+    rng = np.random.default_rng(11)
+    pieces = [x for spec in _runs(p, rng, 8) for x in topp.plan_run(kin, p, spec, "feed") if isinstance(x, RunPiece)]
+    assert len(pieces) >= 6 and any((x.path.kind == 1).any() for x in pieces)
+    for piece in pieces:
+        tau = np.concatenate([[-1.0, 0.0, piece.duration, piece.duration + 1.0], piece.t,
+                              rng.uniform(0.0, piece.duration, 500)])
+        rng.shuffle(tau)
+        s = piece.arc_length_at(tau)
+        k = piece.path.locate(s)
+        q, de, tool = piece.sample(kin, tau)
+        assert np.array_equal(q, kin.inverse(piece.path.frame(s, k)[0]), equal_nan=True)
+        assert np.array_equal(de, piece.filament_at(s, k))
+        assert np.array_equal(tool, np.full(len(tau), piece.tool))
+
+
 def _bed_points(p, rng, n):
     """n reachable points (n, 3) mm over the bed, the bottom half of the build height."""
     kin, bed = p.kinematics(), p.bed

@@ -15,11 +15,13 @@ start (n,) mm and tool state (n,) at times tau (n,) s from the piece start.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from ..jit import njit
 from .blend import BlendedPath
 from .ruckig_profile import RuckigProfile
 
@@ -98,20 +100,69 @@ class RunPiece:
         return self.cum_e[piece] + (s - self.path.piece_start[piece]) * self.e_ratio[piece]
 
     def sample(self, kin, tau: np.ndarray):
-        """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))"""
-        s = self.arc_length_at(tau)
-        k = self.path.locate(s)
-        q = kin.inverse(self.path.frame(s, k)[0])
+        """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))
+
+        The points and the filament come from one compiled pass (:func:`_sample_kernel`: the
+        values of :meth:`arc_length_at`, ``path.locate``, ``path.frame`` and :meth:`filament_at`,
+        the emitter's hottest call after the inverse kinematics)."""
+        tau = np.ascontiguousarray(tau, dtype=np.float64)
+        n, p = len(tau), self.path
+        point, de, k = np.empty((n, 3)), np.empty(n), np.empty(n, dtype=np.int64)
+        _sample_kernel(tau, self.t, self.x, self.xd, self.xdd, float(self.S), p.piece_start, p.kind, p.p0, p.d0,
+                       p.normal, p.radius, self.cum_e, self.e_ratio, point, de, k)
+        q = kin.inverse(point)
         if self.power is None:
-            return q, self.filament_at(s, k), np.full(len(s), self.tool)
+            return q, de, np.full(n, self.tool)
         tool = self.power[k]
         if self.dynamic_power:  # GRBL M4: power follows the tool's speed over the requested feed
             tool = tool * np.clip(self.speed_at(tau) / self.nominal_feed[k], 0.0, 1.0)
-        return q, self.filament_at(s, k), tool
+        return q, de, tool
 
     @property
     def filament_total(self) -> float:
         return float(self.cum_e[-1])
+
+
+@njit
+def _last_at_or_below(a, v, n_max):
+    """``clip(searchsorted(a, v, side="right") - 1, 0, n_max - 1)`` for a sorted (m,) a."""
+    lo, hi = 0, a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] <= v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return min(max(lo - 1, 0), n_max - 1)
+
+
+@njit
+def _sample_kernel(tau, t, x, xd, xdd, S, piece_start, kind, p0, d0, normal, radius, cum_e, e_ratio, point, de, k):
+    """A run's point (n,3) mm, filament since its start (n,) mm and path piece (n,) at times tau
+    (n,) s, written into point, de and k: per sample, the stage's arc length
+    clip(x + xd dt + xdd dt^2 / 2, 0, 1) S, the piece holding it, the point on the piece (as
+    :func:`.blend._frame_kernel`), and the piece's filament, in the same operations as the
+    numpy methods they replace (the same values)."""
+    duration = t[t.shape[0] - 1]
+    for i in range(tau.shape[0]):
+        ta = min(max(tau[i], 0.0), duration)
+        j = _last_at_or_below(t, ta, xdd.shape[0])
+        dt = ta - t[j]
+        s = min(max(x[j] + xd[j] * dt + 0.5 * xdd[j] * dt * dt, 0.0), 1.0) * S
+        m = _last_at_or_below(piece_start, s, kind.shape[0])
+        k[i] = m
+        u = s - piece_start[m]
+        if kind[m] == 1:
+            r = radius[m]
+            a = u / r
+            sa = math.sin(a)
+            ca = math.cos(a)
+            for c in range(3):
+                point[i, c] = p0[m, c] + r * (sa * d0[m, c] + (1.0 - ca) * normal[m, c])
+        else:
+            for c in range(3):
+                point[i, c] = p0[m, c] + u * d0[m, c]
+        de[i] = cum_e[m] + (s - piece_start[m]) * e_ratio[m]
 
 
 @dataclass(frozen=True)
