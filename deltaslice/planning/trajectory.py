@@ -9,6 +9,7 @@ so a long print streams to disk without holding its samples in memory.
 
 from __future__ import annotations
 
+import mmap
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,13 +93,25 @@ class Trajectory:
         return self.sample_at(np.arange(i0, i1) / rate)
 
     def _forked_blocks(self, rate: float, block: int, n_total: int, workers: int):
-        """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task."""
+        """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task.
+
+        The workers write their samples into slots of an anonymous shared mapping and hand back
+        only the slot: pickled through a pipe, 40 bytes a sample cost the reader more than the
+        sampling saved. forked_map keeps 2 * workers tasks in flight and submits the next one
+        before yielding a result, so 2 * workers + 1 slots never hand a task a slot still read here;
+        each block is copied out of its slot (the blocks are the very arrays _block gives)."""
         if isinstance(self.pieces, PieceSpool):
             self.pieces.sync()  # the workers read the spool file as it is now
         span = block * TASK_BLOCKS
-        tasks = ((i0, min(i0 + span, n_total), block, rate) for i0 in range(0, n_total, span))
-        for blocks in forked_map(_sample_task, tasks, workers, trajectory=self):
-            yield from blocks
+        n_slots = 2 * workers + 1
+        J = self.kin.n_joints
+        slots = np.frombuffer(mmap.mmap(-1, n_slots * span * (J + 2) * 8), dtype=np.float64).reshape(n_slots, span, J + 2)
+        tasks = ((i0, min(i0 + span, n_total), block, rate, k % n_slots)
+                 for k, i0 in enumerate(range(0, n_total, span)))
+        for i0, i1, k in forked_map(_sample_task, tasks, workers, trajectory=self, slots=slots):
+            for a in range(i0, i1, block):
+                rows = slots[k, a - i0 : min(a + block, i1) - i0]
+                yield Samples(np.arange(a, a + len(rows)) / rate, rows[:, :J].copy(), rows[:, J].copy(), rows[:, J + 1].copy())
 
     def samples(self, rate: float | None = None) -> Samples:
         """All samples at once (tests and small parts; long prints should use iter_samples)."""
@@ -141,7 +154,13 @@ class Trajectory:
         return pv, pa
 
 
-def _sample_task(i0: int, i1: int, block: int, rate: float) -> list:
-    """In a forked sampling worker: the blocks of samples i0..i1 of the inherited trajectory."""
-    traj = inherited("trajectory")
-    return [traj._block(a, min(a + block, i1), rate) for a in range(i0, i1, block)]
+def _sample_task(i0: int, i1: int, block: int, rate: float, k: int) -> tuple[int, int, int]:
+    """In a forked sampling worker: samples i0..i1 of the inherited trajectory, block by block,
+    written into slot k of the inherited shared ``slots`` (rows: q, e, tool). Returns (i0, i1, k)."""
+    traj, slots = inherited("trajectory"), inherited("slots")
+    J = slots.shape[2] - 2
+    for a in range(i0, i1, block):
+        b = traj._block(a, min(a + block, i1), rate)
+        rows = slots[k, a - i0 : a - i0 + len(b)]
+        rows[:, :J], rows[:, J], rows[:, J + 1] = b.q, b.e, b.tool
+    return i0, i1, k
