@@ -79,6 +79,8 @@ def format_rows(t, q, e, tool) -> str:
 def check_finite(samples: Samples, first_index: int) -> None:
     for name in ("t", "q", "e", "tool"):
         arr = getattr(samples, name)
+        if np.isfinite(arr).all():
+            continue
         bad = ~np.isfinite(arr)
         if bad.any():
             i = int(np.flatnonzero(bad.reshape(len(arr), -1).any(axis=1))[0])

@@ -167,7 +167,9 @@ class Limits:
 
     def to_counts(self, values: np.ndarray) -> np.ndarray:
         """values: (n, C) float, channel units -> (n, C) int64 actuator counts (rounded)."""
-        return np.rint(self.zero_count[None] + self.counts_per_unit[None] * values).astype(np.int64)
+        v = self.counts_per_unit[None] * values
+        v += self.zero_count[None]  # zero + cpu * value, in place (the writer's per-block call)
+        return np.rint(v, out=v).astype(np.int64)
 
     def from_counts(self, counts: np.ndarray) -> np.ndarray:
         """counts: (n, C) -> (n, C) float, channel units."""
@@ -301,7 +303,10 @@ class LimitMonitor:
             np.ascontiguousarray(tool, dtype=float), self.rate, np.ascontiguousarray(self.limits.velocity[:J]),
             np.ascontiguousarray(self.limits.acceleration[:J]), self.peak_v, self.peak_a, self._bad_before)
         with np.errstate(invalid="ignore", divide="ignore"):
-            self.peak_tool_v = max(self.peak_tool_v, float(np.nan_to_num(tool_v / self.limits.velocity[-1])))
+            ratio = float(np.float64(tool_v) / self.limits.velocity[-1])
+        if not math.isfinite(ratio):  # numpy's nan_to_num is slow on a scalar: only where needed
+            ratio = float(np.nan_to_num(ratio))
+        self.peak_tool_v = max(self.peak_tool_v, ratio)
         self.violating_samples += int(bad)
         self.events += int(events)
         self._bad_before = bool(last_bad)

@@ -95,7 +95,7 @@ class Trajectory:
     def _forked_blocks(self, rate: float, block: int, n_total: int, workers: int):
         """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task.
 
-        The workers write their samples into slots of an anonymous shared mapping and hand back
+        The workers write their samples into slots of anonymous shared mappings and hand back
         only the slot: pickled through a pipe, 40 bytes a sample cost the reader more than the
         sampling saved. forked_map keeps 2 * workers tasks in flight and submits the next one
         before yielding a result, so 2 * workers + 1 slots never hand a task a slot still read here;
@@ -104,14 +104,15 @@ class Trajectory:
             self.pieces.sync()  # the workers read the spool file as it is now
         span = block * TASK_BLOCKS
         n_slots = 2 * workers + 1
-        J = self.kin.n_joints
-        slots = np.frombuffer(mmap.mmap(-1, n_slots * span * (J + 2) * 8), dtype=np.float64).reshape(n_slots, span, J + 2)
+        q, e, tool = (np.frombuffer(mmap.mmap(-1, n_slots * span * w * 8), dtype=np.float64).reshape(n_slots, span, w)
+                      for w in (self.kin.n_joints, 1, 1))
         tasks = ((i0, min(i0 + span, n_total), block, rate, k % n_slots)
                  for k, i0 in enumerate(range(0, n_total, span)))
-        for i0, i1, k in forked_map(_sample_task, tasks, workers, trajectory=self, slots=slots):
+        for i0, i1, k in forked_map(_sample_task, tasks, workers, trajectory=self, slots=(q, e, tool)):
             for a in range(i0, i1, block):
-                rows = slots[k, a - i0 : min(a + block, i1) - i0]
-                yield Samples(np.arange(a, a + len(rows)) / rate, rows[:, :J].copy(), rows[:, J].copy(), rows[:, J + 1].copy())
+                rows = slice(a - i0, min(a + block, i1) - i0)
+                yield Samples(np.arange(a, a + rows.stop - rows.start) / rate, q[k, rows].copy(), e[k, rows, 0].copy(),
+                              tool[k, rows, 0].copy())
 
     def samples(self, rate: float | None = None) -> Samples:
         """All samples at once (tests and small parts; long prints should use iter_samples)."""
@@ -156,11 +157,11 @@ class Trajectory:
 
 def _sample_task(i0: int, i1: int, block: int, rate: float, k: int) -> tuple[int, int, int]:
     """In a forked sampling worker: samples i0..i1 of the inherited trajectory, block by block,
-    written into slot k of the inherited shared ``slots`` (rows: q, e, tool). Returns (i0, i1, k)."""
-    traj, slots = inherited("trajectory"), inherited("slots")
-    J = slots.shape[2] - 2
+    written into slot k of the inherited shared ``slots`` (q (slots, span, J), e and tool
+    (slots, span, 1)). Returns (i0, i1, k)."""
+    traj, (q, e, tool) = inherited("trajectory"), inherited("slots")
     for a in range(i0, i1, block):
         b = traj._block(a, min(a + block, i1), rate)
-        rows = slots[k, a - i0 : a - i0 + len(b)]
-        rows[:, :J], rows[:, J], rows[:, J + 1] = b.q, b.e, b.tool
+        rows = slice(a - i0, a - i0 + len(b))
+        q[k, rows], e[k, rows, 0], tool[k, rows, 0] = b.q, b.e, b.tool
     return i0, i1, k
