@@ -273,3 +273,49 @@ def test_cli_solver_option_gives_the_same_print_time(tmp_path):
     assert times["fast"] == pytest.approx(times["toppra"], rel=1e-3)
     r = runner.invoke(main, [str(gcode), "--printer", printer, "-o", str(tmp_path / "x.dsl"), "--solver", "cvxpy"])
     assert r.exit_code != 0 and "cvxpy" in r.output
+
+
+def _x_range_every_pair(low, up, xl, xh):
+    """The projection by brute force: every pair of a lower and an upper bound on u."""
+    from deltaslice.planning.reachability import PARALLEL
+
+    for p, r in low:
+        for q, s in up:
+            c, e = r - s, q - p
+            if c > PARALLEL:
+                xh = min(xh, e / c)
+            elif c < -PARALLEL:
+                xl = max(xl, e / c)
+            elif e < -1e-12 * (abs(q) + abs(p) + 1.0):
+                return np.inf, -np.inf
+    return xl, xh
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_x_range_from_the_envelopes_equals_every_pair(seed):
+    """The stage's projection pairs only the bounds that can lie on their envelope: the same x
+    range as every pair, on random bounds of every kind: nearly parallel families (a joint's rows
+    at five fractions), exact duplicates, ranges that are empty, a point, or as wide as the box."""
+    from deltaslice.planning.reachability import BOX, _x_range
+
+    rng = np.random.default_rng(seed)
+    checked = 0
+    for _ in range(3000):
+        nl, nu = rng.integers(1, 24, 2)
+        fam = lambda n: np.repeat(rng.normal(size=(max(1, n // 5) + 1, 2)), 5, axis=0)[:n] * (
+            1 + 1e-3 * rng.normal(size=(n, 2)) * rng.integers(0, 2))
+        low, up = fam(nl), fam(nu)
+        low[:, 0] -= rng.uniform(0, 3)  # most stages feasible
+        up[:, 0] += rng.uniform(0, 3)
+        if rng.random() < 0.2:
+            low[-1] = low[0]  # an exact duplicate
+        xl = 0.0
+        xh = [rng.uniform(0.1, 10.0), BOX, 0.0, rng.uniform(-1, 1)][rng.integers(0, 4)]
+        low_p, low_r = np.ascontiguousarray(low[:, 0]), np.ascontiguousarray(low[:, 1])
+        up_p, up_r = np.ascontiguousarray(up[:, 0]), np.ascontiguousarray(up[:, 1])
+        keep_l, keep_u = np.empty(nl, np.int64), np.empty(nu, np.int64)
+        got = _x_range(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u)
+        want = _x_range_every_pair(zip(low_p, low_r), list(zip(up_p, up_r)), xl, xh)
+        assert got == want, (seed, nl, nu, xh)
+        checked += want[0] <= want[1]
+    assert checked > 1000  # enough of them feasible
