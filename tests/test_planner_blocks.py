@@ -461,3 +461,29 @@ def test_joint_moves_checked_together_are_each_checked_alone():
     alone = [travel.joint_move_clear(kin, m, z) for m, z in zip(moves, z_min)]
     assert together.tolist() == alone
     assert True in alone and False in alone
+
+
+def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():
+    """The compiled stage-wise bounds, reduced in the same pass, against the bounds written in
+    numpy and reduced by numpy (max, argmax: first of ties, first NaN; per stage max over the
+    channels), bit for bit, with NaN derivatives and ties among them."""
+    rng = np.random.default_rng(1)
+    for trial in range(200):
+        n, dof = int(rng.integers(1, 50)), int(rng.integers(1, 5))
+        dq, ddq = rng.normal(size=(n, 9, dof)), rng.normal(size=(n, 9, dof))
+        xd, xdd = rng.uniform(0, 2, n + 1), rng.normal(size=n)
+        if trial % 3 == 0:
+            dq[rng.integers(0, n), rng.integers(0, 9), rng.integers(0, dof)] = np.nan
+        if trial % 5 == 0:
+            dq = np.round(dq)  # equal bounds in several stages
+        vmax, amax = rng.uniform(0.5, 2, dof), rng.uniform(0.5, 2, dof)
+        w = np.maximum((xd[:-1] ** 2)[:, None] + ((xd[1:] ** 2) - (xd[:-1] ** 2))[:, None] * topp.CHECK[None], 0.0)
+        with np.errstate(invalid="ignore"):
+            bounds = []
+            for g in (np.abs(dq) * np.sqrt(w)[:, :, None] / vmax, np.abs(dq * xdd[:, None, None] + ddq * w[:, :, None]) / amax):
+                bounds.append(g.max(axis=1) + 0.3125 * np.abs(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]).max(axis=1))
+            bv, ba = bounds
+            want = (bv.max(axis=0), ba.max(axis=0), bv.argmax(axis=0), ba.argmax(axis=0), np.maximum(bv, ba).max(axis=1))
+        got = topp.stage_maxima(None, None, xd, xdd, vmax, amax, stage=(dq, ddq))
+        for a, b in zip((got.velocity, got.acceleration, got.stage_v, got.stage_a, got.per_stage), want):
+            assert np.array_equal(a, b, equal_nan=True), trial

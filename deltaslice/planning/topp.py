@@ -206,8 +206,7 @@ class StageAccelerationConstraint:
         n, f, dof = dq.shape
         a = np.empty((n + 1, f * dof))
         b = np.empty((n + 1, f * dof))
-        a[:-1] = (dq + 2 * self.frac[None, :, None] * d[:, None, None] * ddq).reshape(n, -1)
-        b[:-1] = ddq.reshape(n, -1)
+        _rows_kernel(dq, ddq, self.frac, d, a, b)
         # The last grid point has no stage ahead: its own (end) derivatives, no u-term.
         a[-1] = np.tile(dq[-1, -1], f)
         b[-1] = np.tile(ddq[-1, -1], f)
@@ -219,6 +218,20 @@ class StageAccelerationConstraint:
         F = np.vstack([eye, -eye])
         g = np.tile(self.amax, 2 * len(self.frac))
         return a, b, np.zeros_like(a), F, g, None, None
+
+
+@njit
+def _rows_kernel(dq, ddq, frac, d, a, b):
+    """a[i, k dof + j] = q'_j + 2 f_k d_i q''_j and b[i, k dof + j] = q''_j at fraction f_k of stage i
+    (dq, ddq: (n, f, dof); rows i < n of a, b), in one pass: the same operations, in the same
+    order, as the numpy expression ``dq + 2 * frac * d * ddq``."""
+    n, f, dof = dq.shape
+    for i in range(n):
+        for k in range(f):
+            w = 2.0 * frac[k] * d[i]
+            for j in range(dof):
+                a[i, k * dof + j] = dq[i, k, j] + w * ddq[i, k, j]
+                b[i, k * dof + j] = ddq[i, k, j]
 
 
 def gridpoint_speed_factor(dq_stage: np.ndarray) -> np.ndarray:
@@ -350,30 +363,38 @@ def stage_maxima(rp: "RunPath", x, xd, xdd, vmax, amax, frac: np.ndarray = CHECK
     ``rp.stage_derivatives(x, frac)`` when the caller has it."""
     dq, ddq = rp.stage_derivatives(x, frac) if stage is None else stage
     n, dof = dq.shape[0], dq.shape[2]
-    bv, ba = np.empty((n, dof)), np.empty((n, dof))
-    _stage_bounds(*(np.ascontiguousarray(v, dtype=float) for v in (dq, ddq, xd, xdd, frac, vmax, amax)), bv, ba)
-    return StageMaxima(bv.max(axis=0), ba.max(axis=0), bv.argmax(axis=0), ba.argmax(axis=0), np.maximum(bv, ba).max(axis=1))
+    peak = np.empty((2, dof))
+    at = np.empty((2, dof), dtype=np.int64)
+    per_stage = np.empty(n)
+    _stage_bounds(*(np.ascontiguousarray(v, dtype=float) for v in (dq, ddq, xd, xdd, frac, vmax, amax)), peak, at,
+                  per_stage)
+    return StageMaxima(peak[0], peak[1], at[0], at[1], per_stage)
 
 
 @njit
-def _stage_bounds(dq, ddq, xd, xdd, frac, vmax, amax, bv, ba):
-    """:func:`stage_maxima`'s bounds per stage and channel, bv, ba (n, dof): at each fraction f,
-    x_dot^2 = w = max(0, x_i + (x_{i+1} - x_i) f), velocity |q'| sqrt(w) / vmax and acceleration
+def _stage_bounds(dq, ddq, xd, xdd, frac, vmax, amax, peak, at, per_stage):
+    """:func:`stage_maxima`'s bounds per stage and channel: at each fraction f, x_dot^2 =
+    w = max(0, x_i + (x_{i+1} - x_i) f), velocity |q'| sqrt(w) / vmax and acceleration
     |q' u + q'' w| / amax; the largest sample plus 0.3125 of the largest second difference of
-    the samples. NaN propagates (as numpy's max)."""
+    the samples. Reduced as numpy's max and argmax over the stages (peak, at: (2, dof), velocity
+    then acceleration; the first NaN wins, as it propagates) and max over the channels
+    (per_stage (n,))."""
     n, f, dof = dq.shape
     w = np.empty(f)
+    sw = np.empty(f)
     g = np.empty(f)
     for i in range(n):
         x0 = xd[i] * xd[i]
         x1 = xd[i + 1] * xd[i + 1]
         for m in range(f):
             w[m] = max(x0 + (x1 - x0) * frac[m], 0.0)
+            sw[m] = math.sqrt(w[m])
+        worst = 0.0
         for j in range(dof):
             for kind in range(2):
                 for m in range(f):
                     if kind == 0:
-                        g[m] = abs(dq[i, m, j]) * math.sqrt(w[m]) / vmax[j]
+                        g[m] = abs(dq[i, m, j]) * sw[m] / vmax[j]
                     else:
                         g[m] = abs(dq[i, m, j] * xdd[i] + ddq[i, m, j] * w[m]) / amax[j]
                 top = g[0]
@@ -387,10 +408,12 @@ def _stage_bounds(dq, ddq, xd, xdd, frac, vmax, amax, bv, ba):
                         if v > dd or v != v:
                             dd = v if dd == dd else dd
                     top = top + 0.3125 * dd
-                if kind == 0:
-                    bv[i, j] = top
-                else:
-                    ba[i, j] = top
+                if i == 0 or (peak[kind, j] == peak[kind, j] and (top > peak[kind, j] or top != top)):
+                    peak[kind, j] = top
+                    at[kind, j] = i
+                if (j == 0 and kind == 0) or (worst == worst and (top > worst or top != top)):
+                    worst = top
+        per_stage[i] = worst
 
 
 def run_stage_maxima(piece: RunPiece, kin, vmax, amax, filament: tuple[float, float] | None = None) -> StageMaxima:
