@@ -434,3 +434,18 @@ def test_well_conditioned_is_the_svd_condition_below_the_limit(name):
     for limit in (kin.singularity_limit, *np.quantile(cond, [0.2, 0.5, 0.9, 0.999])):
         kin.singularity_limit = limit
         np.testing.assert_array_equal(_quiet(kin.well_conditioned, pts, q), cond < limit)
+
+
+def test_well_conditioned_judges_the_pose_the_joints_hold():
+    """A rotary delta whose joints may pass -90 degrees reaches, by its inverse kinematics, a point
+    above the arms whose joint angles the machine holds at the lower root (forward(q)): the
+    condition is that pose's (449), not the point's (29), as condition(q) judges it."""
+    from deltaslice import load_printer
+
+    kin = load_printer("delta_uady", {"joints.position_min": [-100.0] * 3}).kinematics()
+    pt = np.array([[6.83, 1.017, 695.684]])
+    q = kin.inverse(pt)
+    assert np.all(np.isfinite(q)) and kin.within_joint_limits(q).all()
+    assert not np.allclose(kin.forward(q), pt)
+    assert kin.condition(q)[0] > kin.singularity_limit
+    assert not kin.well_conditioned(pt, q)[0] and not kin.reachable(pt)[0]

@@ -4,6 +4,8 @@ slicer's path ordering."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -215,6 +217,16 @@ def test_a_run_pieces_samples_are_its_profile_path_and_filament_bit_for_bit(name
         assert np.array_equal(q, kin.inverse(piece.path.frame(s, k)[0]), equal_nan=True)
         assert np.array_equal(de, piece.filament_at(s, k))
         assert np.array_equal(tool, np.full(len(tau), piece.tool))
+    # a laser's power per path piece at NaN and infinite times: the piece searchsorted gives (the last)
+    piece = max(pieces, key=lambda x: len(x.path.kind))
+    piece = dataclasses.replace(piece, power=np.linspace(0.1, 1.0, len(piece.path.kind)))
+    tau = np.array([np.nan, -np.inf, np.inf, -0.0, 0.5 * piece.duration])
+    with np.errstate(invalid="ignore"):
+        s = piece.arc_length_at(tau)
+        k = piece.path.locate(s)
+        q, de, tool = piece.sample(kin, tau)
+    assert np.array_equal(tool, piece.power[k]) and tool[0] == 1.0
+    assert np.array_equal(de, piece.filament_at(s, k), equal_nan=True)
 
 
 def _bed_points(p, rng, n):
@@ -476,6 +488,10 @@ def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():
             dq[rng.integers(0, n), rng.integers(0, 9), rng.integers(0, dof)] = np.nan
         if trial % 5 == 0:
             dq = np.round(dq)  # equal bounds in several stages
+        if trial % 7 == 0:
+            dq[:, :, 0] = ddq[:, :, 0] = 0.0  # a channel that never moves: every stage ties at 0
+        if trial % 11 == 0 and n > 2:
+            dq[1], ddq[1], xd[1:3], xdd[1] = dq[0], ddq[0], xd[0:2], xdd[0]  # a stage the same as the first
         vmax, amax = rng.uniform(0.5, 2, dof), rng.uniform(0.5, 2, dof)
         w = np.maximum((xd[:-1] ** 2)[:, None] + ((xd[1:] ** 2) - (xd[:-1] ** 2))[:, None] * topp.CHECK[None], 0.0)
         with np.errstate(invalid="ignore"):

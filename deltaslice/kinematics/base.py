@@ -196,8 +196,10 @@ class Kinematics:
         the same decisions at a fraction of the SVD's cost. A bound decides most points:
         cond(J) = cond(J^-1) <= |J^-1|_F |J|_F, with J = adj(J^-1) / det(J^-1) in closed form from
         the inverse Jacobian (analytic for most families); only points whose bound is not below
-        the limit (less than a millionth of margin) get the exact SVD."""
-        ji = self.inverse_jacobian_at(points, q)
+        the limit (less than a millionth of margin) get the exact SVD. The inverse Jacobian is
+        taken at q's own pose, as ``condition(q)`` takes the Jacobian (a rotary delta's forward
+        solution; ``points`` may be the other root where the joints pass about -90 degrees)."""
+        ji = self.inverse_jacobian(q)
         adj = np.cross(ji[:, [1, 2, 0]], ji[:, [2, 0, 1]])  # row i: the cofactors of row i
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             det = np.einsum("ni,ni->n", ji[:, 0], adj[:, 0])

@@ -125,7 +125,10 @@ class RunPiece:
 
 @njit
 def _last_at_or_below(a, v, n_max):
-    """``clip(searchsorted(a, v, side="right") - 1, 0, n_max - 1)`` for a sorted (m,) a."""
+    """``clip(searchsorted(a, v, side="right") - 1, 0, n_max - 1)`` for a sorted (m,) a (NaN
+    sorts last, as in searchsorted)."""
+    if v != v:
+        return n_max - 1
     lo, hi = 0, a.shape[0]
     while lo < hi:
         mid = (lo + hi) // 2

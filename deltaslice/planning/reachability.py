@@ -86,24 +86,23 @@ def _u_rows(a, b, lo, hi, i, ds, interp, n_rows, low_p, low_r, up_p, up_r):
 def _envelope(n, p, r, xl, xh, sign, keep):
     """The lines p_k + r_k x (k < n) that may lie on their upper (sign 1) or lower (sign -1)
     envelope over [xl, xh], into keep; returns how many. A line is left out when the line highest
-    at xl, or the one highest at xh, is at least as high at both ends (so on the whole interval):
-    every intersection it makes with a line of the other side is matched by one at least as tight."""
+    at xl, or the one highest at xh, is strictly higher at both ends (so on the whole interval):
+    every intersection it makes with a line of the other side is matched by one strictly tighter.
+    Lines are compared by their differences, (p_k - p_a) + (r_k - r_a) x, not by their values:
+    near-duplicate lines far from zero (|p| ~ 1e6) would tie once rounded and the binding one
+    could be the one left out."""
     ka = 0
     kb = 0
     for k in range(n):
-        if sign * (p[k] + r[k] * xl) > sign * (p[ka] + r[ka] * xl):
+        if sign * ((p[k] - p[ka]) + (r[k] - r[ka]) * xl) > 0.0:
             ka = k
-        if sign * (p[k] + r[k] * xh) > sign * (p[kb] + r[kb] * xh):
+        if sign * ((p[k] - p[kb]) + (r[k] - r[kb]) * xh) > 0.0:
             kb = k
-    a_l = sign * (p[ka] + r[ka] * xl)
-    a_h = sign * (p[ka] + r[ka] * xh)
-    b_l = sign * (p[kb] + r[kb] * xl)
-    b_h = sign * (p[kb] + r[kb] * xh)
     m = 0
     for k in range(n):
-        v_l = sign * (p[k] + r[k] * xl)
-        v_h = sign * (p[k] + r[k] * xh)
-        if k == ka or k == kb or not ((v_l <= a_l and v_h <= a_h) or (v_l <= b_l and v_h <= b_h)):
+        below_a = sign * ((p[k] - p[ka]) + (r[k] - r[ka]) * xl) < 0.0 and sign * ((p[k] - p[ka]) + (r[k] - r[ka]) * xh) < 0.0
+        below_b = sign * ((p[k] - p[kb]) + (r[k] - r[kb]) * xl) < 0.0 and sign * ((p[k] - p[kb]) + (r[k] - r[kb]) * xh) < 0.0
+        if not (below_a or below_b):
             keep[m] = k
             m += 1
     return m
@@ -111,7 +110,10 @@ def _envelope(n, p, r, xl, xh, sign, keep):
 
 @njit(error_model="python")
 def _pairs(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u):
-    """xl, xh tightened by every pair of the lower bounds keep_l[:nl] and upper bounds keep_u[:nu]."""
+    """(xl, xh, near): xl, xh tightened by every pair of the lower bounds keep_l[:nl] and upper
+    bounds keep_u[:nu]; near: a pair was within PARALLEL of parallel without being parallel
+    (its crossing is not looked for: only its intercepts are compared)."""
+    near = False
     for kk in range(nl):
         k = keep_l[kk]
         for jj in range(nu):
@@ -122,28 +124,33 @@ def _pairs(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u):
                 xh = min(xh, e / c)
             elif c < -PARALLEL:
                 xl = max(xl, e / c)
-            elif e < -1e-12 * (abs(up_p[j]) + abs(low_p[k]) + 1.0):
-                return np.inf, -np.inf
-    return xl, xh
+            else:
+                near = near or c != 0.0
+                if e < -1e-12 * (abs(up_p[j]) + abs(low_p[k]) + 1.0):
+                    return np.inf, -np.inf, near
+    return xl, xh, near
 
 
 @njit(error_model="python")
 def _x_range(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u):
     """Projection onto x of {(u, x): low_k(x) <= u <= up_j(x)} within [xl, xh]. Where it is not
-    empty it is that of the bounds that can lie on their envelope (:func:`_envelope`), paired;
-    an empty one (rare: it makes its run refine) is computed from every pair, whose gap the
-    caller's rounding test reads. keep_l, keep_u: scratch index arrays of at least nl and nu."""
+    empty it is that of the bounds that can lie on their envelope (:func:`_envelope`), paired.
+    Every pair is used instead where that projection is empty (rare: it makes its run refine;
+    the caller's rounding test reads the gap every pair gives) or where a pair was nearly
+    parallel (a bound left out could have been what held the range there). keep_l, keep_u:
+    scratch index arrays of at least nl and nu."""
     if xl <= xh and math.isfinite(xl) and math.isfinite(xh):
         ml = _envelope(nl, low_p, low_r, xl, xh, 1.0, keep_l)
         mu = _envelope(nu, up_p, up_r, xl, xh, -1.0, keep_u)
-        lo, hi = _pairs(ml, mu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u)
-        if lo <= hi:
+        lo, hi, near = _pairs(ml, mu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u)
+        if lo <= hi and not near:
             return lo, hi
     for k in range(nl):
         keep_l[k] = k
     for k in range(nu):
         keep_u[k] = k
-    return _pairs(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u)
+    lo, hi, _near = _pairs(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u)
+    return lo, hi
 
 
 @njit(error_model="python")

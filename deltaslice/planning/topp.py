@@ -363,6 +363,8 @@ def stage_maxima(rp: "RunPath", x, xd, xdd, vmax, amax, frac: np.ndarray = CHECK
     ``rp.stage_derivatives(x, frac)`` when the caller has it."""
     dq, ddq = rp.stage_derivatives(x, frac) if stage is None else stage
     n, dof = dq.shape[0], dq.shape[2]
+    if n == 0:
+        raise ValueError("stage_maxima: a grid of one point has no stages")
     peak = np.empty((2, dof))
     at = np.empty((2, dof), dtype=np.int64)
     per_stage = np.empty(n)
