@@ -15,14 +15,12 @@ start (n,) mm and tool state (n,) at times tau (n,) s from the piece start.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ..jit import njit
-from .blend import BlendedPath
+from .blend import BlendedPath, sample_kernel
 from .ruckig_profile import RuckigProfile
 
 
@@ -102,13 +100,13 @@ class RunPiece:
     def sample(self, kin, tau: np.ndarray):
         """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))
 
-        The points and the filament come from one compiled pass (:func:`_sample_kernel`: the
+        The points and the filament come from one compiled pass (:func:`.blend.sample_kernel`: the
         values of :meth:`arc_length_at`, ``path.locate``, ``path.frame`` and :meth:`filament_at`,
         the emitter's hottest call after the inverse kinematics)."""
         tau = np.ascontiguousarray(tau, dtype=np.float64)
         n, p = len(tau), self.path
         point, de, k = np.empty((n, 3)), np.empty(n), np.empty(n, dtype=np.int64)
-        _sample_kernel(tau, self.t, self.x, self.xd, self.xdd, float(self.S), p.piece_start, p.kind, p.p0, p.d0,
+        sample_kernel(tau, self.t, self.x, self.xd, self.xdd, float(self.S), p.piece_start, p.kind, p.p0, p.d0,
                        p.normal, p.radius, self.cum_e, self.e_ratio, point, de, k)
         q = kin.inverse(point)
         if self.power is None:
@@ -121,51 +119,6 @@ class RunPiece:
     @property
     def filament_total(self) -> float:
         return float(self.cum_e[-1])
-
-
-@njit
-def _last_at_or_below(a, v, n_max):
-    """``clip(searchsorted(a, v, side="right") - 1, 0, n_max - 1)`` for a sorted (m,) a (NaN
-    sorts last, as in searchsorted)."""
-    if v != v:
-        return n_max - 1
-    lo, hi = 0, a.shape[0]
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if a[mid] <= v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return min(max(lo - 1, 0), n_max - 1)
-
-
-@njit
-def _sample_kernel(tau, t, x, xd, xdd, S, piece_start, kind, p0, d0, normal, radius, cum_e, e_ratio, point, de, k):
-    """A run's point (n,3) mm, filament since its start (n,) mm and path piece (n,) at times tau
-    (n,) s, written into point, de and k: per sample, the stage's arc length
-    clip(x + xd dt + xdd dt^2 / 2, 0, 1) S, the piece holding it, the point on the piece (as
-    :func:`.blend._frame_kernel`), and the piece's filament, in the same operations as the
-    numpy methods they replace (the same values)."""
-    duration = t[t.shape[0] - 1]
-    for i in range(tau.shape[0]):
-        ta = min(max(tau[i], 0.0), duration)
-        j = _last_at_or_below(t, ta, xdd.shape[0])
-        dt = ta - t[j]
-        s = min(max(x[j] + xd[j] * dt + 0.5 * xdd[j] * dt * dt, 0.0), 1.0) * S
-        m = _last_at_or_below(piece_start, s, kind.shape[0])
-        k[i] = m
-        u = s - piece_start[m]
-        if kind[m] == 1:
-            r = radius[m]
-            a = u / r
-            sa = math.sin(a)
-            ca = math.cos(a)
-            for c in range(3):
-                point[i, c] = p0[m, c] + r * (sa * d0[m, c] + (1.0 - ca) * normal[m, c])
-        else:
-            for c in range(3):
-                point[i, c] = p0[m, c] + u * d0[m, c]
-        de[i] = cum_e[m] + (s - piece_start[m]) * e_ratio[m]
 
 
 @dataclass(frozen=True)
