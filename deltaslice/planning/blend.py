@@ -115,38 +115,25 @@ class BlendedPath:
 
 
 @njit
-def _point_on(j, u, kind, p0, d0, normal, radius, out, i):
-    """out[i] (3,) = the point u mm into piece j: a line's p0 + u d0, an arc's (radius r, turned by
-    a = u / r) p0 + r (sin a d0 + (1 - cos a) n). Returns (sin a, cos a), (0, 1) for a line."""
-    if kind[j] == 1:
-        r = radius[j]
-        a = u / r
-        sa = math.sin(a)
-        ca = math.cos(a)
-        for c in range(3):
-            out[i, c] = p0[j, c] + r * (sa * d0[j, c] + (1.0 - ca) * normal[j, c])
-        return sa, ca
-    for c in range(3):
-        out[i, c] = p0[j, c] + u * d0[j, c]
-    return 0.0, 1.0
-
-
-@njit
 def _frame_kernel(s, k, piece_start, kind, p0, d0, normal, radius, out):
     """out[0], out[1], out[2] (n,3): point, unit tangent, curvature vector at arc lengths s (n,) mm
     inside pieces k (n,). A line: p0 + u d0, d0, 0; an arc of radius r turned by a = u / r:
     p0 + r (sin a d0 + (1 - cos a) n), cos a d0 + sin a n, (-sin a d0 + cos a n) / r."""
-    points = out[0]
     for i in range(s.shape[0]):
         j = k[i]
-        sa, ca = _point_on(j, s[i] - piece_start[j], kind, p0, d0, normal, radius, points, i)
+        u = s[i] - piece_start[j]
         if kind[j] == 1:
             r = radius[j]
+            a = u / r
+            sa = math.sin(a)
+            ca = math.cos(a)
             for c in range(3):
+                out[0, i, c] = p0[j, c] + r * (sa * d0[j, c] + (1.0 - ca) * normal[j, c])
                 out[1, i, c] = ca * d0[j, c] + sa * normal[j, c]
                 out[2, i, c] = (-sa * d0[j, c] + ca * normal[j, c]) / r
         else:
             for c in range(3):
+                out[0, i, c] = p0[j, c] + u * d0[j, c]
                 out[1, i, c] = d0[j, c]
                 out[2, i, c] = 0.0
 
@@ -173,9 +160,9 @@ def sample_kernel(tau, t, x, xd, xdd, S, piece_start, kind, p0, d0, normal, radi
     (n,) mm and path piece (n,) at times tau (n,) s, written into point, de and k, from its
     profile (grid t, x, xd, xdd; length S mm) along this module's path arrays: per sample, the
     stage's arc length clip(x + xd dt + xdd dt^2 / 2, 0, 1) S, the piece holding it, the point on
-    the piece (:func:`_point_on`), and the piece's filament, in the same operations as the numpy
-    methods they replace (the same values). Here, beside the frame, because numba's cache sees
-    only the file a kernel is in: a helper in another file could change under a cached caller."""
+    the piece (as :func:`_frame_kernel`), and the piece's filament, in the same operations as the numpy
+    methods they replace (the same values). Here, beside the frame kernel whose point formula it
+    repeats: a change to one is a change to the other."""
     duration = t[t.shape[0] - 1]
     for i in range(tau.shape[0]):
         ta = min(max(tau[i], 0.0), duration)
@@ -184,7 +171,19 @@ def sample_kernel(tau, t, x, xd, xdd, S, piece_start, kind, p0, d0, normal, radi
         s = min(max(x[j] + xd[j] * dt + 0.5 * xdd[j] * dt * dt, 0.0), 1.0) * S
         m = _last_at_or_below(piece_start, s, kind.shape[0])
         k[i] = m
-        _point_on(m, s - piece_start[m], kind, p0, d0, normal, radius, point, i)
+        # the point as _frame_kernel computes it, written out here: a shared per-point helper
+        # (even inlined) made both kernels three times slower
+        u = s - piece_start[m]
+        if kind[m] == 1:
+            r = radius[m]
+            a = u / r
+            sa = math.sin(a)
+            ca = math.cos(a)
+            for c in range(3):
+                point[i, c] = p0[m, c] + r * (sa * d0[m, c] + (1.0 - ca) * normal[m, c])
+        else:
+            for c in range(3):
+                point[i, c] = p0[m, c] + u * d0[m, c]
         de[i] = cum_e[m] + (s - piece_start[m]) * e_ratio[m]
 
 
