@@ -1012,21 +1012,22 @@ def plan_runs(kin, printer, specs, speed_limit: str, solver: str = "fast") -> li
 
 def _plan_runs(kin, printer, specs, speed_limit: str, solver: str) -> list:
     out = [None] * len(specs)
-    # by extruder (a batch plans the tool channel for all its runs or none): [[(index, inputs)]], pieces
-    batches = {True: ([], [0]), False: ([], [0])}
+    # by extruder (a batch plans the tool channel for all its runs or none): [[(index, inputs)]], and
+    # the path pieces in each side's last batch
+    batches, size = {True: [], False: []}, {True: 0, False: 0}
     for i, spec in enumerate(specs):
         deduped = None if solver != "fast" or spec.power is not None or is_long(spec) else dedupe(spec.points, spec.feed, spec.e)
         if deduped is None or len(deduped[0]) < 2:
             out[i] = plan_run(kin, printer, spec, speed_limit, solver=solver)
             continue
         inputs = _path_inputs(*_prepare(printer, spec, None, deduped), speed_limit)
-        groups, pieces = batches[inputs.extruder]
-        if not groups or pieces[0] + len(inputs.path.kind) > BATCH_PIECES:
+        groups, side = batches[inputs.extruder], inputs.extruder
+        if not groups or size[side] + len(inputs.path.kind) > BATCH_PIECES:
             groups.append([])
-            pieces[0] = 0
+            size[side] = 0
         groups[-1].append((i, inputs))
-        pieces[0] += len(inputs.path.kind)
-    for extruder, (groups, _pieces) in batches.items():
+        size[side] += len(inputs.path.kind)
+    for extruder, groups in batches.items():
         for group in groups:
             for (i, _inputs), pieces in zip(group, _plan_batch(kin, printer, specs, group, extruder, speed_limit, solver)):
                 out[i] = pieces

@@ -90,7 +90,7 @@ class Trajectory:
             yield self._block(i0, min(i0 + block, n_total), rate)
 
     def _block(self, i0: int, i1: int, rate: float) -> Samples:
-        return self.sample_at(np.arange(i0, i1) / rate)
+        return self.sample_at(_times(i0, i1, rate))
 
     def _forked_blocks(self, rate: float, block: int, n_total: int, workers: int):
         """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task.
@@ -111,7 +111,7 @@ class Trajectory:
         for i0, i1, k in forked_map(_sample_task, tasks, workers, trajectory=self, slots=(q, e, tool)):
             for a in range(i0, i1, block):
                 rows = slice(a - i0, min(a + block, i1) - i0)
-                yield Samples(np.arange(a, a + rows.stop - rows.start) / rate, q[k, rows].copy(), e[k, rows, 0].copy(),
+                yield Samples(_times(a, a + rows.stop - rows.start, rate), q[k, rows].copy(), e[k, rows, 0].copy(),
                               tool[k, rows, 0].copy())
 
     def samples(self, rate: float | None = None) -> Samples:
@@ -153,6 +153,12 @@ class Trajectory:
                 m = run_stage_maxima(p, self.kin, vmax, amax)
                 pv, pa = np.maximum(pv, m.velocity), np.maximum(pa, m.acceleration)
         return pv, pa
+
+
+def _times(i0: int, i1: int, rate: float) -> np.ndarray:
+    """The times (i1 - i0,) s of samples i0..i1-1 at ``rate`` Hz: the one definition of the time base
+    that blocks sampled here and in the workers share."""
+    return np.arange(i0, i1) / rate
 
 
 def _sample_task(i0: int, i1: int, block: int, rate: float, k: int) -> tuple[int, int, int]:
