@@ -26,3 +26,15 @@ def printer(name: str):
 @pytest.fixture(params=PRINTER_NAMES)
 def any_printer(request):
     return printer(request.param)
+
+
+@pytest.fixture
+def small_windows(monkeypatch):
+    """A long run's windows made a few hundred segments (the planner's are thousands) so tests of
+    long runs stay fast."""
+    from deltaslice.planning import topp
+
+    monkeypatch.setattr(topp, "LONG_RUN", 300)
+    monkeypatch.setattr(topp, "WINDOW", 200)
+    monkeypatch.setattr(topp, "LOOKAHEAD", 100)
+    monkeypatch.setattr(topp, "LOOKAHEAD_MM", 5.0)

@@ -28,14 +28,6 @@ def spiral(n: int, z0: float = 0.3, r: float = 20.0, per_rev: int = 400, pitch: 
     return pts, e
 
 
-@pytest.fixture
-def small_windows(monkeypatch):
-    monkeypatch.setattr(topp, "LONG_RUN", 300)
-    monkeypatch.setattr(topp, "WINDOW", 200)
-    monkeypatch.setattr(topp, "LOOKAHEAD", 100)
-    monkeypatch.setattr(topp, "LOOKAHEAD_MM", 5.0)
-
-
 def _whole(kin, printer, spec, mode, monkeypatch):
     with monkeypatch.context() as m:
         m.setattr(topp, "LONG_RUN", 10**9)
@@ -142,26 +134,46 @@ def test_a_long_run_is_not_copied_while_its_windows_are_planned(monkeypatch):
     assert per_segment < 16, per_segment
 
 
-def test_a_cut_polylines_stretches_are_those_of_the_polyline_split_whole():
-    """_Cut.part builds a window's stretch of the polyline with its cut segments split at their
-    middles; it must be, bit for bit, that stretch of the split polyline built whole (np.insert)."""
+@pytest.mark.parametrize("size", [1, 7, 199, 5000])
+def test_a_long_runs_windows_are_the_same_however_its_stretches_come(size, small_windows, monkeypatch):
+    """The windows see the run's polyline a stretch at a time (_Held): whatever the stretches' size
+    (1 segment, 7, a window, all of it), every window is planned from the same polyline (cut
+    segments split at their middles, half the filament on each side), tolerance, start speed and
+    cap, bit for bit, and the pieces are the same."""
+    printer = load_printer("linear_kossel")
+    kin = printer.kinematics()
+    pts, e = spiral(1000)
     rng = np.random.default_rng(4)
-    m = 500
-    pts = np.cumsum(rng.uniform(-1, 1, (m + 1, 3)), axis=0)
-    poly = topp._Polyline(pts, rng.uniform(5, 50, m), rng.uniform(0, 0.1, m), rng.uniform(0, 1, m))
-    cuts = np.array([0, 57, 58, 200, 499])
-    cut = topp._Cut(poly, cuts)
-    mid = 0.5 * (pts[cuts] + pts[cuts + 1])
-    e = poly.e.copy()
-    e[cuts] *= 0.5
-    whole = topp._Polyline(np.insert(pts, cuts + 1, mid, axis=0), np.insert(poly.feed, cuts + 1, poly.feed[cuts]),
-                           np.insert(e, cuts + 1, e[cuts]), np.insert(poly.power, cuts + 1, poly.power[cuts]))
-    assert np.array_equal(cut.at, cuts + 1 + np.arange(len(cuts)))
-    n = len(whole.points) - 1
-    for a, b in [(0, n), (0, 1), (1, 2), (58, 62), (cut.at[1], cut.at[3] + 7), (n - 3, n), (300, 301)]:
-        got, want = cut.part(a, b), whole.part(a, b)
+    poly = topp._Polyline(pts, rng.uniform(20, 50, 1000), e, rng.uniform(0, 1, 1000))
+    spec = RunSpec(pts, poly.feed, e, 1.0, 0)
+    real = topp._plan_polyline
+
+    def windows(stretch):
+        calls = []
+
+        def record(kin_, printer_, spec_, p, speed_limit, tol, kind, solver, v_start=0.0, cap=None):
+            calls.append((p, tol, v_start, cap))
+            return real(kin_, printer_, spec_, p, speed_limit, tol, kind, solver, v_start=v_start, cap=cap)
+
+        monkeypatch.setattr(topp, "_plan_polyline", record)
+        parts = ((poly.part(a, min(a + stretch, 1000)), 0.05) for a in range(0, 1000, stretch))
+        pieces = [p for p, _done in topp._iter_windows(kin, printer, spec, parts, "feed", "run", "fast")]
+        return calls, pieces
+
+    want, want_pieces = windows(1000)
+    got, got_pieces = windows(size)
+    assert len(want) >= 5 and len(got) == len(want)
+    # the cuts: each window but the last is capped at a vertex that is a split segment's middle
+    for (p, _tol, _v, cap) in want[:-1]:
+        v = cap[0]
+        np.testing.assert_array_equal(p.points[v], 0.5 * (p.points[v - 1] + p.points[v + 1]))
+        assert p.e[v - 1] == p.e[v]
+    for w, g in zip(want, got):
         for name in ("points", "feed", "e", "power"):
-            assert np.array_equal(getattr(got, name), getattr(want, name)), (a, b, name)
+            assert np.array_equal(getattr(w[0], name), getattr(g[0], name)), name
+        assert w[1:] == g[1:]
+    assert [p.duration for p in got_pieces] == [p.duration for p in want_pieces]
+    assert sum(p.filament_total for p in got_pieces) == pytest.approx(sum(p.filament_total for p in want_pieces), rel=1e-12)
 
 
 def test_dedupe_hands_back_a_polyline_with_nothing_to_drop():

@@ -33,6 +33,7 @@ that starts or stops at rest always has room to move. Segments shorter than
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from dataclasses import dataclass
@@ -95,6 +96,13 @@ class RunSpec:
         """Segments a..b-1 as a run of their own."""
         power = None if self.power is None else self.power[a:b]
         return RunSpec(self.points[a : b + 1], self.feed[a:b], self.e[a:b], self.tool, self.layer, power, self.dynamic_power)
+
+    def followed_by(self, other: "RunSpec") -> "RunSpec":
+        """This run's segments and then ``other``'s, which starts at this one's last point."""
+        cat = np.concatenate
+        power = None if self.power is None else cat([self.power, other.power])
+        return RunSpec(cat([self.points, other.points[1:]]), cat([self.feed, other.feed]), cat([self.e, other.e]),
+                       self.tool, self.layer, power, self.dynamic_power)
 
 
 class RunPath:
@@ -478,7 +486,8 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     if len(poly.points) - 1 > LONG_RUN:
         box = [poly]
         del poly, deduped
-        return [piece for piece, _done in _iter_windows(kin, printer, spec, box, speed_limit, tol, kind, solver)]
+        return [piece for piece, _done in _iter_windows(kin, printer, spec, _stretches(box, tol), speed_limit, kind,
+                                                        solver)]
     return [_plan_polyline(kin, printer, spec, poly, speed_limit, tol, kind, solver)[0]]
 
 
@@ -495,13 +504,60 @@ def iter_run(kin, printer, spec: RunSpec, speed_limit: str, solver: str = "fast"
     if len(deduped[0]) >= 2:
         poly, tol = _prepare(printer, spec, None, deduped)
         del deduped  # whole-run copies: only the windows' own polyline is kept while they are planned
-        if len(poly.points) - 1 > LONG_RUN:
+        m = len(poly.points) - 1
+        if m > LONG_RUN:
             box = [poly]
             del poly
-            yield from _iter_windows(kin, printer, spec, box, speed_limit, tol, "run", solver)
+            for piece, done in _iter_windows(kin, printer, spec, _stretches(box, tol), speed_limit, "run", solver):
+                yield piece, done / m
             return
     for piece in plan_run(kin, printer, spec, speed_limit, solver=solver):
         yield piece, 1.0
+
+
+def iter_run_parts(kin, printer, parts, speed_limit: str, solver: str = "fast"):
+    """A run handed over in consecutive parts (RunSpecs, each starting at the previous one's last
+    point), planned window by window as its parts arrive: a spiral vase read a stretch at a
+    time is never held whole. Yields (piece, moves of the parts taken so far).
+
+    Each part is deduplicated and merged on its own (its ends stay vertices; a part is handed on
+    up to its last segment longer than a micron, so the filament of the shorter ones after it goes
+    to a segment of the next); a window's blends keep to what merging left of the tolerance in
+    the parts it spans (a whole run's keep to what merging left anywhere in it)."""
+    tol0 = printer.planning.blend_tolerance
+    taken, first = [0], []
+
+    def prepare(spec):
+        pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
+        pts, feed, e, moved = merge_short(pts, feed, e, MERGE_LENGTH, MERGE_DEVIATION * tol0)
+        return _Polyline(pts, feed, e, None if spec.power is None else _segment_power(spec, pts)), tol0 - moved
+
+    def prepared():
+        pending = None
+        for part in parts:
+            taken[0] += len(part.points) - 1
+            if not first:
+                first.append(part)
+            spec = part if pending is None else pending.followed_by(part)
+            kept = np.flatnonzero(np.linalg.norm(np.diff(spec.points, axis=0), axis=1) > DEDUPE_EPS)
+            if len(kept) < 2:
+                pending = spec
+                continue
+            yield prepare(spec.part(0, int(kept[-1])))
+            pending = spec.part(int(kept[-1]), len(spec.points) - 1)
+        if pending is not None:
+            first.append(pending)  # the last: all of the run when no segment of it is longer than a micron
+            yield prepare(pending)
+
+    stretches = prepared()
+    head = next(stretches)
+    if len(head[0].points) < 2:  # the whole run shorter than a micron: its filament pushed at rest
+        for piece in plan_run(kin, printer, first[-1], speed_limit, solver=solver):
+            yield piece, taken[0]
+        return
+    for piece, _done in _iter_windows(kin, printer, first[0], itertools.chain([head], stretches), speed_limit, "run",
+                                      solver):
+        yield piece, taken[0]
 
 
 @dataclass(frozen=True)
@@ -518,6 +574,15 @@ class _Polyline:
         return _Polyline(self.points[a : b + 1], self.feed[a:b], self.e[a:b], None if self.power is None else self.power[a:b])
 
 
+def _stretches(box: list, tol: float):
+    """A prepared polyline (taken out of ``box``, so only this generator holds it) as consecutive
+    stretches of WINDOW segments (views, not copies), each with the blend tolerance ``tol`` (mm)."""
+    poly = box.pop()
+    m = len(poly.points) - 1
+    for a in range(0, m, WINDOW):
+        yield poly.part(a, min(a + WINDOW, m)), tol
+
+
 class _StartTooFast(PlanningError):
     """A window cannot start at the speed the previous one committed; ``speed``: the fastest it can (mm/s)."""
 
@@ -526,69 +591,178 @@ class _StartTooFast(PlanningError):
         self.speed = speed
 
 
-def _iter_windows(kin, printer, spec: RunSpec, box: list, speed_limit, tol, kind, solver):
+class _Held:
+    """The polyline of a long run, split at its cuts, held from one vertex (``v0``, an index in the
+    split polyline) to as far as the windows have looked: stretches are taken from the run's
+    iterator as they are needed and the part before a window that can no longer be planned again
+    is dropped, so what is held is a few windows whatever the run's length.
+
+    stretches: (polyline, blend tolerance left, mm) pairs. seg: (k,) the held segments' lengths, mm
+    (a cut segment's two halves once it is split); tol: (k,) the tolerance left where each came
+    from; s0: the arc length at v0 (mm), summed segment by segment from the run's start as
+    ``np.cumsum`` sums, so the lookahead's arc lengths are the same bits however the run arrives."""
+
+    def __init__(self, stretches):
+        self.stretches = stretches
+        self.v0, self.s0, self.ended = 0, 0.0, False
+        first, tol = next(stretches)
+        self.poly = first
+        self.seg = np.linalg.norm(np.diff(first.points, axis=0), axis=1)
+        self.tol = np.full(len(self.seg), tol)
+
+    @property
+    def last(self) -> int:
+        """The index of the last vertex held."""
+        return self.v0 + len(self.seg)
+
+    def pull(self) -> bool:
+        """Take the next stretch; False when the run has ended."""
+        if self.ended:
+            return False
+        nxt = next(self.stretches, None)
+        if nxt is None:
+            self.ended = True
+            return False
+        nxt, tol = nxt
+        p, cat = self.poly, np.concatenate
+        power = None if p.power is None else cat([p.power, nxt.power])
+        self.poly = _Polyline(cat([p.points, nxt.points[1:]]), cat([p.feed, nxt.feed]), cat([p.e, nxt.e]), power)
+        self.seg = cat([self.seg, np.linalg.norm(np.diff(nxt.points, axis=0), axis=1)])
+        self.tol = cat([self.tol, np.full(len(nxt.points) - 1, tol)])
+        return True
+
+    def reach(self, v: int) -> None:
+        """Hold vertex v, or up to the run's end."""
+        while self.last < v and self.pull():
+            pass
+
+    def arc_ends(self) -> np.ndarray:
+        """The arc length at the end of every held segment (mm, from the run's start)."""
+        return np.cumsum(np.concatenate([[self.s0], self.seg]))[1:]
+
+    def reach_arc(self, s: float) -> None:
+        """Hold the run up to arc length s (mm), or to its end."""
+        while (self.arc_ends()[-1] if len(self.seg) else self.s0) < s and self.pull():
+            pass
+
+    def split(self, c: int) -> None:
+        """Split segment c at its middle: a new vertex c + 1, half the filament on either side."""
+        i, p = c - self.v0, self.poly
+        mid = 0.5 * (p.points[i] + p.points[i + 1])
+        halves = np.linalg.norm(np.diff(np.stack([p.points[i : i + 1], mid[None], p.points[i + 1 : i + 2]], axis=1),
+                                        axis=1), axis=2)[0]
+        e = p.e.copy()
+        e[i] *= 0.5
+        power = None if p.power is None else np.insert(p.power, i + 1, p.power[i])
+        self.poly = _Polyline(np.insert(p.points, i + 1, mid, axis=0), np.insert(p.feed, i + 1, p.feed[i]),
+                              np.insert(e, i + 1, e[i]), power)
+        self.seg = np.insert(self.seg, i + 1, halves[1])
+        self.seg[i] = halves[0]
+        self.tol = np.insert(self.tol, i + 1, self.tol[i])
+
+    def drop_before(self, v: int) -> None:
+        """Let go of the vertices before v (copied, so the memory goes)."""
+        i = v - self.v0
+        if i <= 0:
+            return
+        self.s0 = float(np.cumsum(np.concatenate([[self.s0], self.seg[:i]]))[-1])
+        p = self.poly
+        self.poly = _Polyline(p.points[i:].copy(), p.feed[i:].copy(), p.e[i:].copy(),
+                              None if p.power is None else p.power[i:].copy())
+        self.seg, self.tol = self.seg[i:].copy(), self.tol[i:].copy()
+        self.v0 = v
+
+    def part(self, a: int, b: int) -> tuple[_Polyline, float]:
+        """Vertices a..b of the split polyline, and the blend tolerance left along them (mm)."""
+        return self.poly.part(a - self.v0, b - self.v0), float(self.tol[a - self.v0 : b - self.v0].min())
+
+
+def _next_cut(held: _Held, prev: int) -> int | None:
+    """The vertex the next window ends at, after the one ending at vertex ``prev``: its segment split
+    at the middle of the longest segment within WINDOW // 8 of WINDOW segments on (a straight point:
+    no blend arc crosses it, both windows see the same geometry around it); None when fewer than
+    WINDOW // 2 segments would follow it (the last window takes them)."""
+    target = prev + WINDOW
+    held.reach(target + WINDOW // 2 + 1)
+    if not target < held.last - WINDOW // 2:
+        return None
+    lo, hi = target - WINDOW // 8, min(target + WINDOW // 8, held.last - 1)
+    c = lo + int(np.argmax(held.seg[lo - held.v0 : hi - held.v0]))
+    held.split(c)
+    return c + 1
+
+
+def _iter_windows(kin, printer, spec: RunSpec, stretches, speed_limit, kind, solver):
     """A long run planned window by window so the planner's memory is bounded by a window, not
     the run (a spiral vase is one run of a million moves). Each window plans its WINDOW
     segments plus a lookahead to rest, then keeps the part up to its cut, ending at the speed
     the lookahead allowed there; the next window starts at that speed, so the pieces join
     without stopping. Cuts are at the middle of the longest segment near every WINDOW-th
-    (a straight point: no blend arc crosses it, both windows see the same geometry around it).
-    A window that cannot start that fast (its grid refined differently) makes the previous one
-    re-plan to the speed it can start at (so each piece is handed out only once its successor
-    has started). Yields (piece, fraction of the run's segments done). ``box``: a list holding
-    the run's polyline (prepared), taken out of it so that only the windows hold it (a spiral
-    vase's run is millions of segments)."""
-    poly = box.pop()
-    pts, m = poly.points, len(poly.points) - 1
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    cuts, target = [], WINDOW
-    while target < m - WINDOW // 2:
-        lo, hi = target - WINDOW // 8, min(target + WINDOW // 8, m - 1)
-        c = lo + int(np.argmax(seg[lo:hi]))
-        cuts.append(c)
-        target = c + WINDOW
-    cuts = np.array(cuts, dtype=int)
-    # Split every cut segment at its middle: a new vertex, half the filament on each side. The
-    # polyline with the new vertices is never built whole (a spiral vase's run would be copied):
-    # each window takes its stretch of it (_Cut.part), and only the arc length at every vertex
-    # is kept for the lookahead.
-    cut = _Cut(poly, cuts)
-    halves = np.linalg.norm(np.diff(np.stack([pts[cuts], cut.mid, pts[cuts + 1]], axis=1), axis=1), axis=2)
-    seg[cuts] = halves[:, 0]
-    seg_end = np.cumsum(np.insert(seg, cuts + 1, halves[:, 1]))
-    del seg, halves
-    n_vertices = m + 1 + len(cuts)
-    vertices = np.concatenate([[0], cut.at, [n_vertices - 1]])
+    (:func:`_next_cut`). A window that cannot start that fast (its grid refined differently)
+    makes the previous one re-plan to the speed it can start at (so each piece is handed out
+    only once its successor has started). ``stretches``: the run's prepared polyline in
+    consecutive stretches with the blend tolerance left in each, taken as the windows reach them
+    (:class:`_Held`); spec: the run (its tool, layer and power mode). Yields (piece, segments of
+    the run done)."""
+    held = _Held(stretches)
+    ends = [0]  # the windows' first vertices, and the run's last once known
+    final = False  # whether ends[-1] is the run's last vertex
 
-    held, starts, k = None, [0.0], 0  # held: the last window's piece, until the next one starts
+    def add_cut() -> None:
+        nonlocal final
+        c = _next_cut(held, ends[-1])
+        final = c is None
+        ends.append(held.last if final else c)
+
+    held_piece, starts, k = None, [0.0], 0  # held_piece: the last window's, until the next one starts
     caps = {}  # window -> the fastest its successor can start, after a re-plan
-    while k < len(vertices) - 1:
-        a, b = int(vertices[k]), int(vertices[k + 1])
-        last = k == len(vertices) - 2
+    while True:
+        while not final and len(ends) < k + 2:
+            add_cut()
+        if k >= len(ends) - 1:
+            break
+        if k:
+            held.drop_before(ends[k - 1])  # the previous window may still be planned again
+        a, b = ends[k], ends[k + 1]
+        last = final and k == len(ends) - 2
         end = b
         if not last:
-            # Look ahead LOOKAHEAD segments and at least LOOKAHEAD_MM past the cut.
-            far = int(np.searchsorted(seg_end, seg_end[b - 1] + LOOKAHEAD_MM)) + 1
-            end = min(n_vertices - 1, max(b + LOOKAHEAD, far))
+            # Look ahead LOOKAHEAD segments and at least LOOKAHEAD_MM past the cut, every cut in
+            # that stretch decided first.
+            while True:
+                held.reach(b + LOOKAHEAD)
+                s_cut = held.arc_ends()[b - 1 - held.v0]
+                held.reach_arc(s_cut + LOOKAHEAD_MM)
+                far = held.v0 + int(np.searchsorted(held.arc_ends(), s_cut + LOOKAHEAD_MM)) + 1
+                end = max(b + LOOKAHEAD, far)
+                if held.ended:
+                    end = min(held.last, end)
+                # a cut is decided before the windows reach it: splitting a segment later would move
+                # the arc lengths this lookahead was measured with (deciding one early changes nothing)
+                if final or ends[-1] + WINDOW - WINDOW // 8 > end + 1:
+                    break
+                add_cut()
+            held.reach(end)
         cap = None if last else (b - a, caps.get(k, np.inf))
+        poly, tol = held.part(a, end)
         try:
-            piece, cut_speed = _plan_polyline(kin, printer, spec, cut.part(a, end), speed_limit, tol, kind, solver,
+            piece, cut_speed = _plan_polyline(kin, printer, spec, poly, speed_limit, tol, kind, solver,
                                               v_start=starts[k], cap=cap)
         except _StartTooFast as exc:
-            if held is None or k - 1 in caps:  # the previous piece is gone already, or was re-planned once
+            if held_piece is None or k - 1 in caps:  # the previous piece is gone already, or was re-planned once
                 raise PlanningError(f"layer {spec.layer}: a long run's windows do not join (start {starts[k]:.4g} mm/s, "
                                     f"at most {exc.speed:.4g} mm/s)") from None
             caps[k - 1] = exc.speed
-            held = None
+            held_piece = None
             del starts[k:]
             k -= 1
             continue
-        if held is not None:
-            yield held, a / (n_vertices - 1)
-        held = piece
+        if held_piece is not None:
+            yield held_piece, a - k
+        held_piece = piece
         starts.append(cut_speed)
         k += 1
-    yield held, 1.0
+    yield held_piece, ends[-1] - (len(ends) - 2)
 
 
 @dataclass(frozen=True)
@@ -634,34 +808,6 @@ def _path_inputs(poly: _Polyline, tol: float, speed_limit: str) -> _PathInputs:
         jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
         stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
     return _PathInputs(path, e_ratio, cum_e, extruder, piece_feed, stop_at)
-
-
-class _Cut:
-    """A polyline with the segments ``cuts`` (c,) split at their middles: mid (c, 3) the new
-    vertices, at (c,) their indices in the split polyline (each cut segment's filament halved
-    on its two halves), whose stretches :meth:`part` builds without building it whole."""
-
-    def __init__(self, poly: _Polyline, cuts: np.ndarray):
-        self.poly, self.cuts = poly, cuts
-        self.mid = 0.5 * (poly.points[cuts] + poly.points[cuts + 1])
-        self.at = cuts + 1 + np.arange(len(cuts))
-
-    def part(self, a: int, b: int) -> _Polyline:
-        """Vertices a..b (segments a..b-1) of the split polyline."""
-        poly, j = self.poly, np.arange(a, b + 1)
-        if len(self.at) == 0:
-            return poly.part(a, b)
-        k = np.searchsorted(self.at, j, side="right")  # new vertices at or before each
-        new = (k > 0) & (self.at[np.maximum(k - 1, 0)] == j)
-        points = poly.points[np.where(new, 0, j - k)]
-        points[new] = self.mid[k[new] - 1]
-        # segment j starts at vertex j: an original vertex's own segment, or a new vertex's cut one
-        orig = np.where(new, self.cuts[np.maximum(k - 1, 0)], j - k)[:-1]
-        halved = np.isin(orig, self.cuts)
-        e = poly.e[orig]
-        e[halved] *= 0.5
-        power = None if poly.power is None else poly.power[orig]
-        return _Polyline(points, poly.feed[orig], e, power)
 
 
 def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: str, tol: float, kind: str, solver: str,
