@@ -216,6 +216,20 @@ class Toolpath:
             cat(events),
         )
 
+    def then(self, other: "Toolpath") -> "Toolpath":
+        """This toolpath's moves followed by ``other``'s, which starts where this one ends: one
+        stretch of a print handed over in chunks (layers keep their numbers; the layer heights
+        are the longer list of the two)."""
+        if len(self) and not np.allclose(other.start, self.xyz[-1], rtol=0, atol=1e-9):
+            raise DeltasliceError(f"Toolpath.then: the next stretch starts at {other.start.tolist()}, "
+                                  f"not where this one ends ({self.xyz[-1].tolist()})")
+        ev = other.events.copy()
+        ev["index"] += len(self)
+        cat = np.concatenate
+        return Toolpath(self.start, cat([self.xyz, other.xyz]), cat([self.feed, other.feed]), cat([self.e, other.e]),
+                        cat([self.tool, other.tool]), cat([self.role, other.role]), cat([self.layer, other.layer]),
+                        max(self.layer_z, other.layer_z, key=len), cat([self.events, ev]))
+
     # -- views -------------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.xyz)

@@ -10,6 +10,7 @@ Cartesian planner instead (:mod:`.trapezoid`), made safe for the joint limits.
 
 from __future__ import annotations
 
+import itertools
 from array import array
 from collections import deque
 
@@ -20,19 +21,22 @@ from ..pool import resolve_workers, start_pool
 from ..toolpath import WAIT_KINDS, Role, Toolpath
 from .pieces import Piece
 from .spool import SPOOL_MOVES, PieceSpool
-from .topp import SOLVERS, RunSpec, is_long, iter_run, plan_runs
+from .topp import SOLVERS, RunSpec, is_long, iter_run, iter_run_parts, plan_runs
 from .trajectory import Trajectory
 from .travel import from_rest, plan_travels, to_rest
 
-__all__ = ["plan", "Piece", "Trajectory", "split_runs", "check_reachable"]
+__all__ = ["plan", "plan_stream", "Piece", "Trajectory", "split_runs", "check_reachable"]
 
 _WORKER = {}
 # Jobs per chunk handed to a worker: an eighth of the print's, at most 64 (small prints still make 8 chunks).
 CHUNKS_PER_PRINT = 8
+# Moves a run handed over in chunks (plan_stream) gathers before it is planned as its parts come.
+STREAM_RUN = 50_000
 
 
-def check_reachable(toolpath: Toolpath, printer) -> None:
-    """Raise UnreachableError naming the layer and position of the first point out of reach."""
+def check_reachable(toolpath: Toolpath, printer, hint: bool = True) -> None:
+    """Raise UnreachableError naming the layer and position of the first point out of reach;
+    hint: say whether the part would fit centred (False for a stretch of a part, which cannot tell)."""
     kin = printer.kinematics()
     pts = np.concatenate([toolpath.start[None], toolpath.xyz])
     ok = kin.reachable(pts)
@@ -54,7 +58,7 @@ def check_reachable(toolpath: Toolpath, printer) -> None:
                 why = "beyond a mechanical limit (ball-joint tilt)"
         from ..toolpath import fits_centred
 
-        hint = (
+        hint = "" if not hint else (
             "; the part would fit centred on the bed: use --center (center=True)"
             if fits_centred(toolpath, printer)
             else "; it would not fit centred on the bed either"
@@ -156,22 +160,9 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     None: for toolpaths of more than ``SPOOL_MOVES`` moves. Memory is then bounded by what is
     planned at once (a run, or a window of a long run), not by the print.
     """
-    from ..machine import Printer
-
     if not isinstance(toolpath, Toolpath):
         raise DeltasliceError(f"plan: toolpath: expected a Toolpath, got {type(toolpath).__name__}")
-    if not isinstance(printer, Printer):
-        raise DeltasliceError(
-            f"plan: printer: expected a loaded Printer (deltaslice.load_printer(path)), got {type(printer).__name__} {printer!r:.60}")
-    if speed_limit not in ("feed", "machine"):
-        raise DeltasliceError(f"speed_limit must be 'feed' or 'machine', not {speed_limit!r}")
-    if planner not in ("toppra", "trapezoid"):
-        raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
-    if solver not in SOLVERS:
-        raise DeltasliceError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
-    resolve_workers(workers, "plan")
-    if progress is not None and not callable(progress):
-        raise DeltasliceError(f"plan: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
+    _check_options("plan", printer, speed_limit, planner, solver, workers, progress)
     if spool is not None and not isinstance(spool, bool):
         raise DeltasliceError(f"plan: spool = {spool!r}: expected True, False or None")
     if len(toolpath) == 0:
@@ -191,49 +182,182 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         # one trapezoid per kept move: move m starts at t0[number of kept moves before m]
         kept_before = np.concatenate([[0], np.cumsum(_moves(toolpath, printer)[-1])])
         times = traj.pieces[len(head)].t0[np.minimum(kept_before[toolpath.events["index"]], len(traj.pieces[len(head)].t0) - 1)]
-        traj.events = _at_rest(toolpath, _event_times(toolpath, times), sum(p.duration for p in head), traj.duration)
+        traj.events = _at_rest(toolpath.events["index"], len(toolpath), _event_times(toolpath.events, times),
+                               sum(p.duration for p in head), traj.duration)
         return traj
     if spool is None:
         spool = len(toolpath) > SPOOL_MOVES
     return _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool)
 
 
-def _at_rest(toolpath: Toolpath, events: tuple, offset: float, duration: float) -> tuple:
+def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed", workers=None, progress=None,
+                solver="fast") -> Trajectory:
+    """Plan a toolpath handed over in consecutive chunks, holding a few of them at a time: a G-code
+    of millions of moves read a stretch at a time (:func:`deltaslice.gcode.iter_gcode`) is never
+    held whole. The time-optimal planner, as :func:`plan` gives it; the pieces are kept on disk.
+
+    chunks: an iterable of Toolpaths, each starting where the one before ends, layers numbered
+    through the print (every chunk's layer_z the print's), events indexed within their chunk.
+    moves: the moves in all chunks (for progress), or None. The other options are :func:`plan`'s.
+
+    Each chunk's last run or travel is planned with the next chunk's moves (it may go on there),
+    so the jobs are those of the chunks joined, and a run of at most STREAM_RUN moves is planned
+    exactly as :func:`plan` plans it (the jobs go to the workers 64 at a time, as those of a print
+    of more than 512 jobs do: a smaller print planned whole batches its travels otherwise, which
+    moves their last bits). A run longer than that which goes on past a chunk is planned
+    window by window as its stretches come (:func:`.topp.iter_run_parts`): its merging and
+    blending differ from the whole run's at the stretches' ends only (its duration within 0.1 %).
+    A point out of reach is found when its chunk comes, after what is before it is planned."""
+    _check_options("plan_stream", printer, speed_limit, "toppra", solver, workers, progress)
+    if moves is not None and (not isinstance(moves, (int, np.integer)) or moves < 0):
+        raise DeltasliceError(f"plan_stream: moves = {moves!r}: expected a count of moves or None")
+    seen = {"moves": 0, "last": None, "motion": False}
+    events = []
+
+    def checked(chunks):
+        for tp in chunks:
+            if not isinstance(tp, Toolpath):
+                raise DeltasliceError(f"plan_stream: chunks: expected Toolpaths, got {type(tp).__name__}")
+            if not len(tp):
+                continue
+            if seen["last"] is not None and not np.allclose(tp.start, seen["last"], rtol=0, atol=1e-9):
+                raise DeltasliceError(f"plan_stream: the chunk at move {seen['moves']} starts at {tp.start.tolist()}, "
+                                      f"not where the one before ends ({seen['last'].tolist()})")
+            _check_tool(tp, printer)
+            check_reachable(tp, printer, hint=False)
+            seen["motion"] = seen["motion"] or bool(((tp.lengths > 1e-9) | (tp.e != 0)).any())
+            ev = tp.events.copy()
+            ev["index"] += seen["moves"]
+            events.append(ev)
+            seen["moves"] += len(tp)
+            seen["last"] = tp.xyz[-1]
+            yield tp
+
+    stream = checked(chunks)
+    first = next(stream, None)
+    if first is None:
+        raise DeltasliceError("the toolpath has no moves: nothing to plan")
+    kin = printer.kinematics()
+    pieces = PieceSpool()
+    pieces.extend(from_rest(kin, printer, first.start, speed_limit))
+    job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream)), pieces, 64, moves, 10**9, printer,
+                                      speed_limit, workers, progress, solver)
+    if not seen["motion"]:
+        raise DeltasliceError(f"the toolpath's {seen['moves']} move(s) have zero length and no extrusion: nothing to plan")
+    tail = to_rest(kin, printer, seen["last"], speed_limit)
+    return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, np.concatenate(events), seen["moves"])
+
+
+def _stream_jobs(chunks):
+    """:func:`_jobs` of consecutive chunks joined, holding one chunk and what is held back from
+    the one before: the last run or travel of each chunk waits for the next chunk's moves; a run
+    grown past STREAM_RUN moves is handed over as a "parts" job (:func:`_run_parts`), after
+    which what follows it in its last chunk goes on."""
+    held, at, top = None, 0, 0.0  # moves held back (from a job's first move), the first one's index, the printed top
+    while True:
+        tp = next(chunks, None)
+        if tp is None:
+            if held is not None:
+                yield from _jobs(held, split_runs(held), at, printed_top=top)
+            return
+        cur = tp if held is None else held.then(tp)
+        ranges = split_runs(cur)
+        items = list(_jobs(cur, ranges, at, printed_top=top))
+        yield from items[:-1]
+        start, _end, kind, _job = items[-1]
+        first = start - at
+        top = max([top] + [float(cur.xyz[i:j, 2].max()) for i, j in ranges if j <= first])
+        held, at = cur.subset(slice(first, None)), start
+        del cur, items, _job
+        if kind == "run" and len(held) > STREAM_RUN:
+            after = {}
+            yield at, at, "parts", _run_parts(held, at, chunks, after)
+            if "at" not in after:
+                raise DeltasliceError("plan_stream: a run handed over in parts was not planned to its end")
+            held, at, top = after["rest"], after["at"], max(top, after["top"])
+
+
+def _run_parts(run: Toolpath, at: int, chunks, after: dict):
+    """RunSpecs of a run as it comes: ``run`` (a toolpath all of whose moves are the run, its first
+    being move ``at`` of the print), then its moves in each chunk taken from ``chunks`` until it
+    ends. Then ``after`` holds what is left: "rest" (the moves after the run in its last chunk, a
+    Toolpath, or None), "at" (the first one's index) and "top" (the run's highest point, mm)."""
+    top = float(run.xyz[:, 2].max())
+    yield _run_spec(run, 0, len(run))
+    last, n = run.subset(slice(len(run) - 1, None)), at + len(run) - 1  # the run's last move, and its index
+    del run
+    while True:
+        tp = next(chunks, None)
+        if tp is None:
+            after.update(rest=None, at=n + 1, top=top)
+            return
+        joined = last.then(tp)
+        ranges = split_runs(joined)
+        j0 = ranges[0][1] if ranges and ranges[0][0] == 0 else 1  # the run goes on to move j0
+        if j0 > 1:
+            yield _run_spec(joined, 1, j0)
+            top = max(top, float(joined.xyz[1:j0, 2].max()))
+        if j0 < len(joined):
+            after.update(rest=joined.subset(slice(j0, None)), at=n + j0, top=top)
+            return
+        last, n = joined.subset(slice(len(joined) - 1, None)), n + len(joined) - 1
+
+
+def _check_options(caller, printer, speed_limit, planner, solver, workers, progress) -> None:
+    from ..machine import Printer
+
+    if not isinstance(printer, Printer):
+        raise DeltasliceError(
+            f"{caller}: printer: expected a loaded Printer (deltaslice.load_printer(path)), got {type(printer).__name__} {printer!r:.60}")
+    if speed_limit not in ("feed", "machine"):
+        raise DeltasliceError(f"speed_limit must be 'feed' or 'machine', not {speed_limit!r}")
+    if planner not in ("toppra", "trapezoid"):
+        raise DeltasliceError(f"planner must be 'toppra' or 'trapezoid', not {planner!r}")
+    if solver not in SOLVERS:
+        raise DeltasliceError(f"solver must be one of {', '.join(SOLVERS)}, not {solver!r}")
+    resolve_workers(workers, caller)
+    if progress is not None and not callable(progress):
+        raise DeltasliceError(f"{caller}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
+
+
+def _at_rest(index: np.ndarray, n: int, events: tuple, offset: float, duration: float) -> tuple:
     """Events timed within the toolpath's own motion, moved onto the whole trajectory: those
     before the first move happen at t = 0, at the rest pose (a heater warms up and a wait holds
     there, not over the bed); those after the last move at the end, parked; the rest shift by
-    ``offset`` (s)."""
-    index = toolpath.events["index"]
+    ``offset`` (s). index: (m,) the events' move indices; n: the toolpath's moves."""
     return tuple(
-        (0.0 if i == 0 else duration if i >= len(toolpath) else t + offset, k, v)
+        (0.0 if i == 0 else duration if i >= n else t + offset, k, v)
         for (t, k, v), i in zip(events, index.tolist())
     )
 
 
-def _jobs(toolpath: Toolpath, ranges):
+def _jobs(toolpath: Toolpath, ranges, offset: int = 0, pos=None, printed_top: float = 0.0):
     """(first move, end move, kind, job) of every run and of the travels between them (and before
     the first, after the last), in print order, made one at a time: a print of 270k runs would
-    hold hundreds of MB of them at once."""
-    pos = toolpath.start
-    printed_top = 0.0
+    hold hundreds of MB of them at once. offset: the toolpath's first move's index in the print;
+    pos, printed_top: where the tool is before the first move (default: the start) and the top of
+    what is printed already (mm), for a toolpath that goes on from another."""
+    pos = toolpath.start if pos is None else pos
     prev_end = 0
     for i, j in ranges:
         if i > prev_end:
-            yield prev_end, i, "travel", _travel_args(toolpath, prev_end, i, pos, printed_top)
-        yield i, j, "run", _run_spec(toolpath, i, j)
+            yield offset + prev_end, offset + i, "travel", _travel_args(toolpath, prev_end, i, pos, printed_top)
+        yield offset + i, offset + j, "run", _run_spec(toolpath, i, j)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
     if prev_end < len(toolpath):
-        yield prev_end, len(toolpath), "travel", _travel_args(toolpath, prev_end, len(toolpath), pos, printed_top)
+        yield offset + prev_end, offset + len(toolpath), "travel", _travel_args(toolpath, prev_end, len(toolpath), pos,
+                                                                                 printed_top)
 
 
 def _slots(jobs, chunk: int):
     """Consecutive jobs grouped for the workers: ("pool", [(start, end, kind, job), ...]) of at most
-    ``chunk`` jobs, or ("here", (start, end, kind, job)) for a long run the main process plans."""
+    ``chunk`` jobs, or ("here", (start, end, kind, job)) for a long run the main process plans (a
+    run handed over in parts too: "parts", see :func:`plan_stream`)."""
     group = []
     for item in jobs:
-        if item[2] == "run" and is_long(item[3]):
+        if item[2] == "parts" or (item[2] == "run" and is_long(item[3])):
             if group:
                 yield "pool", group
                 group = []
@@ -248,30 +372,40 @@ def _slots(jobs, chunk: int):
 
 
 def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool) -> Trajectory:
-    """The time-optimal planner: head (from rest), the toolpath's runs and travels, tail (to rest).
-
-    Runs and travels are planned in the worker processes in print order, at most a few chunks
-    ahead of what has been put away (memory bounded by what is in flight, not by the print); a
-    long run (:func:`.topp.is_long`) is planned here, window by window, while the workers go on
-    with what follows it, so its pieces can be put away one by one."""
+    """The time-optimal planner: head (from rest), the toolpath's runs and travels, tail (to rest)."""
     ranges = split_runs(toolpath)
-    workers = resolve_workers(workers, "plan")
     n_jobs = 2 * len(ranges) + 1  # at most: a travel before every run, one after the last
     # The chunks do not depend on the number of workers: a chunk's travels are solved as one batch
     # (travel.plan_travels), so the same chunks give the same bytes whatever --workers is.
     chunk = max(1, min(64, n_jobs // CHUNKS_PER_PRINT))
-    slots = _slots(_jobs(toolpath, ranges), chunk)
-
     pieces = PieceSpool() if spool else []
     pieces.extend(head)
+    job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges), pieces, chunk, len(toolpath), n_jobs, printer,
+                                      speed_limit, workers, progress, solver)
+    return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, toolpath.events, len(toolpath))
+
+
+def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, n_jobs: int, printer, speed_limit, workers, progress,
+               solver):
+    """Plan ``jobs`` (see :func:`_jobs`) into ``pieces`` (a list or a PieceSpool), returning per job
+    its first move and the index of its first piece (arrays of int64).
+
+    Runs and travels are planned in the worker processes in print order, at most a few chunks
+    ahead of what has been put away (memory bounded by what is in flight, not by the print); a
+    long run (:func:`.topp.is_long`) is planned here, window by window, while the workers go on
+    with what follows it, so its pieces can be put away one by one. A run handed over in parts
+    (plan_stream) is planned here once everything before it is put away: what follows it is
+    read only after it. n_moves: the moves in all (for progress), or None."""
+    workers = resolve_workers(workers, "plan")
     job_start, job_piece = array("q"), array("q")  # per job: its first move, the index of its first piece
     done = 0
+    slots = _slots(jobs, chunk)
 
     def report(moves):
         nonlocal done
         done += moves
         if progress:
-            progress(min(int(round(done)), len(toolpath)), len(toolpath))
+            progress(min(int(round(done)), n_moves) if n_moves else int(round(done)), n_moves)
 
     def put_away(group, results):
         for (start, end, _kind, _job), res in zip(group, results):
@@ -281,10 +415,16 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
         report(group[-1][1] - group[0][0])
 
     def plan_here(item):
-        start, end, _kind, spec = item
+        start, end, kind, spec = item
         job_start.append(start)
         job_piece.append(len(pieces))
         before = 0.0
+        if kind == "parts":
+            for piece, taken in iter_run_parts(printer.kinematics(), printer, spec, speed_limit, solver=solver):
+                pieces.append(piece)
+                report(taken - before)
+                before = taken
+            return
         for piece, frac in iter_run(printer.kinematics(), printer, spec, speed_limit, solver=solver):
             pieces.append(piece)
             report((frac - before) * (end - start))
@@ -305,6 +445,12 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
         queue, in_flight = deque(), 0
         with start_pool(workers, initializer=_init_worker, initargs=(printer,)) as pool:
             for where, item in slots:
+                if where == "here" and item[2] == "parts":  # its parts are read as it is planned: nothing after it is read before
+                    while queue:
+                        _drain_one(queue, put_away, plan_here)
+                    in_flight = 0
+                    plan_here(item)
+                    continue
                 future = pool.submit(_plan_chunk, as_chunk(item)) if where == "pool" else None
                 queue.append((item, future))
                 in_flight += future is not None
@@ -312,17 +458,22 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
                     in_flight -= _drain_one(queue, put_away, plan_here)
             while queue:
                 _drain_one(queue, put_away, plan_here)
-    job_start.append(len(toolpath))
-    job_piece.append(len(pieces))
-    if len(pieces) == len(head):
+    return np.asarray(job_start), np.asarray(job_piece)
+
+
+def _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, events, n_moves: int) -> Trajectory:
+    """The planned pieces with the tail, as a Trajectory timing the toolpath's ``events`` (indices
+    into its ``n_moves`` moves) from each job's first move and first piece."""
+    if len(job_piece) == 0 or len(pieces) == job_piece[0]:
         raise DeltasliceError("the toolpath never moves the tool or the filament: nothing to plan")
     pieces.extend(tail)
     traj = Trajectory(printer, pieces, planner="toppra", speed_limit=speed_limit)
-    moves, piece_at = np.asarray(job_start), np.asarray(job_piece)
-    ev = toolpath.events["index"]
+    moves = np.append(job_start, n_moves)
+    piece_at = np.append(job_piece, len(pieces) - len(tail))
+    ev = events["index"]
     k = piece_at[np.searchsorted(moves, ev, side="right") - 1]
-    times = np.where(ev >= len(toolpath), traj.duration, traj.starts[np.minimum(k, len(pieces))])
-    traj.events = _at_rest(toolpath, _event_times(toolpath, times), 0.0, traj.duration)
+    times = np.where(ev >= n_moves, traj.duration, traj.starts[np.minimum(k, len(pieces))])
+    traj.events = _at_rest(ev, n_moves, _event_times(events, times), 0.0, traj.duration)
     return traj
 
 
@@ -337,10 +488,9 @@ def _drain_one(queue, put_away, plan_here) -> int:
     return 1
 
 
-def _event_times(toolpath: Toolpath, times) -> tuple:
-    """((time_s, kind, value), ...) of the toolpath's events at the given times (s), in order.
+def _event_times(ev: np.ndarray, times) -> tuple:
+    """((time_s, kind, value), ...) of the events ``ev`` (a toolpath's) at the given times (s), in order.
     An event inside a move range (a travel, or a run not cut by a wait) fires at the range's start."""
-    ev = toolpath.events
     return tuple((float(t), int(k), float(v)) for t, k, v in zip(np.asarray(times, float).tolist(), ev["kind"], ev["value"]))
 
 
