@@ -14,8 +14,10 @@ from __future__ import annotations
 import math
 import os
 import re
+import tempfile
 from array import array
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -338,6 +340,120 @@ def read_gcode(path, *, printer=None, echo=None, center=False, progress=None) ->
         raise GcodeError(f"{shown}: cannot read: {exc}") from None
 
 
+#: moves a stretch of a streamed file holds (open_gcode): about 4 MB of columns
+CHUNK_MOVES = 65536
+
+
+def open_gcode(path, *, printer=None, echo=None, center=False, progress=None, chunk: int | None = None) -> "GcodeStream":
+    """Read a G-code file once, keeping its moves in a temporary file rather than in memory, to be
+    handed over a stretch at a time (:meth:`GcodeStream.chunks`) or whole (:meth:`GcodeStream.whole`,
+    the Toolpath :func:`read_gcode` gives). The options are :func:`read_gcode`'s; the notes are said
+    while reading, once. chunk: moves a stretch holds (default CHUNK_MOVES; the stretch ends after
+    the move that fills it, all the chords of an arc)."""
+    chunk = CHUNK_MOVES if chunk is None else chunk
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise GcodeError(f"open_gcode: path: expected a file path, got {type(path).__name__} {path!r:.60}")
+    if not isinstance(chunk, int) or chunk < 1:
+        raise GcodeError(f"open_gcode: chunk = {chunk!r}: expected a positive number of moves")
+    path = Path(path)
+    shown = str(path)
+    spill = tempfile.TemporaryFile(prefix="deltaslice-moves-")
+    sizes = []
+
+    def sink(raw):
+        sizes.append(len(raw[0]))
+        for column in raw:
+            spill.write(column)
+
+    try:
+        try:
+            with open(path, "rb") as f:
+                n_lines, prusa_layers = _scan(f)
+                f.seek(0)
+                state = _read(_file_lines(f, shown), n_lines, prusa_layers, name=shown, printer=printer, echo=echo,
+                              progress=progress, sink=sink, block=chunk)
+        except FileNotFoundError:
+            raise GcodeError(f"{shown}: no such file") from None
+        except OSError as exc:
+            raise GcodeError(f"{shown}: cannot read: {exc}") from None
+    except BaseException:
+        spill.close()
+        raise
+    return GcodeStream(state, spill, sizes, printer, shown, echo, center)
+
+
+class GcodeStream:
+    """A G-code file read by :func:`open_gcode`: its moves in a temporary file, ``moves`` and
+    ``layers`` of them. :meth:`chunks` gives consecutive Toolpaths of at most the chunk's moves
+    (each starting where the one before ends, layers numbered through the file, every one's
+    layer_z the file's, events indexed within their chunk): what
+    :func:`deltaslice.planning.plan_stream` takes. A file whose layer heights need every move
+    (no ``;Z:`` comment on some layer, or no layer comments), or read with ``center`` (the
+    footprint of every move), comes as one chunk: the whole toolpath."""
+
+    def __init__(self, state: _ReadState, spill, sizes: list, printer, shown: str, echo, center: bool):
+        self._state, self._spill, self._sizes = state, spill, sizes
+        self._printer, self._shown, self._echo, self._center = printer, shown, echo, center
+        self.moves = state.n
+        self.streamed = (state.have_layer_comments and not center
+                         and all(i in state.layer_z_comment for i in range(state.n_layers)))
+        self.layers = state.n_layers
+        self._ratio = None
+        if self.streamed:
+            say = echo or (lambda _s: None)
+            _e, _tool, _working, note = _apply_dialects(printer, np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int8),
+                                                        np.zeros(0), np.zeros(0, bool), np.zeros(0, bool), None,
+                                                        state.e_words, state.bare_words, state.laser_seen, state.source)
+            if note:
+                say(f"{shown}: {note}")
+            self._ratio = _source_notes(state.source, printer, shown, say, center)
+
+    def close(self) -> None:
+        self._spill.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def _blocks(self):
+        """_RAW's columns of each block of moves, as numpy arrays, in order."""
+        self._spill.seek(0)
+        for size in self._sizes:
+            yield [np.fromfile(self._spill, dtype=np.dtype(code), count=size) for _name, code in _RAW]
+
+    def whole(self) -> Toolpath:
+        """All the moves as one Toolpath (:func:`read_gcode`'s)."""
+        blocks = list(self._blocks())
+        raw = [np.concatenate([b[k] for b in blocks]) for k in range(len(_RAW))]
+        del blocks
+        # a stream said its notes while it was read
+        return _whole(self._state, raw, self._printer, self._shown, None if self.streamed else self._echo, self._center)
+
+    def chunks(self):
+        """The moves as consecutive Toolpaths, a block at a time (see the class)."""
+        if not self.streamed:
+            yield self.whole()
+            return
+        state, printer = self._state, self._printer
+        layer_z = np.array([state.layer_z_comment[i] for i in range(state.n_layers)], dtype=float)
+        events = make_events(state.events)
+        start, retracted, at = state.start, [0.0], 0
+        for raw in self._blocks():
+            n = len(raw[0])
+            xyz = np.column_stack(raw[:3])
+            cols = _moves(xyz, raw, np.asarray(raw[6], dtype=np.int32))
+            working, e, tool, _note, moved = _work(state, printer, cols, start)
+            columns = _columns(state, printer, cols, working, e, tool, moved, cols.layer, layer_z, start, self._ratio,
+                               retracted)
+            last = at + n == self.moves
+            ev = events[(events["index"] >= at) & ((events["index"] < at + n) | last)].copy()
+            ev["index"] -= at
+            yield Toolpath(start, *columns, layer_z, ev)
+            start, at = xyz[-1], at + n
+
+
 SCAN_BLOCK = 1 << 20
 
 
@@ -435,6 +551,38 @@ def parse_gcode(text: str, *, name: str = "<gcode>", printer=None, echo=None, ce
 def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, center, progress) -> Toolpath:
     """:func:`parse_gcode` of ``lines`` (an iterator of the text's lines, n_lines of them);
     prusa_layers: whether a ``;LAYER_CHANGE`` comment occurs anywhere."""
+    state = _read(lines, n_lines, prusa_layers, name=name, printer=printer, echo=echo, progress=progress)
+    raw, state.kept = list(state.kept), None
+    return _whole(state, raw, printer, name, echo, center)
+
+
+# The columns the reader gathers per move, in this order (typecodes of array.array).
+_RAW = (("x", "d"), ("y", "d"), ("z", "d"), ("e", "d"), ("feed", "d"), ("role", "h"), ("layer", "i"), ("kind", "b"),
+        ("power", "d"), ("lmode", "b"))
+
+
+@dataclass
+class _ReadState:
+    """What reading a file found besides its moves: the start point, the events (move index, kind,
+    value), the dialect (E words, bare numbers, laser commands), the layer comments and heights,
+    the settings block; kept: the moves' columns when no sink took them (_RAW's arrays)."""
+
+    start: np.ndarray
+    n: int
+    events: list
+    e_words: bool
+    bare_words: bool
+    laser_seen: bool
+    have_layer_comments: bool
+    n_layers: int
+    layer_z_comment: dict
+    source: dict
+    kept: tuple | None
+
+
+def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progress, sink=None, block: int = 0) -> _ReadState:
+    """Read ``lines`` into per-move columns: handed to ``sink`` (a callable taking _RAW's arrays)
+    every ``block`` moves and at the end when given, else kept in the returned state."""
     shown = name
     default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") else DEFAULT_FEED
     start = np.zeros(3)
@@ -472,6 +620,7 @@ def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, cent
     events: list[tuple[int, int, float]] = []
     skipped: Counter = Counter()
     started = False
+    handed = 0  # moves handed to the sink
 
     if progress is not None and not callable(progress):
         raise GcodeError(f"{shown}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
@@ -651,6 +800,11 @@ def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, cent
                 lmodes.extend([laser_mode] * k)
                 pos = target
                 started = True
+                if sink is not None and len(xs) >= block:
+                    sink((xs, ys, zs, es, fs, roles, layers, kinds, powers, lmodes))
+                    handed += len(xs)
+                    xs, ys, zs, es, fs, powers = (array("d") for _ in range(6))
+                    roles, layers, kinds, lmodes = array("h"), array("i"), array("b"), array("b")
             elif cmd in ("G90", "G91", "G20", "G21", "G17", "G18", "G19", "M82", "M83"):
                 if params_w:
                     _params(params_w, where, "")  # refuses any parameter
@@ -697,7 +851,7 @@ def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, cent
                         continue
                     if not 0 <= value <= 1000:
                         raise GcodeError(f"{where}: temperature {value:g} C outside 0..1000")
-                events.append((len(xs), int(kind), float(value)))
+                events.append((handed + len(xs), int(kind), float(value)))
             elif cmd in _LASER_M:
                 params = _params(params_w, where, "S")
                 if "S" in params:
@@ -706,7 +860,7 @@ def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, cent
                     s_value = params["S"]
                 laser_mode = _LASER_M[cmd]
                 laser_seen = True
-                events.append((len(xs), int(EventKind.LASER_MODE), float(laser_mode)))
+                events.append((handed + len(xs), int(EventKind.LASER_MODE), float(laser_mode)))
             else:
                 skipped[cmd] += 1
 
@@ -716,68 +870,120 @@ def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, cent
         echo(f"{shown}: skipped {total} commands that do not move the tool ({detail})")
     if progress is not None:
         progress(n_lines, n_lines)
-    n = len(xs)
+    raw = (xs, ys, zs, es, fs, roles, layers, kinds, powers, lmodes)
+    n = handed + len(xs)
+    if sink is not None and len(xs):
+        sink(raw)
     if n == 0:
         raise GcodeError(f"{shown}: no moves found (expected G0/G1/G2/G3 lines)")
+    return _ReadState(start, n, events, e_words, bare_words, laser_seen, have_layer_comments,
+                      layer_idx + 1 if have_layer_comments else 0, layer_z_comment,
+                      _source_machine(settings, cura_settings), None if sink is not None else raw)
 
+
+def _whole(state: _ReadState, raw: list, printer, shown, echo, center) -> Toolpath:
+    """The Toolpath of a file read whole: ``raw``, a list of _RAW's columns of all its moves (typed
+    arrays or numpy arrays, each taken out of the list as soon as it is copied)."""
+    n = state.n
     # Built column by column and each typed array dropped once copied: peak memory is what the
     # toolpath keeps plus a few columns, not several copies of every move (a vase has millions).
     xyz = np.empty((n, 3))
-    for col, values in enumerate((xs, ys, zs)):
-        xyz[:, col] = np.frombuffer(values, dtype=np.float64)
-    del xs, ys, zs
-    e = np.array(es)
-    feed_a = np.array(fs)
-    del es, fs
-    rc = np.asarray(roles, dtype=np.int16)
-    kind = np.asarray(kinds, dtype=np.int8)
-    starts = np.vstack([start[None], xyz[:-1]])
-    moved_xy = np.any(starts[:, :2] != xyz[:, :2], axis=1)  # finite numbers (the parser refuses others)
-    moved = moved_xy | (starts[:, 2] != xyz[:, 2])
-    del starts  # made again only for the flow model, when the file has no E words
-
-    if have_layer_comments:
-        layer = np.asarray(layers, dtype=np.int32)
-        n_layers = layer_idx + 1
-    else:
-        layer, n_layers = None, 0
-    source = _source_machine(settings, cura_settings)
-    e, tool, working, note = _apply_dialects(
-        printer, xyz, e, kind, np.asarray(powers), moved, moved_xy, layer, e_words, bare_words, laser_seen, source
-    )
-    del powers
-    if note and echo is not None:
-        echo(f"{shown}: {note}")
-    role = np.where(working, np.where(rc >= 0, rc, int(Role.LASER if printer is not None and printer.tool.channel_kind == "laser" else Role.OTHER)),
-                    int(Role.TRAVEL))
-    role = np.where(~moved & (e != 0), int(Role.RETRACT), role).astype(np.uint8)
-    if lmodes:  # GRBL M4: power follows the tool's speed (Role.LASER_DYNAMIC), M3 constant
-        role = np.where(working & (np.asarray(lmodes) == 4), int(Role.LASER_DYNAMIC), role).astype(np.uint8)
-    del rc, roles, lmodes
-
-    if have_layer_comments:
-        layer_z = np.zeros(n_layers)
-        for li in range(n_layers):
-            if li in layer_z_comment:
-                layer_z[li] = layer_z_comment[li]
+    for col in range(3):
+        xyz[:, col] = np.frombuffer(raw[col], dtype=np.float64)
+        raw[col] = None
+    layer = np.array(raw[6], dtype=np.int32) if state.have_layer_comments else None
+    raw[6] = None
+    cols = _moves(xyz, raw, layer)
+    del raw
+    say = echo or (lambda _s: None)
+    working, e, tool, note, moved = _work(state, printer, cols, state.start)
+    if note:
+        say(f"{shown}: {note}")
+    if state.have_layer_comments:
+        layer_z = np.zeros(state.n_layers)
+        for li in range(state.n_layers):
+            if li in state.layer_z_comment:
+                layer_z[li] = state.layer_z_comment[li]
             else:
                 sel = layer == li
                 wz = xyz[sel & working, 2]
                 layer_z[li] = wz.max() if len(wz) else (xyz[sel, 2][-1] if sel.any() else (layer_z[li - 1] if li else 0.0))
     else:
         layer, layer_z = _layers_from_z(xyz[:, 2], working)
-    if not e_words and printer is not None and printer.tool.channel_kind != "laser":
-        e = _flow_model_e(printer, xyz, np.vstack([start[None], xyz[:-1]]), working, layer, layer_z, e)
-    e = _compare_source(source, printer, e, kind, moved, shown, echo, center)
-    del moved, moved_xy, kind, kinds
-    for column in (xyz, feed_a, e, tool, role, layer):
-        column.setflags(write=False)  # given to the toolpath, which keeps them rather than copies
-    tp = Toolpath(start, xyz, feed_a, e, tool, role, layer, layer_z, make_events(events))
+    ratio = _source_notes(state.source, printer, shown, say, center)
+    columns = _columns(state, printer, cols, working, e, tool, moved, layer, layer_z, state.start, ratio, [0.0])
+    tp = Toolpath(state.start, *columns, layer_z, make_events(state.events))
     if center:
         tp, shift = centred(tp)
-        if echo is not None:
-            echo(f"{shown}: moved the part by ({shift[0]:.2f}, {shift[1]:.2f}) mm so its footprint is centred on the bed")
+        say(f"{shown}: moved the part by ({shift[0]:.2f}, {shift[1]:.2f}) mm so its footprint is centred on the bed")
     return tp
+
+
+@dataclass(frozen=True)
+class _Moves:
+    """A stretch of a file's moves as read: xyz (n, 3) mm; e (n,) mm as written; feed (n,) mm/s;
+    role_comment (n,) int16 (-1: none); layer (n,) int32 or None (no layer comments); kind (n,) int8
+    (0 G0, 1 no E word, 2 an E word, 3 a bare number); power (n,) S while the laser is on; lmode (n,)
+    int8, the laser mode."""
+
+    xyz: np.ndarray
+    e: np.ndarray
+    feed: np.ndarray
+    role_comment: np.ndarray
+    layer: np.ndarray | None
+    kind: np.ndarray
+    power: np.ndarray
+    lmode: np.ndarray
+
+
+def _motion(cols: _Moves, start) -> tuple[np.ndarray, np.ndarray]:
+    """(moved, moved_xy) (n,) bool of moves starting at ``start`` (3,) mm, the point before the first."""
+    starts = np.vstack([np.asarray(start, float)[None], cols.xyz[:-1]])
+    moved_xy = np.any(starts[:, :2] != cols.xyz[:, :2], axis=1)  # finite numbers (the parser refuses others)
+    return moved_xy | (starts[:, 2] != cols.xyz[:, 2]), moved_xy
+
+
+def _moves(xyz, raw: list, layer) -> _Moves:
+    """_Moves of _RAW's typed arrays in the list ``raw`` (x, y and z already in ``xyz``), each
+    copied to an array of its own and let go of at once (reading a vase holds a few columns, not
+    every column twice)."""
+    cols = []
+    for k, dtype in ((3, np.float64), (4, np.float64), (5, np.int16), (7, np.int8), (8, np.float64), (9, np.int8)):
+        cols.append(np.array(raw[k], dtype=dtype))
+        raw[k] = None
+    e, feed, role_comment, kind, power, lmode = cols
+    return _Moves(xyz, e, feed, role_comment, layer, kind, power, lmode)
+
+
+def _work(state: _ReadState, printer, cols: _Moves, start):
+    """(working, e, tool, note, moved) of a stretch of moves (see :func:`_apply_dialects`)."""
+    moved, moved_xy = _motion(cols, start)
+    e, tool, working, note = _apply_dialects(printer, cols.xyz, cols.e, cols.kind, cols.power, moved, moved_xy,
+                                             cols.layer, state.e_words, state.bare_words, state.laser_seen, state.source)
+    return working, e, tool, note, moved
+
+
+def _columns(state: _ReadState, printer, cols: _Moves, working, e, tool, moved, layer, layer_z, start, ratio, retracted):
+    """(xyz, feed, e, tool, role, layer): a stretch of moves as toolpath columns, read-only (given
+    to the toolpath, which keeps them rather than copies). start: the point before the first move;
+    ratio: the filament rescale (:func:`_source_notes`) or None; retracted: a one-element list, the
+    filament retracted and not yet pushed back before the stretch, updated to after it."""
+    laser = printer is not None and printer.tool.channel_kind == "laser"
+    rc = cols.role_comment
+    role = np.where(working, np.where(rc >= 0, rc, int(Role.LASER if laser else Role.OTHER)), int(Role.TRAVEL))
+    role = np.where(~moved & (e != 0), int(Role.RETRACT), role).astype(np.uint8)
+    if len(cols.lmode):  # GRBL M4: power follows the tool's speed (Role.LASER_DYNAMIC), M3 constant
+        role = np.where(working & (cols.lmode == 4), int(Role.LASER_DYNAMIC), role).astype(np.uint8)
+    if not state.e_words and printer is not None and not laser:
+        e = _flow_model_e(printer, cols.xyz, np.vstack([np.asarray(start, float)[None], cols.xyz[:-1]]), working, layer,
+                          layer_z, e)
+    if ratio is not None:
+        e, retracted[0] = _rescale_filament(e, cols.kind == 2, moved, ratio, retracted[0])
+    xyz, feed = cols.xyz, np.asarray(cols.feed, dtype=np.float64)
+    layer = np.asarray(layer, dtype=np.int32)
+    for column in (xyz, feed, e, tool, role, layer):
+        column.setflags(write=False)
+    return xyz, feed, e, tool, role, layer
 
 
 def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_words, bare_words, laser_seen, source):
@@ -883,18 +1089,17 @@ def _source_machine(settings: dict, cura: list[str]) -> dict:
     return out
 
 
-def _compare_source(source, printer, e, kind, moved, shown, echo, center) -> np.ndarray:
-    """Warn where the file's machine differs from ``printer``; rescale E (written with E words)
-    for another filament diameter so the same volume of plastic is extruded, retractions kept
-    at their length (:func:`_rescale_filament`)."""
+def _source_notes(source, printer, shown, say, center) -> float | None:
+    """Say where the file's machine differs from ``printer``; returns the area ratio E values
+    written with E words are rescaled by for another filament diameter, so the same volume of
+    plastic is extruded, retractions kept at their length (:func:`_rescale_filament`), or None."""
     if printer is None or printer.tool.channel_kind == "laser" or not source:
-        return e
+        return None
     tool = printer.tool
-    say = echo or (lambda _s: None)
+    ratio = None
     fd = source.get("filament_diameter")
     if fd and abs(fd - tool.filament_diameter) > 0.01 * tool.filament_diameter:
         ratio = (fd / tool.filament_diameter) ** 2
-        e = _rescale_filament(e, kind == 2, moved, ratio)
         say(f"{shown}: sliced for {fd:g} mm filament, {printer.name} uses {tool.filament_diameter:g} mm: "
             f"E values rescaled by the area ratio {ratio:.4f} so the same volume of plastic is extruded; "
             "retractions and the unretractions that undo them kept at their length (mm of filament pulled "
@@ -917,11 +1122,12 @@ def _compare_source(source, printer, e, kind, moved, shown, echo, center) -> np.
                 ["--center moves the part to this bed's centre"] if off_centre and not center else [])
             say(f"{shown}: sliced for a {sx:g} x {sy:g} mm bed centred at ({cx:g}, {cy:g}); {printer.name}'s bed is "
                 f"{mine} centred at (0, 0)" + (": " + "; ".join(what) if what else ""))
-    return e
+    return ratio
 
 
-def _rescale_filament(e, written, moved, ratio) -> np.ndarray:
-    """E of the moves ``written`` (with E words) for a filament of area ``ratio`` times the file's.
+def _rescale_filament(e, written, moved, ratio, retracted: float = 0.0):
+    """(E of the moves ``written`` (with E words) for a filament of area ``ratio`` times the file's,
+    the length retracted and not pushed back after them); retracted: that length before them.
 
     Filament pushed along a move is plastic laid down: a volume, scaled by the area ratio. A
     retraction is not: it pulls a length of filament back to relieve the melt chamber, and the
@@ -931,7 +1137,6 @@ def _rescale_filament(e, written, moved, ratio) -> np.ndarray:
     what a standing push adds beyond what is retracted (a prime, a restart extra) is plastic, scaled.
     """
     out = np.where(written & moved & (e > 0), e * ratio, e)
-    retracted = 0.0
     for i in np.flatnonzero(written & ((e < 0) | (~moved & (e > 0)))):
         if e[i] < 0:
             retracted -= e[i]
@@ -939,7 +1144,7 @@ def _rescale_filament(e, written, moved, ratio) -> np.ndarray:
             back = min(e[i], retracted)
             retracted -= back
             out[i] = back + (e[i] - back) * ratio
-    return out
+    return out, retracted
 
 
 def _layers_from_z(z: np.ndarray, working: np.ndarray):
