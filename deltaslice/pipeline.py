@@ -35,6 +35,10 @@ def _printer(printer) -> Printer:
     return printer if isinstance(printer, Printer) else load_printer(printer)
 
 
+# G-code files larger than this are read a stretch at a time and planned as they are read
+# (gcode.open_gcode, planning.plan_stream): memory bounded by a stretch, not by the print.
+STREAM_BYTES = 8 * 1024**2
+
 # Bounds on a job before it is written (overridable: compile_part(max_duration_s=None, max_bytes=None),
 # CLI --max-time/--max-size 0). A G-code with F0.0001 plans to days of samples; these stop it first.
 MAX_DURATION_S = 48 * 3600.0
@@ -403,24 +407,33 @@ def compile_part(
     printer = _printer(printer)
     t0 = time.perf_counter()
     stage = ("reading G-code", "lines") if part_kind(part) == "gcode" else ("slicing layers", "it")
-    toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, stage[0], unit=stage[1]), echo=echo,
-                             workers=workers, **mesh_options)
-    interrupt.check()
-    t_slice = time.perf_counter() - t0
-    s = toolpath.summary()
-    if fmt == "gcode":  # G-code is a toolpath output: nothing to plan
-        write_gcode(toolpath, output, printer, max_bytes=max_bytes)
-        return CompileResult(printer.name, str(output), fmt, _size(output), s["layers"], s["moves"], {},
-                             "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
-    trajectory = plan(
-        toolpath,
-        printer,
-        speed_limit=speed_limit,
-        planner=planner,
-        solver=solver,
-        workers=workers,
-        progress=stderr_progress(progress, "planning", unit="moves"),
-    )
+    reading = stderr_progress(progress, stage[0], unit=stage[1])
+    planning = stderr_progress(progress, "planning", unit="moves")
+    stream = _gcode_stream(part, printer, fmt, planner, mesh_options, reading, echo)
+    if stream is not None and stream.streamed:
+        from .planning import plan_stream
+
+        t_slice = time.perf_counter() - t0
+        s = {"layers": stream.layers, "moves": stream.moves}
+        with stream:
+            trajectory = plan_stream(stream.chunks(), printer, moves=stream.moves, speed_limit=speed_limit,
+                                     workers=workers, progress=planning, solver=solver)
+    else:
+        if stream is not None:
+            with stream:
+                toolpath = stream.whole()
+        else:
+            toolpath = load_toolpath(part, printer, progress=reading, echo=echo, workers=workers, **mesh_options)
+        interrupt.check()
+        t_slice = time.perf_counter() - t0
+        s = toolpath.summary()
+        if fmt == "gcode":  # G-code is a toolpath output: nothing to plan
+            write_gcode(toolpath, output, printer, max_bytes=max_bytes)
+            return CompileResult(printer.name, str(output), fmt, _size(output), s["layers"], s["moves"], {},
+                                 "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
+        trajectory = plan(toolpath, printer, speed_limit=speed_limit, planner=planner, solver=solver, workers=workers,
+                          progress=planning)
+        del toolpath
     interrupt.check()
     t_plan = time.perf_counter() - t0 - t_slice
     monitor = LimitMonitor(printer.limits, printer.tool, printer.planning.output_rate)
@@ -443,6 +456,24 @@ def compile_part(
         duration_s=trajectory.duration, peak_percent=monitor.peak_percent(), active_fraction=trajectory.active_fraction,
         times={"slice": t_slice, "plan": t_plan, "total": time.perf_counter() - t0},
     )
+
+
+def _gcode_stream(part, printer, fmt, planner, options, progress, echo):
+    """A G-code of more than STREAM_BYTES read to be planned as it is read (gcode.open_gcode), or
+    None: a mesh, an image, a smaller file, a G-code output, or the trapezoid planner (which takes
+    the whole toolpath). A file whose moves must all be in memory (centred, or whose layer heights
+    come from its moves: see gcode.GcodeStream) is then taken whole from the stream."""
+    from . import gcode
+
+    if part_kind(part) != "gcode" or fmt == "gcode" or planner != "toppra":
+        return None
+    try:
+        if os.path.getsize(part) <= STREAM_BYTES:
+            return None
+    except OSError:
+        return None  # the reader names the problem
+    return gcode.open_gcode(part, printer=printer, echo=echo, center=bool(options.get("center", False)),
+                            progress=progress)
 
 
 def _size(output) -> int:
