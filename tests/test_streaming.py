@@ -285,3 +285,39 @@ def test_plan_stream_refuses_chunks_that_do_not_follow_on_and_names_an_unreachab
                    chunks[2].layer_z)
     with pytest.raises(UnreachableError, match="layer 1"):
         plan_stream(chunks[:2] + [bad], kossel, workers=1)
+
+
+def _laser_text(typed_from: int, moves: int = 60) -> str:
+    """Laser G-code (M3, power S per move) whose moves from ``typed_from`` on follow a ;TYPE:
+    comment (a slicer's file after its intro line): roles Perimeter, not Laser, before them Laser."""
+    out = ["G21", "G90", ";LAYER_CHANGE", ";Z:0.0", "G0 X0 Y0 Z0", "M3 S500", "G1 F1500"]
+    for i in range(1, moves + 1):
+        if i == typed_from:
+            out.append(";TYPE:Perimeter")
+        out.append(f"G1 X{(i % 2) * 10} Y{i * 0.2:.2f} S{100 + 10 * i}")
+    return "\n".join(out + ["M5", "G0 X0 Y0"]) + "\n"
+
+
+@pytest.mark.parametrize("stream_run", [20, 10**9])
+def test_a_lasers_runs_are_its_tool_channels_not_its_moves_roles(tmp_path, monkeypatch, batches_of_64, stream_run):
+    """On a laser a run goes on through power changes (its power per move), whether its moves have
+    a laser role or a slicer's ;TYPE: role: a chunk holding only ;TYPE: moves is split, and planned,
+    as the whole file is (it was cut at every power change, and a run in parts that crossed the
+    comment failed to join its parts)."""
+    laser = load_printer("delta_espe_laser")
+    monkeypatch.setattr(planning, "STREAM_RUN", stream_run)
+    path = tmp_path / "l.gcode"
+    path.write_text(_laser_text(typed_from=30))
+    tp = read_gcode(path, printer=laser)
+    assert {int(r) for r in np.unique(tp.role[tp.working])} == {8, 2}  # Laser and Perimeter moves
+    assert len(planning.split_runs(tp, laser=True)) == 1
+    whole = plan(tp, laser, workers=1)
+    with open_gcode(path, printer=laser, chunk=10) as stream:
+        traj = plan_stream(stream.chunks(), laser, moves=stream.moves, workers=1)
+    assert traj.piece_counts() == whole.piece_counts()
+    if stream_run > 60:
+        assert traj.duration == whole.duration
+    else:
+        assert traj.duration == pytest.approx(whole.duration, rel=1e-3)
+    runs = [p for p in whole.pieces if p.kind == "run"]
+    assert len(runs) == 1 and runs[0].power is not None  # the power per move, not the first move's

@@ -82,15 +82,18 @@ def _check_tool(toolpath: Toolpath, printer) -> None:
         raise DeltasliceError(f"the toolpath has {int(laser_moves.sum())} laser moves but {printer.name} has an extruder")
 
 
-def split_runs(toolpath: Toolpath):
+def split_runs(toolpath: Toolpath, laser: bool | None = None):
     """[(i, j)] half-open ranges of working moves with one tool value each; a run also ends
     at a wait event (M109/M190), where the machine must stand still while the heater comes up.
 
     Laser moves instead form runs with a power per move (zero in overscans and short gaps,
-    which the tool crosses without stopping), cut only where the power mode (M3/M4) changes."""
+    which the tool crosses without stopping), cut only where the power mode (M3/M4) changes.
+    laser: whether the tool is a laser (the printer's tool channel); None: whether any move has
+    a laser role."""
     waits = toolpath.events["index"][np.isin(toolpath.events["kind"], [int(k) for k in WAIT_KINDS])]
-    laser = np.isin(toolpath.role, LASER_ROLES)
-    if laser.any():
+    laser_role = np.isin(toolpath.role, LASER_ROLES)
+    if laser if laser is not None else laser_role.any():
+        laser = laser_role
         member = np.concatenate([[False], toolpath.working | laser, [False]]).astype(np.int8)
         edges = np.flatnonzero(np.diff(member))
         dynamic = toolpath.role == int(Role.LASER_DYNAMIC)
@@ -110,12 +113,13 @@ def split_runs(toolpath: Toolpath):
     return out
 
 
-def _run_spec(toolpath: Toolpath, i: int, j: int) -> RunSpec:
+def _run_spec(toolpath: Toolpath, i: int, j: int, laser: bool) -> RunSpec:
     """Moves i..j-1 as a run: views of the toolpath's read-only columns, not copies (a spiral
-    vase's one run would hold its moves twice), the run's start point being the move before."""
+    vase's one run would hold its moves twice), the run's start point being the move before;
+    laser: a laser's run, with its power per move (see :func:`split_runs`)."""
     pts = toolpath.xyz[i - 1 : j] if i > 0 else np.concatenate([toolpath.start[None], toolpath.xyz[:j]])
     roles = toolpath.role[i:j]
-    if np.isin(roles, LASER_ROLES).any():
+    if laser:
         power = toolpath.tool[i:j]
         dynamic = bool(np.any(roles == int(Role.LASER_DYNAMIC)))
         return RunSpec(pts, toolpath.feed[i:j], toolpath.e[i:j], float(power.max()), int(toolpath.layer[i]),
@@ -193,7 +197,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
 def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed", workers=None, progress=None,
                 solver="fast") -> Trajectory:
     """Plan a toolpath handed over in consecutive chunks, holding a few of them at a time: a G-code
-    of millions of moves read a stretch at a time (:func:`deltaslice.gcode.iter_gcode`) is never
+    of millions of moves read a stretch at a time (:func:`deltaslice.gcode.open_gcode`) is never
     held whole. The time-optimal planner, as :func:`plan` gives it; the pieces are kept on disk.
 
     chunks: an iterable of Toolpaths, each starting where the one before ends, layers numbered
@@ -240,7 +244,9 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
     kin = printer.kinematics()
     pieces = PieceSpool()
     pieces.extend(from_rest(kin, printer, first.start, speed_limit))
-    job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream)), pieces, 64, moves, 10**9, printer,
+    laser = printer.tool.channel_kind == "laser"
+    job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream), laser), pieces, 64, moves, 10**9,
+                                      printer,
                                       speed_limit, workers, progress, solver)
     if not seen["motion"]:
         raise DeltasliceError(f"the toolpath's {seen['moves']} move(s) have zero length and no extrusion: nothing to plan")
@@ -248,7 +254,7 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
     return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, np.concatenate(events), seen["moves"])
 
 
-def _stream_jobs(chunks):
+def _stream_jobs(chunks, laser: bool):
     """:func:`_jobs` of consecutive chunks joined, holding one chunk and what is held back from
     the one before: the last run or travel of each chunk waits for the next chunk's moves; a run
     grown past STREAM_RUN moves is handed over as a "parts" job (:func:`_run_parts`), after
@@ -258,11 +264,11 @@ def _stream_jobs(chunks):
         tp = next(chunks, None)
         if tp is None:
             if held is not None:
-                yield from _jobs(held, split_runs(held), at, printed_top=top)
+                yield from _jobs(held, split_runs(held, laser), laser, at, printed_top=top)
             return
         cur = tp if held is None else held.then(tp)
-        ranges = split_runs(cur)
-        items = list(_jobs(cur, ranges, at, printed_top=top))
+        ranges = split_runs(cur, laser)
+        items = list(_jobs(cur, ranges, laser, at, printed_top=top))
         yield from items[:-1]
         start, _end, kind, _job = items[-1]
         first = start - at
@@ -271,19 +277,19 @@ def _stream_jobs(chunks):
         del cur, items, _job
         if kind == "run" and len(held) > STREAM_RUN:
             after = {}
-            yield at, at, "parts", _run_parts(held, at, chunks, after)
+            yield at, at, "parts", _run_parts(held, at, chunks, after, laser)
             if "at" not in after:
                 raise DeltasliceError("plan_stream: a run handed over in parts was not planned to its end")
             held, at, top = after["rest"], after["at"], max(top, after["top"])
 
 
-def _run_parts(run: Toolpath, at: int, chunks, after: dict):
+def _run_parts(run: Toolpath, at: int, chunks, after: dict, laser: bool):
     """RunSpecs of a run as it comes: ``run`` (a toolpath all of whose moves are the run, its first
     being move ``at`` of the print), then its moves in each chunk taken from ``chunks`` until it
     ends. Then ``after`` holds what is left: "rest" (the moves after the run in its last chunk, a
     Toolpath, or None), "at" (the first one's index) and "top" (the run's highest point, mm)."""
     top = float(run.xyz[:, 2].max())
-    yield _run_spec(run, 0, len(run))
+    yield _run_spec(run, 0, len(run), laser)
     last, n = run.subset(slice(len(run) - 1, None)), at + len(run) - 1  # the run's last move, and its index
     del run
     while True:
@@ -292,10 +298,10 @@ def _run_parts(run: Toolpath, at: int, chunks, after: dict):
             after.update(rest=None, at=n + 1, top=top)
             return
         joined = last.then(tp)
-        ranges = split_runs(joined)
+        ranges = split_runs(joined, laser)
         j0 = ranges[0][1] if ranges and ranges[0][0] == 0 else 1  # the run goes on to move j0
         if j0 > 1:
-            yield _run_spec(joined, 1, j0)
+            yield _run_spec(joined, 1, j0, laser)
             top = max(top, float(joined.xyz[1:j0, 2].max()))
         if j0 < len(joined):
             after.update(rest=joined.subset(slice(j0, None)), at=n + j0, top=top)
@@ -331,7 +337,7 @@ def _at_rest(index: np.ndarray, n: int, events: tuple, offset: float, duration: 
     )
 
 
-def _jobs(toolpath: Toolpath, ranges, offset: int = 0, pos=None, printed_top: float = 0.0):
+def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, pos=None, printed_top: float = 0.0):
     """(first move, end move, kind, job) of every run and of the travels between them (and before
     the first, after the last), in print order, made one at a time: a print of 270k runs would
     hold hundreds of MB of them at once. offset: the toolpath's first move's index in the print;
@@ -342,7 +348,7 @@ def _jobs(toolpath: Toolpath, ranges, offset: int = 0, pos=None, printed_top: fl
     for i, j in ranges:
         if i > prev_end:
             yield offset + prev_end, offset + i, "travel", _travel_args(toolpath, prev_end, i, pos, printed_top)
-        yield offset + i, offset + j, "run", _run_spec(toolpath, i, j)
+        yield offset + i, offset + j, "run", _run_spec(toolpath, i, j, laser)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
@@ -373,14 +379,15 @@ def _slots(jobs, chunk: int):
 
 def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool) -> Trajectory:
     """The time-optimal planner: head (from rest), the toolpath's runs and travels, tail (to rest)."""
-    ranges = split_runs(toolpath)
+    laser = printer.tool.channel_kind == "laser"
+    ranges = split_runs(toolpath, laser)
     n_jobs = 2 * len(ranges) + 1  # at most: a travel before every run, one after the last
     # The chunks do not depend on the number of workers: a chunk's travels are solved as one batch
     # (travel.plan_travels), so the same chunks give the same bytes whatever --workers is.
     chunk = max(1, min(64, n_jobs // CHUNKS_PER_PRINT))
     pieces = PieceSpool() if spool else []
     pieces.extend(head)
-    job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges), pieces, chunk, len(toolpath), n_jobs, printer,
+    job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges, laser), pieces, chunk, len(toolpath), n_jobs, printer,
                                       speed_limit, workers, progress, solver)
     return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, toolpath.events, len(toolpath))
 
