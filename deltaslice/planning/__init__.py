@@ -36,7 +36,8 @@ STREAM_RUN = 50_000
 
 def check_reachable(toolpath: Toolpath, printer, hint: bool = True) -> None:
     """Raise UnreachableError naming the layer and position of the first point out of reach;
-    hint: say whether the part would fit centred (False for a stretch of a part, which cannot tell)."""
+    hint: say whether the part would fit centred (False for a stretch of a part, which cannot
+    tell: then only that --center exists)."""
     kin = printer.kinematics()
     pts = np.concatenate([toolpath.start[None], toolpath.xyz])
     ok = kin.reachable(pts)
@@ -58,11 +59,12 @@ def check_reachable(toolpath: Toolpath, printer, hint: bool = True) -> None:
                 why = "beyond a mechanical limit (ball-joint tilt)"
         from ..toolpath import fits_centred
 
-        hint = "" if not hint else (
-            "; the part would fit centred on the bed: use --center (center=True)"
-            if fits_centred(toolpath, printer)
-            else "; it would not fit centred on the bed either"
-        )
+        if not hint:
+            hint = "; if the file was placed for another bed, --center (center=True) moves it to this one's centre"
+        elif fits_centred(toolpath, printer):
+            hint = "; the part would fit centred on the bed: use --center (center=True)"
+        else:
+            hint = "; it would not fit centred on the bed either"
         raise UnreachableError(
             f"layer {layer}: x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm is out of reach of {printer.name} ({why}){hint}"
         )
