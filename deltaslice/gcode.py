@@ -362,8 +362,12 @@ def open_gcode(path, *, printer=None, echo=None, center=False, progress=None, ch
 
     def sink(raw):
         sizes.append(len(raw[0]))
-        for column in raw:
-            spill.write(column)
+        try:
+            for column in raw:
+                spill.write(column)
+        except OSError as exc:
+            raise GcodeError(f"{shown}: cannot keep its moves in a temporary file ({tempfile.gettempdir()}, 56 bytes "
+                             f"a move; set TMPDIR to another directory): {exc.strerror or exc}") from None
 
     try:
         try:
@@ -424,10 +428,19 @@ class GcodeStream:
             yield [np.fromfile(self._spill, dtype=np.dtype(code), count=size) for _name, code in _RAW]
 
     def whole(self) -> Toolpath:
-        """All the moves as one Toolpath (:func:`read_gcode`'s)."""
-        blocks = list(self._blocks())
-        raw = [np.concatenate([b[k] for b in blocks]) for k in range(len(_RAW))]
-        del blocks
+        """All the moves as one Toolpath (:func:`read_gcode`'s), read a column at a time: the
+        columns once, as reading the file whole holds them."""
+        dtypes = [np.dtype(code) for _name, code in _RAW]
+        raw = [np.empty(self.moves, dtype) for dtype in dtypes]
+        self._spill.flush()  # read past the file object's buffer
+        fd, offset, at = self._spill.fileno(), 0, 0
+        for size in self._sizes:
+            for column, dtype in zip(raw, dtypes):
+                view = memoryview(column[at : at + size]).cast("B")
+                if os.preadv(fd, [view], offset) != len(view):
+                    raise GcodeError(f"{self._shown}: its temporary file of moves was cut short")
+                offset += len(view)
+            at += size
         # a stream said its notes while it was read
         return _whole(self._state, raw, self._printer, self._shown, None if self.streamed else self._echo, self._center)
 

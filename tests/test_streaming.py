@@ -321,3 +321,24 @@ def test_a_lasers_runs_are_its_tool_channels_not_its_moves_roles(tmp_path, monke
         assert traj.duration == pytest.approx(whole.duration, rel=1e-3)
     runs = [p for p in whole.pieces if p.kind == "run"]
     assert len(runs) == 1 and runs[0].power is not None  # the power per move, not the first move's
+
+
+def test_a_stream_taken_whole_holds_what_reading_the_file_whole_holds(tmp_path):
+    """A file that is not streamed (here: no ;Z: comments) is taken whole from the temporary
+    file a column at a time: its peak is read_gcode's (the columns once), not the blocks and
+    their concatenation at once."""
+    path = tmp_path / "noz.gcode"
+    path.write_text(spiral_text(100).replace(";Z:", ";z:"))
+    peaks = {}
+    for kind in ("read", "whole", "read", "whole"):  # the first two warm up
+        tracemalloc.start()
+        if kind == "read":
+            tp = read_gcode(path)
+        else:
+            with open_gcode(path, chunk=1000) as stream:
+                assert not stream.streamed
+                tp = stream.whole()
+        peaks[kind] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        assert len(tp) == 20002
+    assert peaks["whole"] < 1.1 * peaks["read"], peaks
