@@ -391,19 +391,20 @@ class GcodeStream:
     ``layers`` of them. :meth:`chunks` gives consecutive Toolpaths of at most the chunk's moves
     (each starting where the one before ends, layers numbered through the file, every one's
     layer_z the file's, events indexed within their chunk): what
-    :func:`deltaslice.planning.plan_stream` takes. A file whose layer heights need every move
-    (no ``;Z:`` comment on some layer, or no layer comments), or read with ``center`` (the
-    footprint of every move), comes as one chunk: the whole toolpath."""
+    :func:`deltaslice.planning.plan_stream` takes. A layer without a ``;Z:`` comment (Cura writes
+    none) gets its height from its moves in a first pass over the temporary file. A file without
+    layer comments (its layers are found from the heights of all its moves), or read with
+    ``center`` (the footprint of every move), comes as one chunk: the whole toolpath."""
 
     def __init__(self, state: _ReadState, spill, sizes: list, printer, shown: str, echo, center: bool):
         self._state, self._spill, self._sizes = state, spill, sizes
         self._printer, self._shown, self._echo, self._center = printer, shown, echo, center
         self.moves = state.n
-        self.streamed = (state.have_layer_comments and not center
-                         and all(i in state.layer_z_comment for i in range(state.n_layers)))
+        self.streamed = state.have_layer_comments and not center
         self.layers = state.n_layers
-        self._ratio = None
+        self._ratio = self._layer_z = None
         if self.streamed:
+            self._layer_z = self._layer_heights()
             say = echo or (lambda _s: None)
             _e, _tool, _working, note = _apply_dialects(printer, np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int8),
                                                         np.zeros(0), np.zeros(0, bool), np.zeros(0, bool), None,
@@ -420,6 +421,25 @@ class GcodeStream:
 
     def __exit__(self, *exc):
         self.close()
+
+    def _layer_heights(self) -> np.ndarray:
+        """(L,) the layers' heights, mm: their ;Z: comments, and where one is missing, a pass over
+        the moves (:func:`_layer_heights`, as the file read whole gives them)."""
+        state = self._state
+        if all(i in state.layer_z_comment for i in range(state.n_layers)):
+            return _layer_heights(state, None)
+        stats, start = None, state.start
+        for xyz, cols in self._stretches():
+            working = _work(state, self._printer, cols, start)[0]
+            stats = _layer_stats(stats, cols.layer, xyz[:, 2], working, state.n_layers)
+            start = xyz[-1]
+        return _layer_heights(state, stats)
+
+    def _stretches(self):
+        """(xyz, _Moves) of each block of moves, in order."""
+        for raw in self._blocks():
+            xyz = np.column_stack(raw[:3])
+            yield xyz, _moves(xyz, raw, np.asarray(raw[6], dtype=np.int32))
 
     def _blocks(self):
         """_RAW's columns of each block of moves, as numpy arrays, in order."""
@@ -449,14 +469,11 @@ class GcodeStream:
         if not self.streamed:
             yield self.whole()
             return
-        state, printer = self._state, self._printer
-        layer_z = np.array([state.layer_z_comment[i] for i in range(state.n_layers)], dtype=float)
+        state, printer, layer_z = self._state, self._printer, self._layer_z
         events = make_events(state.events)
         start, retracted, at = state.start, [0.0], 0
-        for raw in self._blocks():
-            n = len(raw[0])
-            xyz = np.column_stack(raw[:3])
-            cols = _moves(xyz, raw, np.asarray(raw[6], dtype=np.int32))
+        for xyz, cols in self._stretches():
+            n = len(xyz)
             working, e, tool, _note, moved = _work(state, printer, cols, start)
             columns = _columns(state, printer, cols, working, e, tool, moved, cols.layer, layer_z, start, self._ratio,
                                retracted)
@@ -913,14 +930,7 @@ def _whole(state: _ReadState, raw: list, printer, shown, echo, center) -> Toolpa
     if note:
         say(f"{shown}: {note}")
     if state.have_layer_comments:
-        layer_z = np.zeros(state.n_layers)
-        for li in range(state.n_layers):
-            if li in state.layer_z_comment:
-                layer_z[li] = state.layer_z_comment[li]
-            else:
-                sel = layer == li
-                wz = xyz[sel & working, 2]
-                layer_z[li] = wz.max() if len(wz) else (xyz[sel, 2][-1] if sel.any() else (layer_z[li - 1] if li else 0.0))
+        layer_z = _layer_heights(state, _layer_stats(None, layer, xyz[:, 2], working, state.n_layers))
     else:
         layer, layer_z = _layers_from_z(xyz[:, 2], working)
     ratio = _source_notes(state.source, printer, shown, say, center)
@@ -997,6 +1007,36 @@ def _columns(state: _ReadState, printer, cols: _Moves, working, e, tool, moved, 
     for column in (xyz, feed, e, tool, role, layer):
         column.setflags(write=False)
     return xyz, feed, e, tool, role, layer
+
+
+def _layer_stats(stats, layer, z, working, n_layers: int):
+    """What a stretch of moves tells of the layers' heights, added to ``stats`` (the stretches
+    before it, or None): per layer (L,) the highest working move's z (-inf: none) and the last
+    move's z (NaN: none)."""
+    if stats is None:
+        stats = (np.full(n_layers, -np.inf), np.full(n_layers, np.nan))
+    top, last = stats
+    np.maximum.at(top, layer[working], z[working])
+    present, first_from_end = np.unique(layer[::-1], return_index=True)
+    last[present] = z[len(z) - 1 - first_from_end]
+    return top, last
+
+
+def _layer_heights(state: _ReadState, stats) -> np.ndarray:
+    """(L,) layer heights, mm: a layer's ;Z: comment, else its highest working move, else its
+    last move, else the layer's before (0 for the first). stats: :func:`_layer_stats` of every
+    move (None when every layer has its comment)."""
+    layer_z = np.zeros(state.n_layers)
+    for li in range(state.n_layers):
+        if li in state.layer_z_comment:
+            layer_z[li] = state.layer_z_comment[li]
+        elif stats[0][li] > -np.inf:
+            layer_z[li] = stats[0][li]
+        elif stats[1][li] == stats[1][li]:
+            layer_z[li] = stats[1][li]
+        else:
+            layer_z[li] = layer_z[li - 1] if li else 0.0
+    return layer_z
 
 
 def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_words, bare_words, laser_seen, source):

@@ -100,11 +100,26 @@ def test_a_gcode_in_chunks_is_the_file_read_whole(tmp_path, kossel, chunk, filam
         assert (whole.e[whole.role == 7] != 0).any()
 
 
-def test_a_file_whose_heights_need_its_moves_comes_whole(tmp_path, kossel):
-    """No ;Z: comments: a layer's height is its highest working move, known only once it is read:
-    the stream gives the whole toolpath as one chunk; --center (the footprint of every move) too."""
+@pytest.mark.parametrize("chunk", [3, 50])
+def test_layers_without_their_height_comment_get_it_from_a_pass_over_the_moves(tmp_path, kossel, chunk):
+    """Cura writes ;LAYER:n and no ;Z: : a layer's height is its highest working move, found in a
+    pass over the temporary file before the chunks, the same as the file read whole."""
     path = tmp_path / "noz.gcode"
-    path.write_text(prusa_like(z_comments=False))
+    path.write_text(prusa_like(z_comments=False).replace(";LAYER_CHANGE", ";LAYER:0"))
+    whole = read_gcode(path, printer=kossel)
+    assert whole.n_layers == 6 and len(set(whole.layer_z.tolist())) == 6
+    with open_gcode(path, printer=kossel, chunk=chunk) as stream:
+        assert stream.streamed
+        chunks = list(stream.chunks())
+    assert len(chunks) > 3
+    same_toolpath(joined(chunks), whole)
+
+
+def test_a_file_without_layer_comments_or_centred_comes_whole(tmp_path, kossel):
+    """Without layer comments a file's layers come from the heights of all its moves; --center
+    needs the footprint of every move: the stream gives the whole toolpath as one chunk."""
+    path = tmp_path / "nolayers.gcode"
+    path.write_text(prusa_like().replace(";LAYER_CHANGE\n", ""))
     whole = read_gcode(path, printer=kossel)
     with open_gcode(path, printer=kossel, chunk=10) as stream:
         assert not stream.streamed
@@ -327,8 +342,8 @@ def test_a_stream_taken_whole_holds_what_reading_the_file_whole_holds(tmp_path):
     """A file that is not streamed (here: no ;Z: comments) is taken whole from the temporary
     file a column at a time: its peak is read_gcode's (the columns once), not the blocks and
     their concatenation at once."""
-    path = tmp_path / "noz.gcode"
-    path.write_text(spiral_text(100).replace(";Z:", ";z:"))
+    path = tmp_path / "nolayers.gcode"
+    path.write_text(spiral_text(100).replace(";LAYER_CHANGE", ";layer change"))
     peaks = {}
     for kind in ("read", "whole", "read", "whole"):  # the first two warm up
         tracemalloc.start()
