@@ -392,19 +392,22 @@ class GcodeStream:
     (each starting where the one before ends, layers numbered through the file, every one's
     layer_z the file's, events indexed within their chunk): what
     :func:`deltaslice.planning.plan_stream` takes. A layer without a ``;Z:`` comment (Cura writes
-    none) gets its height from its moves in a first pass over the temporary file. A file without
-    layer comments (its layers are found from the heights of all its moves), or read with
-    ``center`` (the footprint of every move), comes as one chunk: the whole toolpath."""
+    none) gets its height from its moves in a first pass over the temporary file; a file without
+    layer comments (Slic3r, GRBL) gets its layers from the heights of its moves in two passes
+    (:meth:`_find_layers`), both as the file read whole. A file read with ``center`` (the
+    footprint of every move) comes as one chunk: the whole toolpath."""
 
     def __init__(self, state: _ReadState, spill, sizes: list, printer, shown: str, echo, center: bool):
         self._state, self._spill, self._sizes = state, spill, sizes
         self._printer, self._shown, self._echo, self._center = printer, shown, echo, center
         self.moves = state.n
-        self.streamed = state.have_layer_comments and not center
-        self.layers = state.n_layers
+        self.streamed = not center
         self._ratio = self._layer_z = None
         if self.streamed:
-            self._layer_z = self._layer_heights()
+            self._layer_z = self._layer_heights() if state.have_layer_comments else self._find_layers()
+        # layers of a file without layer comments are known once found (a centred one's: never here)
+        self.layers = state.n_layers if state.have_layer_comments or self._layer_z is None else len(self._layer_z)
+        if self.streamed:
             say = echo or (lambda _s: None)
             _e, _tool, _working, note = _apply_dialects(printer, np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int8),
                                                         np.zeros(0), np.zeros(0, bool), np.zeros(0, bool), None,
@@ -434,6 +437,67 @@ class GcodeStream:
             stats = _layer_stats(stats, cols.layer, xyz[:, 2], working, state.n_layers)
             start = xyz[-1]
         return _layer_heights(state, stats)
+
+    def _find_layers(self) -> np.ndarray:
+        """Layers from heights for a file without layer comments, as :func:`_layers_from_z` finds
+        them in the whole file: a new layer at each working move higher than every one before
+        (a pass forwards), the moves between layers belonging to the next working move's (a pass
+        backwards). The layer of every move is written into the temporary file's layer column;
+        returns the layers' heights (L,) mm."""
+        state, printer = self._state, self._printer
+        top, count, heights, starts, lay, start = -np.inf, 0, [], [], [], state.start
+        for b, (xyz, cols) in enumerate(self._stretches()):
+            working = _work(state, printer, cols, start)[0]
+            z = xyz[:, 2]
+            wz = np.where(working, z, -np.inf)
+            new = working & (z > np.maximum.accumulate(np.concatenate([[top], wz]))[:-1] + 1e-6)
+            lay_at = count - 1 + np.cumsum(new, dtype=np.int32)
+            self._write_layer(b, lay_at)
+            heights.extend(z[new].tolist())
+            count += int(new.sum())
+            top = max(top, float(wz.max(initial=-np.inf)))
+            starts.append(start)
+            lay.append(int(lay_at[-1]))
+            start = xyz[-1]
+        if count == 0:  # nothing works: one layer at the highest move
+            for b, size in enumerate(self._sizes):
+                self._write_layer(b, np.zeros(size, np.int32))
+            return np.array([max(float(self._block(b)[2].max()) for b in range(len(self._sizes)))])
+        following = lay[-1]  # the layer of the next working move after a block: after the last, the last move's
+        for b in reversed(range(len(self._sizes))):
+            raw = self._block(b)
+            xyz = np.column_stack(raw[:3])
+            lay_at = np.asarray(raw[6], dtype=np.int32)
+            working = _work(state, printer, _moves(xyz, raw, lay_at), starts[b])[0]
+            n = len(xyz)
+            idx = np.where(working, np.arange(n, dtype=np.int32), np.int32(n))
+            nxt = np.minimum.accumulate(idx[::-1])[::-1]
+            owner = np.where(nxt < n, lay_at[np.minimum(nxt, n - 1)], following)
+            owner = np.where(working, lay_at, owner)
+            self._write_layer(b, np.maximum(owner, 0).astype(np.int32))
+            if working.any():
+                following = int(lay_at[int(np.argmax(working))])
+        return np.array(heights)
+
+    def _offset(self, b: int, column: int) -> int:
+        """Where column ``column`` of block b starts in the temporary file (bytes)."""
+        row = sum(np.dtype(code).itemsize for _name, code in _RAW)
+        at = sum(self._sizes[:b]) * row
+        return at + self._sizes[b] * sum(np.dtype(code).itemsize for _name, code in _RAW[:column])
+
+    def _block(self, b: int) -> list:
+        """_RAW's columns of block b (numpy arrays)."""
+        self._spill.flush()
+        out = []
+        for k, (_name, code) in enumerate(_RAW):
+            column = np.empty(self._sizes[b], np.dtype(code))
+            os.preadv(self._spill.fileno(), [memoryview(column).cast("B")], self._offset(b, k))
+            out.append(column)
+        return out
+
+    def _write_layer(self, b: int, layer: np.ndarray) -> None:
+        self._spill.flush()
+        os.pwrite(self._spill.fileno(), np.ascontiguousarray(layer, np.int32).tobytes(), self._offset(b, 6))
 
     def _stretches(self):
         """(xyz, _Moves) of each block of moves, in order."""

@@ -115,22 +115,28 @@ def test_layers_without_their_height_comment_get_it_from_a_pass_over_the_moves(t
     same_toolpath(joined(chunks), whole)
 
 
-def test_a_file_without_layer_comments_or_centred_comes_whole(tmp_path, kossel):
-    """Without layer comments a file's layers come from the heights of all its moves; --center
-    needs the footprint of every move: the stream gives the whole toolpath as one chunk."""
+@pytest.mark.parametrize("chunk", [1, 3, 50])
+def test_a_file_without_layer_comments_gets_its_layers_from_two_passes(tmp_path, kossel, chunk):
+    """Slic3r and GRBL write no layer comments: a new layer at each working move higher than every
+    one before (a pass forwards), the travels and retractions before it belonging to it (a pass
+    backwards, across the chunks' ends): the layers and heights the file read whole gets. A file
+    that never works is one layer. --center needs the footprint of every move: one chunk."""
     path = tmp_path / "nolayers.gcode"
     path.write_text(prusa_like().replace(";LAYER_CHANGE\n", ""))
     whole = read_gcode(path, printer=kossel)
-    with open_gcode(path, printer=kossel, chunk=10) as stream:
+    assert whole.n_layers == 6
+    with open_gcode(path, printer=kossel, chunk=chunk) as stream:
+        assert stream.streamed and stream.layers == 6
+        chunks = list(stream.chunks())
+    same_toolpath(joined(chunks), whole)
+    idle = tmp_path / "idle.gcode"
+    idle.write_text("G90\nG0 X1 Y1 Z1\nG0 X2 Y2 Z3\nG0 X3 Y1 Z2\n")
+    with open_gcode(idle, printer=kossel, chunk=chunk) as stream:
+        same_toolpath(joined(stream.chunks()), read_gcode(idle, printer=kossel))
+    with open_gcode(path, printer=kossel, chunk=10, center=True) as stream:
         assert not stream.streamed
         (only,) = stream.chunks()
-    same_toolpath(only, whole)
-    path2 = tmp_path / "z.gcode"
-    path2.write_text(prusa_like())
-    with open_gcode(path2, printer=kossel, chunk=10, center=True) as stream:
-        assert not stream.streamed
-        (only,) = stream.chunks()
-    same_toolpath(only, read_gcode(path2, printer=kossel, center=True))
+    same_toolpath(only, read_gcode(path, printer=kossel, center=True))
 
 
 @pytest.fixture
@@ -339,18 +345,18 @@ def test_a_lasers_runs_are_its_tool_channels_not_its_moves_roles(tmp_path, monke
 
 
 def test_a_stream_taken_whole_holds_what_reading_the_file_whole_holds(tmp_path):
-    """A file that is not streamed (here: no ;Z: comments) is taken whole from the temporary
-    file a column at a time: its peak is read_gcode's (the columns once), not the blocks and
-    their concatenation at once."""
-    path = tmp_path / "nolayers.gcode"
-    path.write_text(spiral_text(100).replace(";LAYER_CHANGE", ";layer change"))
+    """A file that is not streamed (read with --center) is taken whole from the temporary file a
+    column at a time: its peak is read_gcode's (the columns once), not the blocks and their
+    concatenation at once."""
+    path = tmp_path / "s.gcode"
+    path.write_text(spiral_text(100))
     peaks = {}
     for kind in ("read", "whole", "read", "whole"):  # the first two warm up
         tracemalloc.start()
         if kind == "read":
-            tp = read_gcode(path)
+            tp = read_gcode(path, center=True)
         else:
-            with open_gcode(path, chunk=1000) as stream:
+            with open_gcode(path, chunk=1000, center=True) as stream:
                 assert not stream.streamed
                 tp = stream.whole()
         peaks[kind] = tracemalloc.get_traced_memory()[1]
