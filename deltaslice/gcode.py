@@ -481,49 +481,43 @@ class GcodeStream:
 
     def _offset(self, b: int, column: int) -> int:
         """Where column ``column`` of block b starts in the temporary file (bytes)."""
-        row = sum(np.dtype(code).itemsize for _name, code in _RAW)
-        at = sum(self._sizes[:b]) * row
-        return at + self._sizes[b] * sum(np.dtype(code).itemsize for _name, code in _RAW[:column])
+        itemsizes = [np.dtype(code).itemsize for _name, code in _RAW]
+        return sum(self._sizes[:b]) * sum(itemsizes) + self._sizes[b] * sum(itemsizes[:column])
+
+    def _read_into(self, view: memoryview, offset: int) -> None:
+        # every read and write says where (seek): the passes interleave them
+        self._spill.seek(offset)
+        if self._spill.readinto(view) != len(view):
+            raise GcodeError(f"{self._shown}: its temporary file of moves was cut short")
 
     def _block(self, b: int) -> list:
         """_RAW's columns of block b (numpy arrays)."""
-        self._spill.flush()
         out = []
         for k, (_name, code) in enumerate(_RAW):
             column = np.empty(self._sizes[b], np.dtype(code))
-            os.preadv(self._spill.fileno(), [memoryview(column).cast("B")], self._offset(b, k))
+            self._read_into(memoryview(column).cast("B"), self._offset(b, k))
             out.append(column)
         return out
 
     def _write_layer(self, b: int, layer: np.ndarray) -> None:
-        self._spill.flush()
-        os.pwrite(self._spill.fileno(), np.ascontiguousarray(layer, np.int32).tobytes(), self._offset(b, 6))
+        self._spill.seek(self._offset(b, 6))
+        self._spill.write(np.ascontiguousarray(layer, np.int32).tobytes())
 
     def _stretches(self):
         """(xyz, _Moves) of each block of moves, in order."""
-        for raw in self._blocks():
+        for b in range(len(self._sizes)):
+            raw = self._block(b)
             xyz = np.column_stack(raw[:3])
             yield xyz, _moves(xyz, raw, np.asarray(raw[6], dtype=np.int32))
-
-    def _blocks(self):
-        """_RAW's columns of each block of moves, as numpy arrays, in order."""
-        self._spill.seek(0)
-        for size in self._sizes:
-            yield [np.fromfile(self._spill, dtype=np.dtype(code), count=size) for _name, code in _RAW]
 
     def whole(self) -> Toolpath:
         """All the moves as one Toolpath (:func:`read_gcode`'s), read a column at a time: the
         columns once, as reading the file whole holds them."""
-        dtypes = [np.dtype(code) for _name, code in _RAW]
-        raw = [np.empty(self.moves, dtype) for dtype in dtypes]
-        self._spill.flush()  # read past the file object's buffer
-        fd, offset, at = self._spill.fileno(), 0, 0
-        for size in self._sizes:
-            for column, dtype in zip(raw, dtypes):
-                view = memoryview(column[at : at + size]).cast("B")
-                if os.preadv(fd, [view], offset) != len(view):
-                    raise GcodeError(f"{self._shown}: its temporary file of moves was cut short")
-                offset += len(view)
+        raw = [np.empty(self.moves, np.dtype(code)) for _name, code in _RAW]
+        at = 0
+        for b, size in enumerate(self._sizes):
+            for k, column in enumerate(raw):
+                self._read_into(memoryview(column[at : at + size]).cast("B"), self._offset(b, k))
             at += size
         # a stream said its notes while it was read
         return _whole(self._state, raw, self._printer, self._shown, None if self.streamed else self._echo, self._center)
