@@ -41,6 +41,7 @@ EPILOG_COMPILE = """\b
 Examples:
   deltaslice examples/parts/calibration_cube.stl --printer delta_etitc
   deltaslice part.gcode --printer printers/delta_ucb.toml -o part.csv --speed-limit machine
+  deltaslice vase.gcode --printer linear_kossel --center    # sliced for a 200 x 200 mm bed
   deltaslice logo.png --printer delta_espe_laser --width 60 --mode vector -o logo.dsl
 """
 
@@ -258,7 +259,8 @@ def main():
 @click.option("--solver", type=click.Choice(["fast", "toppra"]), default="fast", show_default=True,
               help="The time-optimal planner's solver: fast (compiled reachability) or toppra (reference).")
 @placement_options
-@click.option("--center", is_flag=True, help="G-code: move the part's footprint to the bed centre (a file sliced for another machine).")
+@click.option("--center", is_flag=True, help="G-code: move the part's footprint to the bed centre (a file sliced for another machine; "
+              "a large file is then held in memory whole).")
 @_engrave_options
 @click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes slicing, planning and sampling (default: all cores); the output is the same for any number.")
 @bound_options

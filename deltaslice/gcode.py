@@ -409,9 +409,7 @@ class GcodeStream:
         self.layers = state.n_layers if state.have_layer_comments or self._layer_z is None else len(self._layer_z)
         if self.streamed:
             say = echo or (lambda _s: None)
-            _e, _tool, _working, note = _apply_dialects(printer, np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int8),
-                                                        np.zeros(0), np.zeros(0, bool), np.zeros(0, bool), None,
-                                                        state.e_words, state.bare_words, state.laser_seen, state.source)
+            note = _dialect_note(printer, state)
             if note:
                 say(f"{shown}: {note}")
             self._ratio = _source_notes(state.source, printer, shown, say, center)
@@ -445,44 +443,36 @@ class GcodeStream:
         backwards). The layer of every move is written into the temporary file's layer column;
         returns the layers' heights (L,) mm."""
         state, printer = self._state, self._printer
-        top, count, heights, starts, lay, start = -np.inf, 0, [], [], [], state.start
+        top, count, heights, starts, z_max, start = -np.inf, 0, [], [], -np.inf, state.start
         for b, (xyz, cols) in enumerate(self._stretches()):
             working = _work(state, printer, cols, start)[0]
             z = xyz[:, 2]
-            wz = np.where(working, z, -np.inf)
-            new = working & (z > np.maximum.accumulate(np.concatenate([[top], wz]))[:-1] + 1e-6)
+            new, top = _new_layers(z, working, top)
             lay_at = count - 1 + np.cumsum(new, dtype=np.int32)
             self._write_layer(b, lay_at)
             heights.extend(z[new].tolist())
             count += int(new.sum())
-            top = max(top, float(wz.max(initial=-np.inf)))
+            z_max = max(z_max, float(z.max()))
             starts.append(start)
-            lay.append(int(lay_at[-1]))
             start = xyz[-1]
         if count == 0:  # nothing works: one layer at the highest move
             for b, size in enumerate(self._sizes):
                 self._write_layer(b, np.zeros(size, np.int32))
-            return np.array([max(float(self._block(b)[2].max()) for b in range(len(self._sizes)))])
-        following = lay[-1]  # the layer of the next working move after a block: after the last, the last move's
+            return np.array([z_max])
+        following = int(lay_at[-1])  # the next working move's layer after a block: after the last, the last move's
         for b in reversed(range(len(self._sizes))):
             raw = self._block(b)
             xyz = np.column_stack(raw[:3])
             lay_at = np.asarray(raw[6], dtype=np.int32)
             working = _work(state, printer, _moves(xyz, raw, lay_at), starts[b])[0]
-            n = len(xyz)
-            idx = np.where(working, np.arange(n, dtype=np.int32), np.int32(n))
-            nxt = np.minimum.accumulate(idx[::-1])[::-1]
-            owner = np.where(nxt < n, lay_at[np.minimum(nxt, n - 1)], following)
-            owner = np.where(working, lay_at, owner)
-            self._write_layer(b, np.maximum(owner, 0).astype(np.int32))
+            self._write_layer(b, _layer_owners(lay_at, working, following))
             if working.any():
                 following = int(lay_at[int(np.argmax(working))])
         return np.array(heights)
 
     def _offset(self, b: int, column: int) -> int:
         """Where column ``column`` of block b starts in the temporary file (bytes)."""
-        itemsizes = [np.dtype(code).itemsize for _name, code in _RAW]
-        return sum(self._sizes[:b]) * sum(itemsizes) + self._sizes[b] * sum(itemsizes[:column])
+        return sum(self._sizes[:b]) * _RAW_OFFSETS[-1] + self._sizes[b] * _RAW_OFFSETS[column]
 
     def _read_into(self, view: memoryview, offset: int) -> None:
         # every read and write says where (seek): the passes interleave them
@@ -532,7 +522,7 @@ class GcodeStream:
         start, retracted, at = state.start, [0.0], 0
         for xyz, cols in self._stretches():
             n = len(xyz)
-            working, e, tool, _note, moved = _work(state, printer, cols, start)
+            working, e, tool, moved = _work(state, printer, cols, start)
             columns = _columns(state, printer, cols, working, e, tool, moved, cols.layer, layer_z, start, self._ratio,
                                retracted)
             last = at + n == self.moves
@@ -644,9 +634,12 @@ def _parse(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, cent
     return _whole(state, raw, printer, name, echo, center)
 
 
-# The columns the reader gathers per move, in this order (typecodes of array.array).
+# The columns the reader gathers per move, in this order (typecodes of array.array), and the
+# bytes of a move before each column and in all (a block of a stream's temporary file holds its
+# moves column after column).
 _RAW = (("x", "d"), ("y", "d"), ("z", "d"), ("e", "d"), ("feed", "d"), ("role", "h"), ("layer", "i"), ("kind", "b"),
         ("power", "d"), ("lmode", "b"))
+_RAW_OFFSETS = np.cumsum([0] + [np.dtype(code).itemsize for _name, code in _RAW]).tolist()
 
 
 @dataclass
@@ -984,7 +977,8 @@ def _whole(state: _ReadState, raw: list, printer, shown, echo, center) -> Toolpa
     cols = _moves(xyz, raw, layer)
     del raw
     say = echo or (lambda _s: None)
-    working, e, tool, note, moved = _work(state, printer, cols, state.start)
+    working, e, tool, moved = _work(state, printer, cols, state.start)
+    note = _dialect_note(printer, state)
     if note:
         say(f"{shown}: {note}")
     if state.have_layer_comments:
@@ -1037,11 +1031,11 @@ def _moves(xyz, raw: list, layer) -> _Moves:
 
 
 def _work(state: _ReadState, printer, cols: _Moves, start):
-    """(working, e, tool, note, moved) of a stretch of moves (see :func:`_apply_dialects`)."""
+    """(working, e, tool, moved) of a stretch of moves (see :func:`_apply_dialects`)."""
     moved, moved_xy = _motion(cols, start)
-    e, tool, working, note = _apply_dialects(printer, cols.xyz, cols.e, cols.kind, cols.power, moved, moved_xy,
-                                             cols.layer, state.e_words, state.bare_words, state.laser_seen, state.source)
-    return working, e, tool, note, moved
+    e, tool, working = _apply_dialects(printer, cols.e, cols.kind, cols.power, moved, moved_xy, state.e_words,
+                                       state.bare_words, state.laser_seen)
+    return working, e, tool, moved
 
 
 def _columns(state: _ReadState, printer, cols: _Moves, working, e, tool, moved, layer, layer_z, start, ratio, retracted):
@@ -1097,8 +1091,9 @@ def _layer_heights(state: _ReadState, stats) -> np.ndarray:
     return layer_z
 
 
-def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_words, bare_words, laser_seen, source):
-    """(e, tool, working, note): which moves work and how, as the file's author meant.
+def _apply_dialects(printer, e, kind, power, moved, moved_xy, e_words, bare_words, laser_seen):
+    """(e, tool, working): which moves work and how, as the file's author meant (the note saying
+    so: :func:`_dialect_note`).
 
     * E words (the common case): a move that goes somewhere and pushes filament works.
     * Slic3r's no-extrusion flavour writes the E register without its letter; its amounts do
@@ -1111,27 +1106,18 @@ def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_word
       E or G1 rules above switch the laser on at full power.
     """
     laser = printer is not None and printer.tool.channel_kind == "laser"
-    note = ""
     if laser and laser_seen:
         s_max = getattr(printer.tool, "s_max", 1000.0)
         # the tool channel is a fraction of full power (0..1); max_power (W) is reported only
         frac = np.clip(power / s_max, 0.0, 1.0)
         working = moved & (kind >= 1) & (frac > 0)
-        return np.zeros(len(e)), np.where(working, frac, 0.0), working, ""
+        return np.zeros(len(e)), np.where(working, frac, 0.0), working
     if bare_words and not e_words:
         # a bare-number move that lowers the register is a wipe (Slic3r's retraction while it
         # travels back over the perimeter it just printed): a travel with its retraction, not work
         working = moved_xy & (kind == 3) & (e >= 0)
-        note = (f"{_SLIC3R_NO_EXTRUSION}: E values without their letter; moves carrying one are work moves"
-                + (" extruded with the printer's own flow model" if not laser else " with the laser on")
-                + ", those lowering it wipes; each unretraction is read from 0 (Slic3r resets its E register "
-                "after a retraction without writing G92 E0)")
     elif not e_words and not bare_words:
         working = moved_xy & (kind >= 1)
-        note = ("no E words: G1/G2/G3 moves are work moves "
-                + ("with the laser on" if laser else ("extruded with the printer's own flow model" if printer is not None
-                                                       else "(no printer given: no filament amounts)"))
-                + ", G0 moves are travels")
     else:
         working = moved & (e > 0)
     tool = working.astype(float)  # full extrusion, or full laser power (a fraction, not watts)
@@ -1139,7 +1125,25 @@ def _apply_dialects(printer, xyz, e, kind, power, moved, moved_xy, layer, e_word
         e = np.zeros(len(e))
     elif bare_words and not e_words:
         e = np.where(working, 0.0, e)  # replaced by the flow model
-    return e, tool, working, note
+    return e, tool, working
+
+
+def _dialect_note(printer, state: _ReadState) -> str:
+    """What :func:`_apply_dialects` makes of a file whose dialect is not the common one, or ""."""
+    laser = printer is not None and printer.tool.channel_kind == "laser"
+    if laser and state.laser_seen:
+        return ""
+    if state.bare_words and not state.e_words:
+        return (f"{_SLIC3R_NO_EXTRUSION}: E values without their letter; moves carrying one are work moves"
+                + (" extruded with the printer's own flow model" if not laser else " with the laser on")
+                + ", those lowering it wipes; each unretraction is read from 0 (Slic3r resets its E register "
+                "after a retraction without writing G92 E0)")
+    if not state.e_words and not state.bare_words:
+        return ("no E words: G1/G2/G3 moves are work moves "
+                + ("with the laser on" if laser else ("extruded with the printer's own flow model" if printer is not None
+                                                       else "(no printer given: no filament amounts)"))
+                + ", G0 moves are travels")
+    return ""
 
 
 def _flow_model_e(printer, xyz, starts, sel, layer, layer_z, e):
@@ -1260,20 +1264,35 @@ def _rescale_filament(e, written, moved, ratio, retracted: float = 0.0):
 
 def _layers_from_z(z: np.ndarray, working: np.ndarray):
     """Layers from the heights of working moves: a new layer starts at each working
-    move higher than every earlier one; the travels leading to it belong to it."""
-    n = len(z)
+    move higher than every earlier one; the travels leading to it belong to it.
+    (:meth:`GcodeStream._find_layers` takes the same two steps a block at a time.)"""
     if not working.any():
-        return np.zeros(n, np.int32), np.array([float(z.max())])
-    # int32 indices throughout (a G-code of 2^31 moves is far beyond what is read): these
-    # temporaries are the largest of reading a file without layer comments
+        return np.zeros(len(z), np.int32), np.array([float(z.max())])
+    new, _top = _new_layers(z, working, -np.inf)
+    lay_at = np.cumsum(new, dtype=np.int32) - 1
+    return _layer_owners(lay_at, working, lay_at[-1]), z[new]
+
+
+def _new_layers(z: np.ndarray, working: np.ndarray, top: float):
+    """(new (n,) bool: the working moves higher by more than a micron than every working move
+    before them and than ``top`` (mm, the highest working move before these), the highest
+    working move's z after them)."""
     prev_max = np.maximum.accumulate(np.where(working, z, -np.inf))
+    after = max(top, float(prev_max[-1])) if len(z) else top
     prev_max[1:] = prev_max[:-1].copy()
     prev_max[0] = -np.inf
-    new = working & (z > prev_max + 1e-6)
-    del prev_max
-    lay_at = np.cumsum(new, dtype=np.int32) - 1
+    np.maximum(prev_max, top, out=prev_max)
+    return working & (z > prev_max + 1e-6), after
+
+
+def _layer_owners(lay_at: np.ndarray, working: np.ndarray, following: int) -> np.ndarray:
+    """(n,) int32 the layer of every move: a working move's is ``lay_at`` (the layer begun at or
+    before it), any other's the next working move's, or ``following`` after the last one."""
+    # int32 indices throughout (a G-code of 2^31 moves is far beyond what is read): these
+    # temporaries are the largest of reading a file without layer comments
+    n = len(lay_at)
     nxt_work = np.minimum.accumulate(np.where(working, np.arange(n, dtype=np.int32), np.int32(n))[::-1])[::-1]
-    owner = np.where(nxt_work < n, lay_at[np.minimum(nxt_work, n - 1)], lay_at[-1])
+    owner = np.where(nxt_work < n, lay_at[np.minimum(nxt_work, n - 1)], following)
     del nxt_work
     owner = np.where(working, lay_at, owner)
-    return np.maximum(owner, 0).astype(np.int32), z[new]
+    return np.maximum(owner, 0).astype(np.int32)

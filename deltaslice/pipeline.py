@@ -461,8 +461,8 @@ def compile_part(
 def _gcode_stream(part, printer, fmt, planner, options, progress, echo):
     """A G-code of more than STREAM_BYTES read to be planned as it is read (gcode.open_gcode), or
     None: a mesh, an image, a smaller file, a G-code output, or the trapezoid planner (which takes
-    the whole toolpath). A file whose moves must all be in memory (centred, or whose layer heights
-    come from its moves: see gcode.GcodeStream) is then taken whole from the stream."""
+    the whole toolpath). A centred file (the footprint of every move) is then taken whole from the
+    stream (see gcode.GcodeStream)."""
     from . import gcode
 
     if part_kind(part) != "gcode" or fmt == "gcode" or planner != "toppra":

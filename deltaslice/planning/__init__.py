@@ -93,10 +93,9 @@ def split_runs(toolpath: Toolpath, laser: bool | None = None):
     laser: whether the tool is a laser (the printer's tool channel); None: whether any move has
     a laser role."""
     waits = toolpath.events["index"][np.isin(toolpath.events["kind"], [int(k) for k in WAIT_KINDS])]
-    laser_role = np.isin(toolpath.role, LASER_ROLES)
-    if laser if laser is not None else laser_role.any():
-        laser = laser_role
-        member = np.concatenate([[False], toolpath.working | laser, [False]]).astype(np.int8)
+    laser_moves = np.isin(toolpath.role, LASER_ROLES)
+    if laser if laser is not None else laser_moves.any():
+        member = np.concatenate([[False], toolpath.working | laser_moves, [False]]).astype(np.int8)
         edges = np.flatnonzero(np.diff(member))
         dynamic = toolpath.role == int(Role.LASER_DYNAMIC)
         out = []
@@ -106,7 +105,6 @@ def split_runs(toolpath: Toolpath, laser: bool | None = None):
             out.extend(zip(bounds[:-1], bounds[1:]))
         return out
     out = []
-    waits = toolpath.events["index"][np.isin(toolpath.events["kind"], [int(k) for k in WAIT_KINDS])]
     for i, j in toolpath.runs():
         tool = toolpath.tool[i:j]
         cuts = np.union1d(np.flatnonzero(np.diff(tool) != 0) + 1, waits[(waits > i) & (waits < j)] - i).astype(int)
@@ -269,13 +267,12 @@ def _stream_jobs(chunks, laser: bool):
                 yield from _jobs(held, split_runs(held, laser), laser, at, printed_top=top)
             return
         cur = tp if held is None else held.then(tp)
-        ranges = split_runs(cur, laser)
-        items = list(_jobs(cur, ranges, laser, at, printed_top=top))
+        tops = {}
+        items = list(_jobs(cur, split_runs(cur, laser), laser, at, printed_top=top, tops=tops))
         yield from items[:-1]
         start, _end, kind, _job = items[-1]
-        first = start - at
-        top = max([top] + [float(cur.xyz[i:j, 2].max()) for i, j in ranges if j <= first])
-        held, at = cur.subset(slice(first, None)), start
+        top = tops["before"]  # the last job's, which is held back
+        held, at = cur.subset(slice(start - at, None)), start
         del cur, items, _job
         if kind == "run" and len(held) > STREAM_RUN:
             after = {}
@@ -339,15 +336,17 @@ def _at_rest(index: np.ndarray, n: int, events: tuple, offset: float, duration: 
     )
 
 
-def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, pos=None, printed_top: float = 0.0):
+def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, printed_top: float = 0.0, tops: dict | None = None):
     """(first move, end move, kind, job) of every run and of the travels between them (and before
     the first, after the last), in print order, made one at a time: a print of 270k runs would
     hold hundreds of MB of them at once. offset: the toolpath's first move's index in the print;
-    pos, printed_top: where the tool is before the first move (default: the start) and the top of
-    what is printed already (mm), for a toolpath that goes on from another."""
-    pos = toolpath.start if pos is None else pos
+    printed_top: the top of what is printed already (mm), for a toolpath that goes on from
+    another; ``tops["before"]``, when given, is set to the printed top before each job yielded."""
+    pos = toolpath.start
     prev_end = 0
+    tops = {} if tops is None else tops
     for i, j in ranges:
+        tops["before"] = printed_top
         if i > prev_end:
             yield offset + prev_end, offset + i, "travel", _travel_args(toolpath, prev_end, i, pos, printed_top)
         yield offset + i, offset + j, "run", _run_spec(toolpath, i, j, laser)
@@ -355,6 +354,7 @@ def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, pos=None, pr
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
     if prev_end < len(toolpath):
+        tops["before"] = printed_top
         yield offset + prev_end, offset + len(toolpath), "travel", _travel_args(toolpath, prev_end, len(toolpath), pos,
                                                                                  printed_top)
 

@@ -524,13 +524,7 @@ def iter_run_parts(kin, printer, parts, speed_limit: str, solver: str = "fast"):
     up to its last segment longer than a micron, so the filament of the shorter ones after it goes
     to a segment of the next); a window's blends keep to what merging left of the tolerance in
     the parts it spans (a whole run's keep to what merging left anywhere in it)."""
-    tol0 = printer.planning.blend_tolerance
     taken, first = [0], []
-
-    def prepare(spec):
-        pts, feed, e = dedupe(spec.points, spec.feed, spec.e)
-        pts, feed, e, moved = merge_short(pts, feed, e, MERGE_LENGTH, MERGE_DEVIATION * tol0)
-        return _Polyline(pts, feed, e, None if spec.power is None else _segment_power(spec, pts)), tol0 - moved
 
     def prepared():
         pending = None
@@ -543,11 +537,11 @@ def iter_run_parts(kin, printer, parts, speed_limit: str, solver: str = "fast"):
             if len(kept) < 2:
                 pending = spec
                 continue
-            yield prepare(spec.part(0, int(kept[-1])))
+            yield _prepare(printer, spec.part(0, int(kept[-1])), None)
             pending = spec.part(int(kept[-1]), len(spec.points) - 1)
         if pending is not None:
             first.append(pending)  # the last: all of the run when no segment of it is longer than a micron
-            yield prepare(pending)
+            yield _prepare(printer, pending, None)
 
     stretches = prepared()
     head = next(stretches)
