@@ -33,6 +33,7 @@ def main():
     ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--solver", default=None, help="planning solver (fast|toppra); default: the planner's default")
     ap.add_argument("--top", type=int, default=30)
+    ap.add_argument("--sort", default="cumulative", help="pstats sort key (cumulative, tottime, ...)")
     args = ap.parse_args()
     printer = load_printer(args.printer)
     with tempfile.TemporaryDirectory() as tmp:
@@ -50,7 +51,7 @@ def main():
         wall = time.perf_counter() - t0
     print(summary)
     print(f"wall (profiled): {wall:.2f} s")
-    pstats.Stats(prof).sort_stats("cumulative").print_stats(args.top)
+    pstats.Stats(prof).sort_stats(args.sort).print_stats(args.top)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
-"""Mesh stage: load a part (STL, OBJ, 3MF, PLY, OFF) with trimesh, repair what is
-safe to repair, place it on the bed, and check that it fits the printer.
+"""Mesh stage: load a part (STL here; OBJ, 3MF, PLY, OFF with trimesh), repair what is
+safe to repair (with trimesh, only when the surface needs it), place it on the bed, and check
+that it fits the printer.
 
 The result is a frozen :class:`Mesh`: vertices (mm, bed frame) and faces, the
 repairs made and whether the surface is a closed solid. Only repairs that cannot
@@ -116,8 +117,6 @@ def _where(points: np.ndarray) -> str:
 
 def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Vertices (n, 3) float in file units, faces (m, 3) int64 and reading notes."""
-    import trimesh
-
     shown = str(path)
     try:
         size = path.stat().st_size
@@ -134,6 +133,8 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         if n is not None:
             return _read_binary_stl(path, n, size, notes)
         return _read_ascii_stl(path, notes)
+    import trimesh  # other formats only: STL is read here, and importing trimesh takes 0.4 s
+
     try:
         loaded = trimesh.load(str(path), process=False)
     except MeshError:
@@ -296,8 +297,6 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
     ``closed`` says whether the result is a watertight, 2-manifold, consistently
     wound surface (sliced by manifold3d); anything else is sliced layer by layer.
     """
-    import trimesh
-
     notes: list[str] = []
     bad = ~np.all(np.isfinite(vertices), axis=1)
     if bad.any():
@@ -313,6 +312,17 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
         )
     if extent.max() < MIN_EXTENT:
         raise MeshError(f"{shown}: the part is degenerate: largest dimension {extent.max():.3g} file units")
+
+    sound = _sound_surface(vertices, faces)
+    if sound is not None:  # the usual part: nothing to repair, and no trimesh to import (0.4 s)
+        v, f, merged = sound
+        notes = [f"merged {merged} duplicate vertices"] if merged and not stl else []
+        if _signed_volume(v, f) < 0:
+            f = np.ascontiguousarray(np.fliplr(f))
+            notes.append("turned the normals outward (the part was inside out)")
+        return _Repaired(v, f, notes, True, True)
+
+    import trimesh
 
     tm = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
     nv = len(tm.vertices)
@@ -387,6 +397,38 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
             what.append("faces that cannot be oriented consistently")
         notes.append(f"not a closed solid: {'; '.join(what)}: sliced layer by layer, closing each layer's outlines")
     return _Repaired(np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64), notes, closed, consistent)
+
+
+#: trimesh's vertex merge: positions equal to 10**-MERGE_DIGITS (its ``tol.merge``) are one vertex.
+MERGE_DIGITS = 8
+
+
+def _merge_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """trimesh's ``merge_vertices`` without trimesh: vertices (n, 3) float and faces (m, 3) int64
+    -> the referenced vertices with distinct positions (rounded to MERGE_DIGITS), in the order of
+    their first occurrence, and the faces re-indexed to them. The same arrays as trimesh's."""
+    referenced = np.zeros(len(vertices), dtype=bool)
+    referenced[faces] = True
+    keys = np.round(vertices[referenced] * 10**MERGE_DIGITS).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    order = first.argsort()
+    new_index = np.empty(len(vertices), dtype=np.int64)
+    new_index[referenced] = order.argsort()[inverse.ravel()]
+    return vertices[np.flatnonzero(referenced)[first[order]]], new_index[faces]
+
+
+def _sound_surface(vertices: np.ndarray, faces: np.ndarray):
+    """(vertices, faces, merged) when the merged surface needs no repair: every edge has exactly
+    two faces and they run it in opposite directions (closed and consistently wound, so trimesh's
+    fix_winding would change nothing); else None. Nothing else can need repair then: a face that
+    repeats a vertex runs an edge both ways or shares a directed edge, and two faces on the same
+    three vertices only meet each other, which the repair keeps too."""
+    v, f = _merge_vertices(vertices, faces)
+    directed = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    n = len(v)
+    if not (_edge_counts(f)[1] == 2).all() or len(np.unique(directed[:, 0] * n + directed[:, 1])) < len(directed):
+        return None
+    return v, f, len(vertices) - len(v)
 
 
 def _signed_volume(vertices, faces) -> float:
