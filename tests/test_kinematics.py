@@ -165,21 +165,30 @@ def test_path_derivatives_match_inverse_kinematics_along_a_curve(name, data):
 @pytest.mark.parametrize("name", CASES)
 @SETTINGS
 @given(data=st.data())
-def test_inverse_path_derivatives_equal_the_separate_calls(name, data):
-    """The planner's one call (fused in the rotary delta's compiled kernel: cos q and sin q from
-    the root itself) gives what ``inverse`` and ``path_derivatives`` give, NaN rows included."""
+def test_scaled_path_derivatives_equal_the_separate_calls(name, data):
+    """The planner's one call (fused with the inverse in the rotary delta's compiled kernel: cos q
+    and sin q from the root itself, scaled as written) gives what ``inverse`` and
+    ``path_derivatives`` give, into strided views, NaN rows and the first unreachable point
+    included."""
     kin, pts = reachable_batch(name, data)
     pts = np.vstack([pts, [[np.nan, 0.0, 0.0], [1e6, 0.0, 0.0]]])
     t = np.vstack([unit_rows(data, len(pts) - 2), [[1.0, 0.0, 0.0]] * 2])
     kappa = np.zeros_like(t)
-    q, d1, d2 = kin.inverse_path_derivatives(pts, t, kappa)
+    scale = data.draw(st.floats(0.5, 300.0))
+    J = kin.n_joints
+    d1, d2 = np.zeros((len(pts), J + 1)), np.zeros((len(pts), J + 1))  # the planner's (N, dof) arrays
+    first = kin.scaled_path_derivatives(pts, t, kappa, scale, d1[:, :J], d2[:, :J])
+    assert first == len(pts) - 2
+    assert not d1[:, J].any() and not d2[:, J].any()
     q0 = kin.inverse(pts)
     e1, e2 = kin.path_derivatives(pts, q0, t, kappa)
-    assert np.array_equal(np.isnan(q), np.isnan(q0)) and np.isnan(q[-2]).all()
     ok = np.isfinite(q0).all(axis=1)
-    assert np.allclose(q[ok], q0[ok], rtol=0, atol=1e-12)
-    assert np.allclose(d1[ok], e1[ok], rtol=1e-9, atol=1e-12)
-    assert np.allclose(d2[ok], e2[ok], rtol=1e-9, atol=1e-12)
+    assert np.isnan(d1[~ok, :J]).all() and np.isnan(d2[~ok, :J]).all()
+    assert np.allclose(d1[ok, :J], e1[ok] * scale, rtol=1e-9, atol=1e-12)
+    assert np.allclose(d2[ok, :J], e2[ok] * scale * scale, rtol=1e-9, atol=1e-12)
+    reach = np.zeros((len(pts) - 2, J))
+    assert kin.scaled_path_derivatives(pts[:-2], t[:-2], kappa[:-2], scale, reach, reach.copy()) == -1
+
 
 
 @pytest.mark.parametrize("name", CASES)

@@ -11,8 +11,9 @@ limits. Everything is vectorised over N points:
 * ``inverse_jacobian(q (N,J)) -> (N,J,3)``: d(q)/d(point),
 * ``path_derivatives(points, q, t, kappa) -> (q' (N,J), q'' (N,J))``: the joints' first and
   second derivatives along a curve, what the planner uses (closed form per family, a finite
-  difference of the inverse Jacobian by default); ``inverse_path_derivatives(points, t, kappa)``
-  gives q with them (a family may fuse the two),
+  difference of the inverse Jacobian by default); ``scaled_path_derivatives(points, t, kappa,
+  scale, out1, out2)`` writes them in path units into the planner's arrays (a family may fuse it
+  with the inverse),
 * ``reachable(points (N,3)) -> (N,) bool``: real inverse, joint limits and any
   family-specific limit (ball-joint tilt), and not near a singularity.
 
@@ -135,11 +136,22 @@ class Kinematics:
         ddq = np.einsum("nij,nj->ni", dj, t) + np.einsum("nij,nj->ni", jinv, kappa)
         return dq, ddq
 
-    def inverse_path_derivatives(self, points, t, kappa):
-        """(q, q', q''), each (N,J): :meth:`inverse` of points (N,3) mm and :meth:`path_derivatives`
-        there along unit tangents t and curvature vectors kappa (N,3); a family may fuse the two."""
+    def scaled_path_derivatives(self, points, t, kappa, scale, out1, out2) -> int:
+        """:meth:`path_derivatives` at points (N,3) mm along unit tangents t and curvature vectors
+        kappa (N,3), in path units of ``scale`` mm: q' scale and q'' scale^2 written into out1 and
+        out2 (N,J), which may be views (the planner's joint columns), with no (N,J) temporaries
+        where a family fuses it (the rotary delta). Returns the index of the first point out of
+        reach (its rows are NaN), -1 when all are reachable."""
         q = self.inverse(points)
-        return (q, *self.path_derivatives(points, q, t, kappa))
+        d1, d2 = self.path_derivatives(points, q, t, kappa)
+        np.multiply(d1, scale, out=out1)
+        np.multiply(d2, scale * scale, out=out2)
+        with np.errstate(over="ignore"):
+            if np.isfinite(q.sum()):  # one reduction: a NaN row makes the sum NaN
+                return -1
+        bad = ~np.all(np.isfinite(q), axis=1)
+        out1[bad] = out2[bad] = np.nan
+        return int(np.flatnonzero(bad)[0]) if bad.any() else -1
 
     def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Family-specific limits beyond joint positions (default: none). (N,) bool."""

@@ -152,12 +152,11 @@ class RotaryDelta(Kinematics):
                             self._offsets, self.L1, q1, q2)
         return q1, q2
 
-    def inverse_path_derivatives(self, points, t, kappa):
-        """``inverse`` and ``path_derivatives`` in one compiled pass (the planner's hottest call)."""
+    def scaled_path_derivatives(self, points, t, kappa, scale, out1, out2) -> int:
+        """The base contract in one compiled pass with the inverse (the planner's hottest call):
+        no q array, and the scaling done as the rates are written."""
         points, t, kappa = (np.ascontiguousarray(v, dtype=float) for v in (points, t, kappa))
-        q, q1, q2 = np.empty((len(points), 3)), np.empty((len(points), 3)), np.empty((len(points), 3))
-        _fused_kernel(points, t, kappa, self._offsets, self.L1, self.L2, q, q1, q2)
-        return q, q1, q2
+        return int(_scaled_rates_kernel(points, t, kappa, self._offsets, self.L1, self.L2, float(scale), out1, out2))
 
     def ball_joint_tilt(self, points, q):
         """Sideways tilt of each forearm out of its arm's vertical plane: (N,3) rad."""
@@ -176,13 +175,14 @@ class RotaryDelta(Kinematics):
 
 
 @njit
-def _arm_angle(points, k, i, offsets, L1, L2):
-    """Arm i's knee-outward root at point k: (theta, cos theta, sin theta), NaN when none.
+def _arm_root(points, k, i, offsets, L1, L2):
+    """Arm i's knee-outward root at point k as (cos theta, sin theta) times rho^2, and rho^2
+    (below); NaN when there is none.
 
     a cos(theta) + b sin(theta) = c with w = point + offsets[i], a = w.u_i, b = -w_z,
     c = (L1^2 + |w|^2 - L2^2) / (2 L1): theta = atan2(b, a) - acos(c / rho), rho = |(a, b)|,
     taken as one angle: with h = sqrt(rho^2 - c^2), cos theta = (a c + b h) / rho^2 and
-    sin theta = (b c - a h) / rho^2, in the same range (-2 pi, pi]."""
+    sin theta = (b c - a h) / rho^2. Also a + c and b, which place theta in its range."""
     wx = points[k, 0] + offsets[i, 0]
     wy = points[k, 1] + offsets[i, 1]
     wz = points[k, 2] + offsets[i, 2]
@@ -192,14 +192,22 @@ def _arm_angle(points, k, i, offsets, L1, L2):
     rho2 = a * a + b * b
     disc = rho2 - c * c
     if not (disc >= 0.0 and rho2 > 0.0 and math.isfinite(rho2) and math.isfinite(c)):
-        return np.nan, np.nan, np.nan
+        return np.nan, np.nan, np.nan, np.nan, np.nan
     h = math.sqrt(disc)
-    x = a * c + b * h
-    y = b * c - a * h
+    return a * c + b * h, b * c - a * h, rho2, a + c, b
+
+
+@njit
+def _arm_angle(points, k, i, offsets, L1, L2):
+    """Arm i's knee-outward root at point k: (theta, cos theta, sin theta), NaN when none
+    (:func:`_arm_root`), theta in (-2 pi, pi]."""
+    x, y, rho2, a_plus_c, b = _arm_root(points, k, i, offsets, L1, L2)
+    if rho2 != rho2:
+        return np.nan, np.nan, np.nan
     th = math.atan2(y, x)
     # atan2(b, a) - acos(c / rho) lies in (-2 pi, pi]: below -pi exactly when b < 0 and
     # a + c < 0 (atan2(b, a) + pi < acos(c / rho)), where one atan2 gives it plus 2 pi.
-    if b < 0.0 and a + c < 0.0 and th > 0.0:
+    if b < 0.0 and a_plus_c < 0.0 and th > 0.0:
         th -= 2.0 * math.pi
     return th, x / rho2, y / rho2
 
@@ -247,16 +255,26 @@ def _derivatives_kernel(points, q, t, kappa, offsets, L1, q1, q2):
 
 
 @njit
-def _fused_kernel(points, t, kappa, offsets, L1, L2, q, q1, q2):
-    """q, q', q'' (N,3) in one pass: the rates take cos q and sin q from the root itself."""
+def _scaled_rates_kernel(points, t, kappa, offsets, L1, L2, scale, q1, q2):
+    """q' scale and q'' scale^2 (N,3) into q1, q2 in one pass, the rates taking cos q and sin q
+    from the root itself; a row is NaN where any arm has no root. Returns the first such row, or
+    -1."""
+    first = -1
+    scale2 = scale * scale
     for k in range(points.shape[0]):
+        reach = True
         for i in range(3):
-            th, cq, sq = _arm_angle(points, k, i, offsets, L1, L2)
-            q[k, i] = th
-            q1[k, i], q2[k, i] = _arm_rates(points, k, i, offsets, L1, cq, sq, t, kappa)
-        if q[k, 0] != q[k, 0] or q[k, 1] != q[k, 1] or q[k, 2] != q[k, 2]:
+            x, y, rho2, _, _ = _arm_root(points, k, i, offsets, L1, L2)  # no atan2: the rates need cos and sin only
+            reach = reach and rho2 == rho2
+            d1, d2 = _arm_rates(points, k, i, offsets, L1, x / rho2, y / rho2, t, kappa)
+            q1[k, i] = d1 * scale
+            q2[k, i] = d2 * scale2
+        if not reach:
             for i in range(3):
-                q[k, i] = q1[k, i] = q2[k, i] = np.nan
+                q1[k, i] = q2[k, i] = np.nan
+            if first < 0:
+                first = k
+    return first
 
 
 KINEMATICS = RotaryDelta

@@ -138,10 +138,12 @@ class RunPath:
                 return
         bad = ~np.all(np.isfinite(q), axis=1)
         if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise UnreachableError(
-                f"layer {self.layer}: point x = {p[i, 0]:.2f}, y = {p[i, 1]:.2f}, z = {p[i, 2]:.2f} mm is out of reach"
-            )
+            self._raise_unreachable(p[int(np.flatnonzero(bad)[0])])
+
+    def _raise_unreachable(self, point):
+        raise UnreachableError(
+            f"layer {self.layer}: point x = {point[0]:.2f}, y = {point[1]:.2f}, z = {point[2]:.2f} mm is out of reach"
+        )
 
     def derivatives(self, s: np.ndarray, piece: np.ndarray):
         """First and second derivatives of the path with respect to x, at arc lengths s (mm)
@@ -157,10 +159,9 @@ class RunPath:
         for i in range(0, len(s), DERIVATIVE_BLOCK):
             block = slice(i, i + DERIVATIVE_BLOCK)
             p, t, kappa = self.path.frame(s[block], piece[block])
-            q, dq_b, ddq_b = self.kin.inverse_path_derivatives(p, t, kappa)
-            self._check_reach(p, q)
-            np.multiply(dq_b, S, out=dq[block, :J])
-            np.multiply(ddq_b, S * S, out=ddq[block, :J])
+            bad = self.kin.scaled_path_derivatives(p, t, kappa, S, dq[block, :J], ddq[block, :J])
+            if bad >= 0:
+                self._raise_unreachable(p[bad])
         if self.e_ratio is not None:
             np.multiply(self.e_ratio[piece], S, out=dq[:, J])
             ddq[:, J] = 0.0
@@ -247,11 +248,10 @@ def gridpoint_speed_factor(dq_stage: np.ndarray) -> np.ndarray:
     it (their start, middle and end), from stage derivatives (n, f, dof) at fractions whose
     first is 0, middle 0.5 and last 1: a cap on x_dot^2 at both ends of a stage also holds in
     its middle, where x_dot^2 is their mean."""
-    a = np.abs(dq_stage)
-    mid = a.shape[1] // 2
-    ahead = np.maximum(a[:, 0], a[:, mid])  # stage i seen from its start point
-    behind = np.maximum(a[:, -1], a[:, mid])  # stage i seen from its end point
-    out = np.zeros((a.shape[0] + 1, a.shape[2]))
+    start, mid, end = (np.abs(dq_stage[:, k]) for k in (0, dq_stage.shape[1] // 2, -1))
+    ahead = np.maximum(start, mid)  # stage i seen from its start point
+    behind = np.maximum(end, mid)  # stage i seen from its end point
+    out = np.zeros((dq_stage.shape[0] + 1, dq_stage.shape[2]))
     out[:-1] = ahead
     out[1:] = np.maximum(out[1:], behind)
     return out
