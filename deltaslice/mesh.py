@@ -298,6 +298,8 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
     wound surface (sliced by manifold3d); anything else is sliced layer by layer.
     """
     notes: list[str] = []
+    if len(faces) == 0 or len(vertices) == 0:
+        raise MeshError(f"{shown}: the mesh has no triangles")
     bad = ~np.all(np.isfinite(vertices), axis=1)
     if bad.any():
         raise MeshError(f"{shown}: {int(bad.sum())} vertices have NaN or infinite coordinates (first: vertex {int(np.flatnonzero(bad)[0])})")

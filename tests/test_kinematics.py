@@ -188,6 +188,10 @@ def test_scaled_path_derivatives_equal_the_separate_calls(name, data):
     assert np.allclose(d2[ok, :J], e2[ok] * scale * scale, rtol=1e-9, atol=1e-12)
     reach = np.zeros((len(pts) - 2, J))
     assert kin.scaled_path_derivatives(pts[:-2], t[:-2], kappa[:-2], scale, reach, reach.copy()) == -1
+    short = np.zeros((len(pts) + 4, J))[:2]  # too few rows: refused, nothing written past them
+    with pytest.raises(ValueError):
+        kin.scaled_path_derivatives(pts, t, kappa, scale, short, short.copy())
+    assert not short.base[2:].any()
 
 
 

@@ -206,3 +206,11 @@ def test_a_sound_stl_loads_without_importing_trimesh(tmp_path):
             "print(m.closed, 'trimesh' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["True", "False"]
+
+
+def test_arrays_without_triangles_are_a_mesh_error():
+    from deltaslice.mesh import mesh_from_arrays
+
+    for vertices in (np.zeros((0, 3)), np.eye(3)):
+        with pytest.raises(MeshError, match="no triangles"):
+            mesh_from_arrays(vertices, np.zeros((0, 3), dtype=np.int64))

@@ -156,6 +156,10 @@ class RotaryDelta(Kinematics):
         """The base contract in one compiled pass with the inverse (the planner's hottest call):
         no q array, and the scaling done as the rates are written."""
         points, t, kappa = (np.ascontiguousarray(v, dtype=float) for v in (points, t, kappa))
+        for out in (out1, out2):  # the kernel writes unchecked: numpy's out= would have refused these
+            if out.shape != (len(points), 3) or out.dtype != np.float64:
+                raise ValueError(f"scaled_path_derivatives: an output is {out.dtype} {out.shape}, "
+                                 f"expected float64 ({len(points)}, 3)")
         return int(_scaled_rates_kernel(points, t, kappa, self._offsets, self.L1, self.L2, float(scale), out1, out2))
 
     def ball_joint_tilt(self, points, q):
