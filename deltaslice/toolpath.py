@@ -195,26 +195,9 @@ class Toolpath:
         parts = [p for p in parts]
         if not parts:
             return cls.empty()
-        offset, layers, events, moves = 0, [], [], 0
-        for p in parts:
-            layers.append(p.layer + offset)
-            offset += len(p.layer_z)
-            ev = p.events.copy()
-            ev["index"] += moves
-            events.append(ev)
-            moves += len(p)
-        cat = np.concatenate
-        return cls(
-            parts[0].start,
-            cat([p.xyz for p in parts]),
-            cat([p.feed for p in parts]),
-            cat([p.e for p in parts]),
-            cat([p.tool for p in parts]),
-            cat([p.role for p in parts]),
-            cat(layers),
-            cat([p.layer_z for p in parts]),
-            cat(events),
-        )
+        offsets = np.cumsum([0] + [len(p.layer_z) for p in parts[:-1]])
+        return cls._joined(parts, np.concatenate([p.layer + int(k) for p, k in zip(parts, offsets)]),
+                           np.concatenate([p.layer_z for p in parts]))
 
     def then(self, other: "Toolpath") -> "Toolpath":
         """This toolpath's moves followed by ``other``'s, which starts where this one ends: one
@@ -223,12 +206,22 @@ class Toolpath:
         if len(self) and not np.allclose(other.start, self.xyz[-1], rtol=0, atol=1e-9):
             raise DeltasliceError(f"Toolpath.then: the next stretch starts at {other.start.tolist()}, "
                                   f"not where this one ends ({self.xyz[-1].tolist()})")
-        ev = other.events.copy()
-        ev["index"] += len(self)
+        return Toolpath._joined([self, other], np.concatenate([self.layer, other.layer]),
+                                max(self.layer_z, other.layer_z, key=len))
+
+    @classmethod
+    def _joined(cls, parts: list["Toolpath"], layer: np.ndarray, layer_z: np.ndarray) -> "Toolpath":
+        """The parts' moves end to end from the first one's start, their events re-indexed, with the
+        given layer column and heights."""
+        events, moves = [], 0
+        for p in parts:
+            ev = p.events.copy()
+            ev["index"] += moves
+            events.append(ev)
+            moves += len(p)
         cat = np.concatenate
-        return Toolpath(self.start, cat([self.xyz, other.xyz]), cat([self.feed, other.feed]), cat([self.e, other.e]),
-                        cat([self.tool, other.tool]), cat([self.role, other.role]), cat([self.layer, other.layer]),
-                        max(self.layer_z, other.layer_z, key=len), cat([self.events, ev]))
+        return cls(parts[0].start, cat([p.xyz for p in parts]), cat([p.feed for p in parts]), cat([p.e for p in parts]),
+                   cat([p.tool for p in parts]), cat([p.role for p in parts]), layer, layer_z, cat(events))
 
     # -- views -------------------------------------------------------------------
     def __len__(self) -> int:

@@ -363,3 +363,21 @@ def test_a_stream_taken_whole_holds_what_reading_the_file_whole_holds(tmp_path):
         tracemalloc.stop()
         assert len(tp) == 20002
     assert peaks["whole"] < 1.1 * peaks["read"], peaks
+
+
+def test_concatenate_renumbers_layers_and_then_keeps_them(tmp_path, kossel):
+    """Both join moves and re-index events; concatenate's parts are separate prints (their layers
+    follow each other), then's a print's consecutive stretches (its layers kept)."""
+    path = tmp_path / "part.gcode"
+    path.write_text(prusa_like(layers=3))
+    tp = read_gcode(path, printer=kossel)
+    half = int(np.flatnonzero(tp.events["index"] > 0)[0])  # an event in the second half, too
+    a, b = tp.subset(slice(0, int(tp.events["index"][half]) - 1)), tp.subset(slice(int(tp.events["index"][half]) - 1, None))
+    same_toolpath(a.then(b), tp)
+    both = Toolpath.concatenate([tp, tp])
+    assert len(both) == 2 * len(tp) and np.array_equal(both.layer_z, np.concatenate([tp.layer_z, tp.layer_z]))
+    assert np.array_equal(both.layer, np.concatenate([tp.layer, tp.layer + len(tp.layer_z)]))
+    assert both.layer.dtype == tp.layer.dtype
+    assert np.array_equal(both.events["index"], np.concatenate([tp.events["index"], tp.events["index"] + len(tp)]))
+    with pytest.raises(DeltasliceError, match="starts at"):
+        b.then(a)

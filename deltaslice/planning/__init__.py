@@ -245,9 +245,8 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
     pieces = PieceSpool()
     pieces.extend(from_rest(kin, printer, first.start, speed_limit))
     laser = printer.tool.channel_kind == "laser"
-    job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream), laser), pieces, 64, moves, 10**9,
-                                      printer,
-                                      speed_limit, workers, progress, solver)
+    job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream), laser), pieces, 64, moves, False,
+                                      printer, speed_limit, workers, progress, solver)
     if not seen["motion"]:
         raise DeltasliceError(f"the toolpath's {seen['moves']} move(s) have zero length and no extrusion: nothing to plan")
     tail = to_rest(kin, printer, seen["last"], speed_limit)
@@ -389,12 +388,12 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
     chunk = max(1, min(64, n_jobs // CHUNKS_PER_PRINT))
     pieces = PieceSpool() if spool else []
     pieces.extend(head)
-    job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges, laser), pieces, chunk, len(toolpath), n_jobs, printer,
-                                      speed_limit, workers, progress, solver)
+    job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges, laser), pieces, chunk, len(toolpath), n_jobs < 8,
+                                      printer, speed_limit, workers, progress, solver)
     return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, toolpath.events, len(toolpath))
 
 
-def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, n_jobs: int, printer, speed_limit, workers, progress,
+def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer, speed_limit, workers, progress,
                solver):
     """Plan ``jobs`` (see :func:`_jobs`) into ``pieces`` (a list or a PieceSpool), returning per job
     its first move and the index of its first piece (arrays of int64).
@@ -404,7 +403,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, n_jobs: int, print
     long run (:func:`.topp.is_long`) is planned here, window by window, while the workers go on
     with what follows it, so its pieces can be put away one by one. A run handed over in parts
     (plan_stream) is planned here once everything before it is put away: what follows it is
-    read only after it. n_moves: the moves in all (for progress), or None."""
+    read only after it. n_moves: the moves in all (for progress), or None; few: too few jobs for
+    worker processes to pay (they are planned here)."""
     workers = resolve_workers(workers, "plan")
     job_start, job_piece = array("q"), array("q")  # per job: its first move, the index of its first piece
     done = 0
@@ -442,7 +442,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, n_jobs: int, print
     def as_chunk(group):
         return [(kind, job) for _s, _e, kind, job in group], speed_limit, solver
 
-    if workers == 1 or n_jobs < 8:
+    if workers == 1 or few:
         _init_worker(printer)
         for where, item in slots:
             if where == "here":
