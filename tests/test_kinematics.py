@@ -346,6 +346,39 @@ def test_batch_equals_point_by_point(name, data):
             np.testing.assert_allclose(getattr(kin, f)(qg[i : i + 1])[0], value[i], rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", [n for n in CASES if n != "cartesian" and printer(n).family == "rotary_delta"])
+def test_rotary_kernels_equal_point_by_point_across_their_blocks(name):
+    """The rotary delta's compiled kernels go a block of points at a time (rotary_delta.BLOCK, for
+    vector instructions): across block ends, with unreachable rows at and beside them (the
+    first of them in a later block), a batch gives every point's values alone, bit for bit, and
+    the first unreachable row."""
+    from deltaslice.kinematics import rotary_delta
+
+    kin = kin_of(name)
+    lo, hi = box_of(name)
+    n = 2 * rotary_delta.BLOCK + 7
+    rng = np.random.default_rng(3)
+    pts = lo + (hi - lo) * rng.uniform(0.3, 0.7, (n, 3))
+    far = [rotary_delta.BLOCK + 3, rotary_delta.BLOCK - 1, 2 * rotary_delta.BLOCK, n - 1]
+    pts[far] = [[0.0, 0.0, 1e6], [np.nan, 0.0, 0.0], [np.inf, 0.0, 0.0], [0.0, 0.0, -1e3]]
+    t = rng.normal(size=(n, 3))
+    t /= np.linalg.norm(t, axis=1)[:, None]
+    kappa = rng.normal(size=(n, 3))
+    q = kin.inverse(pts)
+    d1, d2 = np.zeros((n, 4)), np.zeros((n, 4))
+    assert kin.scaled_path_derivatives(pts, t, kappa, 7.5, d1[:, :3], d2[:, :3]) == min(far)
+    keep = np.delete(np.arange(n), min(far))  # the first unreachable row is then in the second block
+    assert kin.scaled_path_derivatives(pts[keep], t[keep], kappa[keep], 7.5, np.empty((n - 1, 3)),
+                                       np.empty((n - 1, 3))) == rotary_delta.BLOCK + 2
+    assert np.isnan(q[far]).all() and np.isfinite(np.delete(q, far, axis=0)).all()
+    for i in range(n):
+        one1, one2 = np.empty((1, 3)), np.empty((1, 3))
+        kin.scaled_path_derivatives(pts[i : i + 1], t[i : i + 1], kappa[i : i + 1], 7.5, one1, one2)
+        assert np.array_equal(kin.inverse(pts[i : i + 1])[0], q[i], equal_nan=True)
+        assert np.array_equal(one1[0], d1[i, :3], equal_nan=True) and np.array_equal(one2[0], d2[i, :3], equal_nan=True)
+    assert not d1[:, 3].any() and not d2[:, 3].any()
+
+
 # --------------------------------------------------------------------------- source numbers and regressions
 
 
