@@ -503,3 +503,42 @@ def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():
         got = topp.stage_maxima(None, None, xd, xdd, vmax, amax, stage=(dq, ddq))
         for a, b in zip((got.velocity, got.acceleration, got.stage_v, got.stage_a, got.per_stage), want):
             assert np.array_equal(a, b, equal_nan=True), trial
+
+
+def test_compiled_grid_quantities_are_their_numpy_forms():
+    """The planner's small compiled passes against the numpy they replace, bit for bit, NaN
+    derivatives included: the grid-point speed factor (|q'| over both sides of each grid point),
+    the stages with a limit active, and the rows in each move's own units (a / c, b / c^2)."""
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        n, dof = int(rng.integers(0, 40)) if trial else 0, int(rng.integers(1, 5))
+        dq, ddq = rng.normal(size=(n, 9, dof)), rng.normal(size=(n, 9, dof))
+        if trial % 3 == 0 and n:
+            dq[rng.integers(0, n), rng.choice([0, 4, 8]), rng.integers(0, dof)] = np.nan
+        start, mid, end = (np.abs(dq[:, k]) for k in (0, 4, -1))
+        want = np.zeros((n + 1, dof))
+        want[:-1] = np.maximum(start, mid)
+        want[1:] = np.maximum(want[1:], np.maximum(end, mid))
+        assert np.array_equal(topp.gridpoint_speed_factor(dq), want, equal_nan=True), trial
+        if n == 0:
+            continue
+        sd, xdd = rng.uniform(0, 2, n + 1), rng.normal(size=n)
+        cap2, amax = rng.uniform(0.5, 4, n + 1) * (1e6 if trial % 2 else 1.0), rng.uniform(0.5, 2, dof)  # 1e6: no speed cap active
+        acc = np.abs(dq[:, 0] * xdd[:, None] + ddq[:, 0] * (sd[:-1] ** 2)[:, None]) / amax[None]
+        want = (sd[:-1] ** 2 >= topp.ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= topp.ACTIVE * cap2[1:]) | (acc.max(axis=1) >= topp.ACTIVE)
+        got = np.empty(n, dtype=bool)
+        topp._active_kernel(dq, ddq, xdd, sd, cap2, amax, got)
+        assert np.array_equal(got, want), trial
+        x = np.concatenate([[0.0], np.sort(rng.uniform(0, 1, n - 1)), [1.0]]) if n > 1 else np.array([0.0, 1.0])
+        con = topp.StageAccelerationConstraint(amax, topp.CHECK, (dq, ddq))
+        unit = rng.uniform(0.5, 30, n + 1)
+        a, b = con.rows(None, x)
+        sa, sb = con.rows(None, x, unit)
+        c = unit[:, None]
+        assert np.array_equal(sa, a / c, equal_nan=True) and np.array_equal(sb, b / (c * c), equal_nan=True), trial
+    # a NaN channel beside one at its limit: numpy's max over the channels is NaN, not active
+    dq, ddq = np.ones((1, 9, 2)), np.zeros((1, 9, 2))
+    dq[0, 0, 0] = np.nan
+    got = np.ones(1, dtype=bool)
+    topp._active_kernel(dq, ddq, np.array([1.0]), np.array([0.0, 0.0]), np.array([1.0, 1.0]), np.array([1.0, 1.0]), got)
+    assert not got[0]

@@ -208,17 +208,22 @@ class StageAccelerationConstraint:
         self.frac = np.asarray(frac, dtype=float)
         self.stage = stage
 
-    def rows(self, path, gridpoints):
-        """The rows' u and x coefficients a, b (n+1, f * dof), each bounded by +-amax."""
+    def rows(self, path, gridpoints, unit: np.ndarray | None = None):
+        """The rows' u and x coefficients a, b (n+1, f * dof), each bounded by +-amax; with
+        ``unit`` (n+1,), each row in other units of the path parameter (x' = c x, c = unit[i]):
+        a / c and b / c^2 (the compiled solver's rows for moves that meet at rest, _speeds)."""
         dq, ddq = self.stage if self.stage is not None else path.stage_derivatives(gridpoints, self.frac)
         d = np.diff(gridpoints)
         n, f, dof = dq.shape
         a = np.empty((n + 1, f * dof))
         b = np.empty((n + 1, f * dof))
-        _rows_kernel(dq, ddq, self.frac, d, a, b)
+        _rows_kernel(dq, ddq, self.frac, d, np.empty(0) if unit is None else unit, a, b)
         # The last grid point has no stage ahead: its own (end) derivatives, no u-term.
         a[-1] = np.tile(dq[-1, -1], f)
         b[-1] = np.tile(ddq[-1, -1], f)
+        if unit is not None:
+            a[-1] /= unit[-1]
+            b[-1] /= unit[-1] * unit[-1]
         return a, b
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
@@ -230,17 +235,25 @@ class StageAccelerationConstraint:
 
 
 @njit
-def _rows_kernel(dq, ddq, frac, d, a, b):
+def _rows_kernel(dq, ddq, frac, d, unit, a, b):
     """a[i, k dof + j] = q'_j + 2 f_k d_i q''_j and b[i, k dof + j] = q''_j at fraction f_k of stage i
     (dq, ddq: (n, f, dof); rows i < n of a, b), in one pass: the same operations, in the same
-    order, as the numpy expression ``dq + 2 * frac * d * ddq``."""
+    order, as the numpy expression ``dq + 2 * frac * d * ddq``; where unit (n+1,) is not empty,
+    each row i then divided by unit[i] (a) and unit[i]^2 (b), as numpy's ``a / c, b / (c * c)``."""
     n, f, dof = dq.shape
+    scaled = unit.shape[0] > 0
     for i in range(n):
+        c = unit[i] if scaled else 1.0
+        cc = c * c
         for k in range(f):
             w = 2.0 * frac[k] * d[i]
             for j in range(dof):
-                a[i, k * dof + j] = dq[i, k, j] + w * ddq[i, k, j]
-                b[i, k * dof + j] = ddq[i, k, j]
+                if scaled:
+                    a[i, k * dof + j] = (dq[i, k, j] + w * ddq[i, k, j]) / c
+                    b[i, k * dof + j] = ddq[i, k, j] / cc
+                else:
+                    a[i, k * dof + j] = dq[i, k, j] + w * ddq[i, k, j]
+                    b[i, k * dof + j] = ddq[i, k, j]
 
 
 def gridpoint_speed_factor(dq_stage: np.ndarray) -> np.ndarray:
@@ -248,13 +261,35 @@ def gridpoint_speed_factor(dq_stage: np.ndarray) -> np.ndarray:
     it (their start, middle and end), from stage derivatives (n, f, dof) at fractions whose
     first is 0, middle 0.5 and last 1: a cap on x_dot^2 at both ends of a stage also holds in
     its middle, where x_dot^2 is their mean."""
-    start, mid, end = (np.abs(dq_stage[:, k]) for k in (0, dq_stage.shape[1] // 2, -1))
-    ahead = np.maximum(start, mid)  # stage i seen from its start point
-    behind = np.maximum(end, mid)  # stage i seen from its end point
-    out = np.zeros((dq_stage.shape[0] + 1, dq_stage.shape[2]))
-    out[:-1] = ahead
-    out[1:] = np.maximum(out[1:], behind)
+    out = np.empty((dq_stage.shape[0] + 1, dq_stage.shape[2]))
+    _speed_factor_kernel(dq_stage, out)
     return out
+
+
+@njit
+def _nan_max(a, b):
+    """numpy's maximum of two floats: NaN if either is."""
+    if a != a or b != b:
+        return np.nan
+    return a if a >= b else b
+
+
+@njit
+def _speed_factor_kernel(dq, out):
+    """:func:`gridpoint_speed_factor` in one pass: out[i] = max(ahead_i, behind_{i-1}) with
+    ahead_i = max(|q'| at stage i's start, at its middle), behind_i = max(|q'| at its end, at its
+    middle) (NaN where any is, as numpy's maximum); out[0] = ahead_0, out[n] = behind_{n-1}."""
+    n, f, dof = dq.shape
+    mid = f // 2
+    for j in range(dof):
+        for i in range(n + 1):
+            top = 0.0
+            if i < n:
+                top = _nan_max(abs(dq[i, 0, j]), abs(dq[i, mid, j]))
+            if i > 0:
+                behind = _nan_max(abs(dq[i - 1, f - 1, j]), abs(dq[i - 1, mid, j]))
+                top = _nan_max(top, behind)
+            out[i, j] = top
 
 
 class PathVelocityConstraint:
@@ -897,15 +932,15 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
             PathVelocityConstraint(vmax, feed_grid, S, gridpoint_speed_factor(dq_st)),
             StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
         ]
-        rows = _fast_rows(constraints, rp, x_grid, amax) if solver == "fast" else None
         unit = None if unit_length is None else S / unit_length[path.locate(s_grid)]
+        rows = _fast_rows(constraints, rp, x_grid, amax, unit) if solver == "fast" else None
         sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S, unit)
         if v_start > 0:
             # A start speed outside the controllable set is refused even when the solver, which
             # tolerates a small excess (toppra's), found a profile: its forward pass would cut the
             # speed where the excess meets a limit, a step of many times the acceleration limit
             # (a window of a spiral vase on linear_kossel). The previous window re-plans instead.
-            fastest = (_start_speed(constraints, rp, x_grid, rows) if top is None else _root(top)) * S
+            fastest = (_start_speed(constraints, rp, x_grid) if top is None else _root(top)) * S
             if v_start > fastest * (1 + 1e-9):
                 raise _StartTooFast(fastest)
         if sd is None or not np.all(np.isfinite(sd)):
@@ -951,26 +986,40 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
     # Which stages have a limit active (the optimality certificate): the speed at its
     # first-order cap, or some joint's acceleration at its limit.
     cap2 = rows[3] if rows is not None else constraints[0].cap2(rp, x_grid)
-    acc = np.abs(dq_st[:, 0] * xdd[:, None] + ddq_st[:, 0] * (sd[:-1] ** 2)[:, None]) / amax[None]
-    active = (sd[:-1] ** 2 >= ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= ACTIVE * cap2[1:]) | (acc.max(axis=1) >= ACTIVE)
+    active = np.empty(len(xdd), dtype=bool)
+    _active_kernel(dq_st, ddq_st, xdd, sd, cap2, amax, active)
     return _Profile(s_grid, x_grid, sd, xdd, t, dt, active, -1 if cap is None else cut_g(s_grid))
 
 
-def _fast_rows(constraints, rp, x_grid, amax):
+@njit
+def _active_kernel(dq, ddq, xdd, sd, cap2, amax, out):
+    """Whether each stage i has a limit active (out (n,) bool): its squared path speed at either
+    end within ACTIVE of cap2 there, or some channel's acceleration |q' u + q'' x_dot^2| at its
+    start (dq, ddq: (n, f, dof), fraction 0 first) within ACTIVE of amax (False where any channel's
+    is NaN, as numpy's max over the channels)."""
+    n, _f, dof = dq.shape
+    for i in range(n):
+        v0 = sd[i] * sd[i]
+        on = v0 >= ACTIVE * cap2[i] or sd[i + 1] * sd[i + 1] >= ACTIVE * cap2[i + 1]
+        top = -np.inf
+        for j in range(dof):
+            r = abs(dq[i, 0, j] * xdd[i] + ddq[i, 0, j] * v0) / amax[j]
+            top = _nan_max(top, r)
+        out[i] = on or top >= ACTIVE
+
+
+def _fast_rows(constraints, rp, x_grid, amax, unit=None):
     """What the compiled solver takes, computed once per grid: (a, b, bound, cap2), the
-    acceleration rows a u + b x in [-bound, bound] and the bound on x_dot^2 (see _speeds)."""
-    a, b = constraints[1].rows(rp, x_grid)
+    acceleration rows a u + b x in [-bound, bound] and the bound on x_dot^2 (see _speeds); with
+    ``unit`` (see _speeds) the rows in each move's own units, cap2 in the path's."""
+    a, b = constraints[1].rows(rp, x_grid, unit)
     return a, b, np.tile(amax, len(constraints[1].frac)), constraints[0].cap2(rp, x_grid)
 
 
-def _start_speed(constraints, rp, x_grid, rows) -> float:
-    """The fastest path speed x_dot the run can start at and still stop at its end. rows:
-    :func:`_fast_rows` for the compiled solver, None for toppra's."""
-    if rows is not None:
-        a, b, bound, cap2 = rows
-        K = fast_solve(a, b, -bound, bound, cap2, np.diff(x_grid), interpolation=False)[2]
-    else:
-        K = _toppra(constraints, rp, x_grid).compute_controllable_sets(0.0, 0.0)
+def _start_speed(constraints, rp, x_grid) -> float:
+    """The fastest path speed x_dot the run can start at and still stop at its end, by toppra's
+    controllable sets (the compiled solver gives it with its profile, _speeds)."""
+    K = _toppra(constraints, rp, x_grid).compute_controllable_sets(0.0, 0.0)
     return _root(K[0, 1])
 
 
@@ -984,7 +1033,8 @@ def _speeds(constraints, rp, x_grid, rows, sd_start=0.0, unit=None):
     the stage-wise acceleration rows, or None where the solver finds no profile; the top of the
     start's controllable set, x_dot^2, or None when the solver does not give it). "fast": the
     compiled reachability solver on the same rows (collocation: each stage's rows in its
-    start's (u, x); ``rows``: :func:`_fast_rows`); rows None: toppra's seidel solver, the reference.
+    start's (u, x); ``rows``: :func:`_fast_rows` with the same ``unit``); rows None: toppra's seidel
+    solver, the reference.
     unit: (n+1,) for the compiled solver, the scale c = S / L from the path's units to those of the
     move each grid point's stage belongs to (a batch of moves, each of length L, that meet at rest:
     :func:`plan_lines`), or None."""
@@ -993,9 +1043,9 @@ def _speeds(constraints, rp, x_grid, rows, sd_start=0.0, unit=None):
         ds = np.diff(x_grid)
         if unit is not None:
             # Each stage in its own move's units (x' = c^2 x, u' = c u): what solving the move alone
-            # computes, toppra's shrink of the forward pass included (it is a constant in x).
-            c = unit[:, None]
-            a, b, cap2, ds = a / c, b / (c * c), cap2 * unit**2, ds * unit[:-1]
+            # computes, toppra's shrink of the forward pass included (it is a constant in x). The
+            # rows came in those units (_fast_rows).
+            cap2, ds = cap2 * unit**2, ds * unit[:-1]
         x, _u, K = fast_solve(a, b, -bound, bound, cap2, ds, x_start=sd_start**2, interpolation=False)
         top = float(K[0, 1])
         if unit is not None:
