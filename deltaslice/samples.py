@@ -76,11 +76,8 @@ def to_counts(printer, samples: Samples) -> np.ndarray:
     """Integer actuator counts, (n, J + 1) int64: one column per joint and one for the tool
     channel (extruder microsteps from the filament position, or laser PWM counts from the
     power fraction), ``count = zero_count + counts_per_unit * value`` (see ``printer.limits``)."""
-    J = samples.q.shape[1]
-    values = np.empty((len(samples), J + 1))
-    values[:, :J] = samples.q
-    values[:, J] = printer.tool.channel_values(samples.e, samples.tool)
-    return printer.limits.to_counts(values)
+    channel = np.asarray(printer.tool.channel_values(samples.e, samples.tool), dtype=float)
+    return printer.limits.joint_and_channel_counts(np.asarray(samples.q, dtype=float), channel)
 
 
 def from_counts(printer, counts: np.ndarray, rate: float, t0: float = 0.0) -> Samples:

@@ -5,6 +5,7 @@ slicer's path ordering."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from deltaslice.errors import UnreachableError
 from deltaslice.planning import topp, travel
 from deltaslice.planning.blend import blend_polyline
 from deltaslice.planning.pieces import JointMovePiece, RunPiece
+from deltaslice.planning.trajectory import Trajectory
 from deltaslice.slicing.ordering import Path, nearest_order
 
 from conftest import printer
@@ -207,10 +209,13 @@ def test_a_run_pieces_samples_are_its_profile_path_and_filament_bit_for_bit(name
     rng = np.random.default_rng(11)
     pieces = [x for spec in _runs(p, rng, 8) for x in topp.plan_run(kin, p, spec, "feed") if isinstance(x, RunPiece)]
     assert len(pieces) >= 6 and any((x.path.kind == 1).any() for x in pieces)
-    for piece in pieces:
+    for piece, shuffle in itertools.product(pieces, (True, False)):
         tau = np.concatenate([[-1.0, 0.0, piece.duration, piece.duration + 1.0], piece.t,
                               rng.uniform(0.0, piece.duration, 500)])
-        rng.shuffle(tau)
+        if shuffle:
+            rng.shuffle(tau)
+        else:
+            tau.sort()  # in time order, as the sampler walks them
         s = piece.arc_length_at(tau)
         k = piece.path.locate(s)
         q, de, tool = piece.sample(kin, tau)
@@ -227,6 +232,29 @@ def test_a_run_pieces_samples_are_its_profile_path_and_filament_bit_for_bit(name
         q, de, tool = piece.sample(kin, tau)
     assert np.array_equal(tool, piece.power[k]) and tool[0] == 1.0
     assert np.array_equal(de, piece.filament_at(s, k), equal_nan=True)
+
+
+def test_trajectory_piece_ranges_are_where_searchsorted_puts_each_time():
+    """Trajectory.sample_at's split of a block of times among the pieces (from the pieces' starts
+    found in the times, where they are in order) is numpy's searchsorted of every time among the
+    starts, clipped to the first and last piece: with zero-length pieces, times on starts, before
+    the start and past the end, in order and not."""
+    rng = np.random.default_rng(4)
+    for trial in range(300):
+        durations = rng.choice([0.0, 0.001, 0.5, 2.0], size=int(rng.integers(1, 12)))
+        traj = object.__new__(Trajectory)
+        traj.pieces = [None] * len(durations)
+        traj.starts = np.concatenate([[0.0], np.cumsum(durations)])
+        end = traj.starts[-1]
+        t = np.concatenate([rng.uniform(-0.5, end + 0.5, int(rng.integers(1, 40))), rng.choice(traj.starts, 3)])
+        if trial % 3:
+            t.sort()
+        k = np.clip(np.searchsorted(traj.starts, t, side="right") - 1, 0, len(durations) - 1)
+        got = np.full(len(t), -1)
+        for i, lo, hi in traj._piece_ranges(t):
+            assert hi > lo and (got[lo:hi] == -1).all()
+            got[lo:hi] = i
+        assert np.array_equal(got, k), trial
 
 
 def _bed_points(p, rng, n):

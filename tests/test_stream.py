@@ -57,6 +57,20 @@ def _decoded_prefix(path) -> tuple[np.ndarray, Exception | None]:
 
 
 @pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel", "fivebar_atlas", "delta_espe_laser"])
+def test_counts_are_numpys_rounding_half_to_even(name):
+    """The compiled per-block counts (joints and tool channel given apart) are numpy's
+    rint(zero + cpu * value), half-way values included, and Limits.to_counts gives the same."""
+    p = printer(name)
+    lim, J = p.limits, p.n_joints
+    rng = np.random.default_rng(2)
+    values = rng.uniform(-2, 2, (300, J + 1)) / lim.counts_per_unit[None]
+    values[:40] = (np.arange(40)[:, None] - 20 + 0.5 - lim.zero_count[None]) / lim.counts_per_unit[None]  # k + 1/2 counts
+    want = np.rint(lim.counts_per_unit[None] * values + lim.zero_count[None]).astype(np.int64)
+    assert np.array_equal(lim.joint_and_channel_counts(values[:, :J], values[:, J]), want)
+    assert np.array_equal(lim.to_counts(values), want)
+
+
+@pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel", "fivebar_atlas", "delta_espe_laser"])
 def test_stream_round_trip_exact_in_counts(name, tmp_path):
     p = printer(name)
     s, _ = realistic(name, layers=1)

@@ -167,9 +167,16 @@ class Limits:
 
     def to_counts(self, values: np.ndarray) -> np.ndarray:
         """values: (n, C) float, channel units -> (n, C) int64 actuator counts (rounded)."""
-        v = self.counts_per_unit[None] * values
-        v += self.zero_count[None]  # zero + cpu * value, in place (the writer's per-block call)
-        return np.rint(v, out=v).astype(np.int64)
+        values = np.asarray(values, dtype=float)
+        return self.joint_and_channel_counts(values[:, :-1], values[:, -1])
+
+    def joint_and_channel_counts(self, q: np.ndarray, channel: np.ndarray) -> np.ndarray:
+        """:meth:`to_counts` of the joints q (n, J) and the tool channel (n,) given apart (a
+        sample block's arrays, not copied into one): (n, J + 1) int64, zero + cpu * value rounded
+        half to even, in one compiled pass (the stream writer's per-block call)."""
+        out = np.empty((len(q), q.shape[1] + 1), dtype=np.int64)
+        _counts_kernel(q, channel, self.counts_per_unit, self.zero_count, out)
+        return out
 
     def from_counts(self, counts: np.ndarray) -> np.ndarray:
         """counts: (n, C) -> (n, C) float, channel units."""
@@ -331,6 +338,17 @@ class LimitMonitor:
         if math.isfinite(self.limits.velocity[-1]):
             peak[f"{self.limits.names[-1]} vel"] = 100 * self.peak_tool_v
         return peak
+
+
+@njit
+def _counts_kernel(q, channel, cpu, zero, out):
+    """out[k, c] = rint(cpu[c] * value + zero[c]) for the joints' values q[k, c] and, in the last
+    column, channel[k]: numpy's ``np.rint(cpu * values + zero)`` (half to even), to int64."""
+    J = q.shape[1]
+    for k in range(q.shape[0]):
+        for c in range(J):
+            out[k, c] = np.int64(np.rint(cpu[c] * q[k, c] + zero[c]))
+        out[k, J] = np.int64(np.rint(cpu[J] * channel[k] + zero[J]))
 
 
 @njit

@@ -65,14 +65,29 @@ class Trajectory:
         q = np.empty((n, self.kin.n_joints))
         e = np.empty(n)
         tool = np.zeros(n)
-        k = np.clip(np.searchsorted(self.starts, t, side="right") - 1, 0, len(self.pieces) - 1)
-        bounds = np.flatnonzero(np.diff(k)) + 1
-        for lo, hi in zip(np.concatenate([[0], bounds]), np.concatenate([bounds, [n]])):
-            i = int(k[lo])
+        for i, lo, hi in self._piece_ranges(t):
             piece = self.pieces[i]
             qq, de, tl = piece.sample(self.kin, t[lo:hi] - self.starts[i])
             q[lo:hi], e[lo:hi], tool[lo:hi] = qq, self.e_offsets[i] + de, tl
         return Samples(t, q, e, tool)
+
+    def _piece_ranges(self, t: np.ndarray):
+        """(piece, lo, hi) for each piece holding samples t[lo:hi] (t sorted): piece k holds the
+        times from starts[k] to before starts[k + 1]; the first piece also those before it and the
+        last those after the end. Where t is in order, from the pieces' starts found in t (a
+        block spans a few pieces), not every time among the starts."""
+        n, last = len(t), len(self.pieces) - 1
+        if n and np.all(t[1:] >= t[:-1]):
+            first, end = np.clip(np.searchsorted(self.starts, t[[0, -1]], side="right") - 1, 0, last)
+            bounds = np.searchsorted(t, self.starts[first + 1 : end + 1], side="left")
+            k = np.arange(first, end + 1)
+            lo, hi = np.concatenate([[0], bounds]), np.concatenate([bounds, [n]])
+        else:
+            kk = np.clip(np.searchsorted(self.starts, t, side="right") - 1, 0, last)
+            cut = np.flatnonzero(kk[1:] != kk[:-1]) + 1
+            lo, hi = np.concatenate([[0], cut]), np.concatenate([cut, [n]])
+            k = kk[lo]
+        return [(int(i), int(a), int(b)) for i, a, b in zip(k, lo, hi) if b > a]
 
     def iter_samples(self, rate: float | None = None, block: int = BLOCK, workers: int = 1):
         """Blocks of Samples at ``rate`` Hz (default: the printer's output rate), from t = 0
