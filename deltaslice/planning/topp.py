@@ -155,6 +155,15 @@ class RunPath:
         from mm to path units. Evaluated DERIVATIVE_BLOCK points at a time: a long window's
         arrays would otherwise take hundreds of MB at once."""
         dq, ddq = np.empty((len(s), self._dof)), np.empty((len(s), self._dof))
+        self._joint_derivatives(s, piece, dq, ddq)
+        if self.e_ratio is not None:
+            J = self.kin.n_joints
+            np.multiply(self.e_ratio[piece], self.S, out=dq[:, J])
+            ddq[:, J] = 0.0
+        return dq, ddq
+
+    def _joint_derivatives(self, s, piece, dq, ddq) -> None:
+        """The joints' columns of :meth:`derivatives` into dq, ddq (n, dof)."""
         J, S = self.kin.n_joints, self.S
         for i in range(0, len(s), DERIVATIVE_BLOCK):
             block = slice(i, i + DERIVATIVE_BLOCK)
@@ -162,10 +171,6 @@ class RunPath:
             bad = self.kin.scaled_path_derivatives(p, t, kappa, S, dq[block, :J], ddq[block, :J])
             if bad >= 0:
                 self._raise_unreachable(p[bad])
-        if self.e_ratio is not None:
-            np.multiply(self.e_ratio[piece], S, out=dq[:, J])
-            ddq[:, J] = 0.0
-        return dq, ddq
 
     def stage_derivatives(self, x: np.ndarray, frac: np.ndarray):
         """Derivatives at fractions ``frac`` (f,) of every stage of the grid x (n+1,), each
@@ -174,9 +179,15 @@ class RunPath:
         ds = np.diff(s)
         owner = self.path.locate(0.5 * (s[:-1] + s[1:]))
         at = s[:-1, None] + ds[:, None] * frac[None]
-        dq, ddq = self.derivatives(at.ravel(), np.repeat(owner, len(frac)))
         shape = (len(ds), len(frac), self._dof)
-        return dq.reshape(shape), ddq.reshape(shape)
+        dq, ddq = np.empty(shape), np.empty(shape)
+        flat = (len(ds) * len(frac), self._dof)
+        self._joint_derivatives(at.ravel(), np.repeat(owner, len(frac)), dq.reshape(flat), ddq.reshape(flat))
+        if self.e_ratio is not None:  # the filament's rate is its piece's: one value per stage
+            J = self.kin.n_joints
+            dq[:, :, J] = (self.e_ratio[owner] * self.S)[:, None]
+            ddq[:, :, J] = 0.0
+        return dq, ddq
 
     def __call__(self, xs, order=0):
         xs = np.atleast_1d(np.asarray(xs, dtype=float))
