@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from deltaslice import UnreachableError, load_printer
-from deltaslice.planning import plan, topp
+from deltaslice.planning import plan, split_runs, topp
 from deltaslice.planning.blend import blend_polyline
 from deltaslice.planning.pieces import JointMovePiece
 from deltaslice.planning.trapezoid import corner_violations, plan_firmware, plan_safe
@@ -221,6 +221,23 @@ def test_unreachable_point_is_named_before_any_output(tmp_path):
     b.add([[0, 0, 0.25], [200, 0, 0.25]], 30, [0, 1.0], [0, 1], Role.PERIMETER)
     with pytest.raises(UnreachableError, match=r"layer 0: x = 200.00, y = 0.00"):
         plan(b.build(), printer)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_the_reach_check_speaks_first_while_workers_plan(workers):
+    """The reach check runs while the workers start on the first runs (plan's rest links): a
+    point out of reach in the first run is reported by the check (layer, point, why, whether it
+    would fit centred), not by the worker that met it first."""
+    printer = load_printer("printers/delta_ucb.toml")
+    good = layered_part(0.25, 0.2, 8, 30)
+    b = ToolpathBuilder((0, 0, 1))
+    b.new_layer(0.25)
+    b.add([[0, 0, 0.25], [200, 0, 0.25]], 30, [0, 1.0], [0, 1], Role.PERIMETER)
+    b.add(good.xyz, good.feed, good.e, good.tool, good.role)  # then eight layers' runs, all within reach
+    bad = b.build()
+    assert len(split_runs(bad)) > 16  # enough for the workers
+    with pytest.raises(UnreachableError, match=r"layer 0: x = 200.00, y = 0.00, z = 0.25 mm is out of reach of delta_ucb"):
+        plan(bad, printer, workers=workers)
 
 
 def test_firmware_baseline_violates_where_corners_are_sharp():

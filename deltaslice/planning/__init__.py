@@ -174,14 +174,18 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     if not ((toolpath.lengths > 1e-9) | (toolpath.e != 0)).any():
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     _check_tool(toolpath, printer)
-    check_reachable(toolpath, printer)
-    # Every trajectory starts at the machine's rest pose and parks there at the end.
     kin = printer.kinematics()
-    head = from_rest(kin, printer, toolpath.start, speed_limit)
-    tail = to_rest(kin, printer, toolpath.xyz[-1], speed_limit)
+
+    def rest_links():
+        """Check every point's reach, then plan the moves from the rest pose and back to it (every
+        trajectory starts at the machine's rest pose and parks there at the end)."""
+        check_reachable(toolpath, printer)
+        return from_rest(kin, printer, toolpath.start, speed_limit), to_rest(kin, printer, toolpath.xyz[-1], speed_limit)
+
     if planner == "trapezoid":
         from .trapezoid import _moves, plan_safe
 
+        head, tail = rest_links()
         traj = plan_safe(toolpath, printer, speed_limit=speed_limit, progress=progress, head=head, tail=tail)
         # one trapezoid per kept move: move m starts at t0[number of kept moves before m]
         kept_before = np.concatenate([[0], np.cumsum(_moves(toolpath, printer)[-1])])
@@ -191,7 +195,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         return traj
     if spool is None:
         spool = len(toolpath) > SPOOL_MOVES
-    return _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool)
+    return _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, rest_links, spool)
 
 
 def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed", workers=None, progress=None,
@@ -378,8 +382,10 @@ def _slots(jobs, chunk: int):
         yield "pool", group
 
 
-def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head, tail, spool) -> Trajectory:
-    """The time-optimal planner: head (from rest), the toolpath's runs and travels, tail (to rest)."""
+def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, rest_links, spool) -> Trajectory:
+    """The time-optimal planner: the move from rest, the toolpath's runs and travels, the move to
+    rest. rest_links: () -> (head, tail), those two moves' pieces after the reach check, called
+    while the workers start on the first runs (nothing they plan is taken before it returns)."""
     laser = printer.tool.channel_kind == "laser"
     ranges = split_runs(toolpath, laser)
     n_jobs = 2 * len(ranges) + 1  # at most: a travel before every run, one after the last
@@ -387,14 +393,19 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, head
     # (travel.plan_travels), so the same chunks give the same bytes whatever --workers is.
     chunk = max(1, min(64, n_jobs // CHUNKS_PER_PRINT))
     pieces = PieceSpool() if spool else []
-    pieces.extend(head)
+    links = {}
+
+    def first():
+        links["head"], links["tail"] = rest_links()
+        pieces.extend(links["head"])
+
     job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges, laser), pieces, chunk, len(toolpath), n_jobs < 8,
-                                      printer, speed_limit, workers, progress, solver)
-    return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, toolpath.events, len(toolpath))
+                                      printer, speed_limit, workers, progress, solver, first=first)
+    return _trajectory(printer, pieces, links["tail"], speed_limit, job_start, job_piece, toolpath.events, len(toolpath))
 
 
 def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer, speed_limit, workers, progress,
-               solver):
+               solver, first=None):
     """Plan ``jobs`` (see :func:`_jobs`) into ``pieces`` (a list or a PieceSpool), returning per job
     its first move and the index of its first piece (arrays of int64).
 
@@ -404,7 +415,9 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     with what follows it, so its pieces can be put away one by one. A run handed over in parts
     (plan_stream) is planned here once everything before it is put away: what follows it is
     read only after it. n_moves: the moves in all (for progress), or None; few: too few jobs for
-    worker processes to pay (they are planned here)."""
+    worker processes to pay (they are planned here). first: a callable run here before anything
+    is put away, once the workers have their first chunks (so it costs no time where it raises
+    nothing; where it raises, the chunks not yet started are cancelled), or None."""
     workers = resolve_workers(workers, "plan")
     job_start, job_piece = array("q"), array("q")  # per job: its first move, the index of its first piece
     done = 0
@@ -444,6 +457,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
 
     if workers == 1 or few:
         _init_worker(printer)
+        if first is not None:
+            first()
         for where, item in slots:
             if where == "here":
                 plan_here(item)
@@ -453,8 +468,20 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
         ahead = 4 * workers  # chunks in flight; slots queued at most twice that
         queue, in_flight = deque(), 0
         with start_pool(workers, initializer=_init_worker, initargs=(printer,)) as pool:
+
+            def run_first():
+                nonlocal first
+                if first is not None:
+                    try:
+                        first()
+                    except BaseException:
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        raise
+                    first = None
+
             for where, item in slots:
                 if where == "here" and item[2] == "parts":  # its parts are read as it is planned: nothing after it is read before
+                    run_first()
                     while queue:
                         _drain_one(queue, put_away, plan_here)
                     in_flight = 0
@@ -464,7 +491,9 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                 queue.append((item, future))
                 in_flight += future is not None
                 while in_flight > ahead or len(queue) > 2 * ahead:
+                    run_first()
                     in_flight -= _drain_one(queue, put_away, plan_here)
+            run_first()
             while queue:
                 _drain_one(queue, put_away, plan_here)
     return np.asarray(job_start), np.asarray(job_piece)
