@@ -309,16 +309,23 @@ def _write_record(x, a, b, order, width, v0, size, buf, pos):
         q = _put_varint(buf, q + 1, _zz(x[a, c]))
         if order[c] == 2:
             q = _put_varint(buf, q, _zz(v0[c]))
-    # sample-major LSB-first bit packing of the residual rows
-    bit = 0
+    # sample-major LSB-first bit packing of the residual rows, a byte written as soon as it is
+    # full (a width is at most 33 bits: counts within +-2^29, second differences within 2^31,
+    # so the accumulator never holds more than 40)
+    acc = 0
+    held = 0
     for k in range(a + 1, b):
         for c in range(x.shape[1]):
             z = _zz(_residual(x, k, c, order[c])) if k > a + 1 or order[c] == 1 else 0
-            for _b in range(width[c]):
-                if z & 1:
-                    buf[q + (bit >> 3)] |= 1 << (bit & 7)
-                z >>= 1
-                bit += 1
+            acc |= z << held
+            held += width[c]
+            while held >= 8:
+                buf[q] = acc & 0xFF
+                acc >>= 8
+                held -= 8
+                q += 1
+    if held > 0:
+        buf[q] = acc & 0xFF
     for i in range(4):
         buf[pos + size - 4 + i] = 0
 
