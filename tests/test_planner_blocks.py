@@ -199,6 +199,26 @@ def test_frame_equals_evaluate_and_check_derivatives_hold_the_constraint_ones(se
     assert np.array_equal(dq_c[:, topp.EVAL_IN_CHECK], dq_e) and np.array_equal(ddq_c[:, topp.EVAL_IN_CHECK], ddq_e)
 
 
+@pytest.mark.parametrize("block", [topp.DERIVATIVE_BLOCK, 50, 7])
+def test_stage_frames_and_derivatives_are_those_at_each_stages_arc_lengths(block, monkeypatch):
+    """The per-stage frames (and so the stage derivatives) are frame and derivatives at the arc
+    lengths s_i + ds_i f in each stage's own piece, bit for bit, whatever the blocks of stages
+    they are computed in (a block of 7 points holds no whole stage of 9)."""
+    monkeypatch.setattr(topp, "DERIVATIVE_BLOCK", block)
+    p, path, rp = _run_path("delta_etitc", 0)
+    x = topp.grid(path) / path.length
+    s = x * path.length
+    ds = np.diff(s)
+    owner = path.locate(0.5 * (s[:-1] + s[1:]))
+    at = (s[:-1, None] + ds[:, None] * topp.CHECK[None]).ravel()
+    piece = np.repeat(owner, len(topp.CHECK))
+    for got, want in zip(path.stage_frame(s[:-1], ds, topp.CHECK, owner), path.frame(at, piece)):
+        assert np.array_equal(got, want)
+    dq, ddq = rp.stage_derivatives(x, topp.CHECK)
+    wq, wqq = rp.derivatives(at, piece)
+    assert np.array_equal(dq.reshape(wq.shape), wq) and np.array_equal(ddq.reshape(wqq.shape), wqq)
+
+
 @pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel"])
 def test_a_run_pieces_samples_are_its_profile_path_and_filament_bit_for_bit(name):
     """RunPiece.sample's compiled pass gives the very values of arc_length_at, locate, frame and

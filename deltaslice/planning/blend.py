@@ -89,8 +89,20 @@ class BlendedPath:
         s = np.ascontiguousarray(s, dtype=float)
         k = self.locate(s) if piece is None else piece
         out = np.empty((3, len(s), 3))
-        _frame_kernel(s, np.ascontiguousarray(k, dtype=np.int64), self.piece_start, self.kind, self.p0, self.d0,
-                      self.normal, self.radius, out)
+        _frame_kernel(s, s, _ONE_AT_ZERO, np.ascontiguousarray(k, dtype=np.int64), False, self.piece_start, self.kind,
+                      self.p0, self.d0, self.normal, self.radius, out)
+        return out[0], out[1], out[2]
+
+    def stage_frame(self, s0: np.ndarray, ds: np.ndarray, frac: np.ndarray, piece: np.ndarray):
+        """:meth:`frame` at the arc lengths s0 + ds f (mm) of each stage (s0, ds: (n,)) for each
+        fraction f of ``frac`` (f,), inside the stage's piece (n,): (point, unit tangent, curvature
+        vector), each (n f, 3), stage by stage (the planner's per-stage derivatives, without the
+        (n, f) arrays of arc lengths and pieces)."""
+        n, f = len(s0), len(frac)
+        out = np.empty((3, n * f, 3))
+        _frame_kernel(np.ascontiguousarray(s0, dtype=float), np.ascontiguousarray(ds, dtype=float),
+                      np.ascontiguousarray(frac, dtype=float), np.ascontiguousarray(piece, dtype=np.int64), True,
+                      self.piece_start, self.kind, self.p0, self.d0, self.normal, self.radius, out)
         return out[0], out[1], out[2]
 
     def stops(self) -> np.ndarray:
@@ -114,28 +126,35 @@ class BlendedPath:
                            self.normal[:k].copy(), self.radius[:k].copy(), self.segment[:k].copy())
 
 
+_ONE_AT_ZERO = np.zeros(1)  # frame's one "fraction" of each arc length
+
+
 @njit
-def _frame_kernel(s, k, piece_start, kind, p0, d0, normal, radius, out):
-    """out[0], out[1], out[2] (n,3): point, unit tangent, curvature vector at arc lengths s (n,) mm
-    inside pieces k (n,). A line: p0 + u d0, d0, 0; an arc of radius r turned by a = u / r:
+def _frame_kernel(s0, ds, frac, k, staged, piece_start, kind, p0, d0, normal, radius, out):
+    """out[0], out[1], out[2] (n f, 3): point, unit tangent, curvature vector at arc lengths
+    s0[i] + ds[i] frac[m] (row i f + m) where ``staged``, else s0[i] (frac of one), mm, inside
+    pieces k (n,). A line: p0 + u d0, d0, 0; an arc of radius r turned by a = u / r:
     p0 + r (sin a d0 + (1 - cos a) n), cos a d0 + sin a n, (-sin a d0 + cos a n) / r."""
-    for i in range(s.shape[0]):
+    f = frac.shape[0]
+    for i in range(s0.shape[0]):
         j = k[i]
-        u = s[i] - piece_start[j]
-        if kind[j] == 1:
-            r = radius[j]
-            a = u / r
-            sa = math.sin(a)
-            ca = math.cos(a)
-            for c in range(3):
-                out[0, i, c] = p0[j, c] + r * (sa * d0[j, c] + (1.0 - ca) * normal[j, c])
-                out[1, i, c] = ca * d0[j, c] + sa * normal[j, c]
-                out[2, i, c] = (-sa * d0[j, c] + ca * normal[j, c]) / r
-        else:
-            for c in range(3):
-                out[0, i, c] = p0[j, c] + u * d0[j, c]
-                out[1, i, c] = d0[j, c]
-                out[2, i, c] = 0.0
+        for m in range(f):
+            row = i * f + m
+            u = (s0[i] + ds[i] * frac[m] if staged else s0[i]) - piece_start[j]
+            if kind[j] == 1:
+                r = radius[j]
+                a = u / r
+                sa = math.sin(a)
+                ca = math.cos(a)
+                for c in range(3):
+                    out[0, row, c] = p0[j, c] + r * (sa * d0[j, c] + (1.0 - ca) * normal[j, c])
+                    out[1, row, c] = ca * d0[j, c] + sa * normal[j, c]
+                    out[2, row, c] = (-sa * d0[j, c] + ca * normal[j, c]) / r
+            else:
+                for c in range(3):
+                    out[0, row, c] = p0[j, c] + u * d0[j, c]
+                    out[1, row, c] = d0[j, c]
+                    out[2, row, c] = 0.0
 
 
 @njit

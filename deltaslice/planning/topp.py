@@ -164,13 +164,18 @@ class RunPath:
 
     def _joint_derivatives(self, s, piece, dq, ddq) -> None:
         """The joints' columns of :meth:`derivatives` into dq, ddq (n, dof)."""
-        J, S = self.kin.n_joints, self.S
         for i in range(0, len(s), DERIVATIVE_BLOCK):
             block = slice(i, i + DERIVATIVE_BLOCK)
-            p, t, kappa = self.path.frame(s[block], piece[block])
-            bad = self.kin.scaled_path_derivatives(p, t, kappa, S, dq[block, :J], ddq[block, :J])
-            if bad >= 0:
-                self._raise_unreachable(p[bad])
+            self._joint_rates(self.path.frame(s[block], piece[block]), dq[block], ddq[block])
+
+    def _joint_rates(self, frame, dq, ddq) -> None:
+        """The joints' columns of dq, ddq (n, dof) at the points of ``frame`` (point, tangent,
+        curvature: (n, 3) each); UnreachableError at the first point out of reach."""
+        p, t, kappa = frame
+        J = self.kin.n_joints
+        bad = self.kin.scaled_path_derivatives(p, t, kappa, self.S, dq[:, :J], ddq[:, :J])
+        if bad >= 0:
+            self._raise_unreachable(p[bad])
 
     def stage_derivatives(self, x: np.ndarray, frac: np.ndarray):
         """Derivatives at fractions ``frac`` (f,) of every stage of the grid x (n+1,), each
@@ -178,11 +183,14 @@ class RunPath:
         s = np.asarray(x, float) * self.S
         ds = np.diff(s)
         owner = self.path.locate(0.5 * (s[:-1] + s[1:]))
-        at = s[:-1, None] + ds[:, None] * frac[None]
-        shape = (len(ds), len(frac), self._dof)
-        dq, ddq = np.empty(shape), np.empty(shape)
-        flat = (len(ds) * len(frac), self._dof)
-        self._joint_derivatives(at.ravel(), np.repeat(owner, len(frac)), dq.reshape(flat), ddq.reshape(flat))
+        n, f = len(ds), len(frac)
+        dq, ddq = np.empty((n, f, self._dof)), np.empty((n, f, self._dof))
+        flat_dq, flat_ddq = dq.reshape(n * f, self._dof), ddq.reshape(n * f, self._dof)
+        per = max(1, DERIVATIVE_BLOCK // f)  # stages a block
+        for a in range(0, n, per):
+            b = min(a + per, n)
+            self._joint_rates(self.path.stage_frame(s[a:b], ds[a:b], frac, owner[a:b]), flat_dq[a * f : b * f],
+                              flat_ddq[a * f : b * f])
         if self.e_ratio is not None:  # the filament's rate is its piece's: one value per stage
             J = self.kin.n_joints
             dq[:, :, J] = (self.e_ratio[owner] * self.S)[:, None]
