@@ -590,3 +590,30 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
     got = np.ones(1, dtype=bool)
     topp._active_kernel(dq, ddq, np.array([1.0]), np.array([0.0, 0.0]), np.array([1.0, 1.0]), np.array([1.0, 1.0]), got)
     assert not got[0]
+
+
+@pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel"])
+def test_the_filaments_rows_once_give_the_same_solution(name):
+    """The compiled solver takes the filament's acceleration rows at one fraction of each stage
+    (they are the same at every fraction): those columns are the full rows' columns of
+    ``channels``, the repeated ones equal, and the solver's speeds, accelerations and controllable
+    sets are the same bit for bit, with and without per-move units."""
+    p, path, rp = _run_path(name)
+    x = topp.grid(path) / path.length
+    amax = p.planned_limits().acceleration[: rp.dof]
+    con = topp.StageAccelerationConstraint(amax, topp.EVAL, rp.stage_derivatives(x, topp.EVAL))
+    f, dof = len(topp.EVAL), rp.dof
+    cap2 = np.full(len(x), 50.0)
+    for unit in (None, np.random.default_rng(2).uniform(0.5, 3.0, len(x))):
+        a, b = con.rows(rp, x, unit)
+        a1, b1 = con.rows(rp, x, unit, last_once=True)
+        ch = con.channels(True)
+        assert len(ch) == f * dof - f + 1 and ch.tolist()[:dof] == list(range(dof))
+        keep = [k * dof + j for k in range(f) for j in range(dof) if not (k and j == dof - 1)]
+        assert np.array_equal(a1, a[:, keep]) and np.array_equal(b1, b[:, keep])
+        for k in range(1, f):
+            assert np.array_equal(a[:, k * dof + dof - 1], a[:, dof - 1]) and np.array_equal(b[:, k * dof + dof - 1], b[:, dof - 1])
+        ds = np.diff(x) if unit is None else np.diff(x) * unit[:-1]
+        full = topp.fast_solve(a, b, -np.tile(amax, f), np.tile(amax, f), cap2, ds, interpolation=False)
+        once = topp.fast_solve(a1, b1, -amax[ch], amax[ch], cap2, ds, interpolation=False)
+        assert all(np.array_equal(u, v, equal_nan=True) for u, v in zip(full, once))

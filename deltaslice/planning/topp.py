@@ -227,23 +227,34 @@ class StageAccelerationConstraint:
         self.frac = np.asarray(frac, dtype=float)
         self.stage = stage
 
-    def rows(self, path, gridpoints, unit: np.ndarray | None = None):
+    def rows(self, path, gridpoints, unit: np.ndarray | None = None, last_once: bool = False):
         """The rows' u and x coefficients a, b (n+1, f * dof), each bounded by +-amax; with
         ``unit`` (n+1,), each row in other units of the path parameter (x' = c x, c = unit[i]):
-        a / c and b / c^2 (the compiled solver's rows for moves that meet at rest, _speeds)."""
+        a / c and b / c^2 (the compiled solver's rows for moves that meet at rest, _speeds).
+        last_once: the last channel's rows at the first fraction only (f * dof - f + 1 columns, in
+        the order of :meth:`channels`): the filament's, which are the same at every fraction
+        (q' its piece's rate, q'' = 0: RunPath.stage_derivatives), so the others repeat them."""
         dq, ddq = self.stage if self.stage is not None else path.stage_derivatives(gridpoints, self.frac)
         d = np.diff(gridpoints)
         n, f, dof = dq.shape
-        a = np.empty((n + 1, f * dof))
-        b = np.empty((n + 1, f * dof))
-        _rows_kernel(dq, ddq, self.frac, d, np.empty(0) if unit is None else unit, a, b)
+        ch = self.channels(last_once)
+        a = np.empty((n + 1, len(ch)))
+        b = np.empty((n + 1, len(ch)))
+        _rows_kernel(dq, ddq, self.frac, d, np.empty(0) if unit is None else unit, last_once, a, b)
         # The last grid point has no stage ahead: its own (end) derivatives, no u-term.
-        a[-1] = np.tile(dq[-1, -1], f)
-        b[-1] = np.tile(ddq[-1, -1], f)
+        a[-1] = dq[-1, -1][ch]
+        b[-1] = ddq[-1, -1][ch]
         if unit is not None:
             a[-1] /= unit[-1]
             b[-1] /= unit[-1] * unit[-1]
         return a, b
+
+    def channels(self, last_once: bool = False) -> np.ndarray:
+        """The channel of each of :meth:`rows`' columns: fraction-major, every channel at each
+        fraction (the last one at the first fraction only, with last_once)."""
+        f, dof = len(self.frac), self.dof
+        return np.array([j for k in range(f) for j in range(dof) if not (last_once and k > 0 and j == dof - 1)],
+                        dtype=np.int64)
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
         a, b = self.rows(path, gridpoints)
@@ -254,25 +265,29 @@ class StageAccelerationConstraint:
 
 
 @njit
-def _rows_kernel(dq, ddq, frac, d, unit, a, b):
+def _rows_kernel(dq, ddq, frac, d, unit, last_once, a, b):
     """a[i, k dof + j] = q'_j + 2 f_k d_i q''_j and b[i, k dof + j] = q''_j at fraction f_k of stage i
     (dq, ddq: (n, f, dof); rows i < n of a, b), in one pass: the same operations, in the same
     order, as the numpy expression ``dq + 2 * frac * d * ddq``; where unit (n+1,) is not empty,
-    each row i then divided by unit[i] (a) and unit[i]^2 (b), as numpy's ``a / c, b / (c * c)``."""
+    each row i then divided by unit[i] (a) and unit[i]^2 (b), as numpy's ``a / c, b / (c * c)``.
+    last_once: the last channel at the first fraction only (the columns of
+    StageAccelerationConstraint.channels)."""
     n, f, dof = dq.shape
     scaled = unit.shape[0] > 0
     for i in range(n):
         c = unit[i] if scaled else 1.0
         cc = c * c
+        col = 0
         for k in range(f):
             w = 2.0 * frac[k] * d[i]
-            for j in range(dof):
+            for j in range(dof if not (last_once and k > 0) else dof - 1):
                 if scaled:
-                    a[i, k * dof + j] = (dq[i, k, j] + w * ddq[i, k, j]) / c
-                    b[i, k * dof + j] = ddq[i, k, j] / cc
+                    a[i, col] = (dq[i, k, j] + w * ddq[i, k, j]) / c
+                    b[i, col] = ddq[i, k, j] / cc
                 else:
-                    a[i, k * dof + j] = dq[i, k, j] + w * ddq[i, k, j]
-                    b[i, k * dof + j] = ddq[i, k, j]
+                    a[i, col] = dq[i, k, j] + w * ddq[i, k, j]
+                    b[i, col] = ddq[i, k, j]
+                col += 1
 
 
 def gridpoint_speed_factor(dq_stage: np.ndarray) -> np.ndarray:
@@ -1031,8 +1046,11 @@ def _fast_rows(constraints, rp, x_grid, amax, unit=None):
     """What the compiled solver takes, computed once per grid: (a, b, bound, cap2), the
     acceleration rows a u + b x in [-bound, bound] and the bound on x_dot^2 (see _speeds); with
     ``unit`` (see _speeds) the rows in each move's own units, cap2 in the path's."""
-    a, b = constraints[1].rows(rp, x_grid, unit)
-    return a, b, np.tile(amax, len(constraints[1].frac)), constraints[0].cap2(rp, x_grid)
+    # The filament's rows, the same at every fraction, once: the solver's result is the same
+    # (identical bounds), its pairing of bounds much cheaper (identical lines all survive pruning).
+    once = rp.e_ratio is not None
+    a, b = constraints[1].rows(rp, x_grid, unit, once)
+    return a, b, amax[constraints[1].channels(once)], constraints[0].cap2(rp, x_grid)
 
 
 def _start_speed(constraints, rp, x_grid) -> float:
