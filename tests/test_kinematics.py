@@ -495,3 +495,18 @@ def test_well_conditioned_judges_the_pose_the_joints_hold():
     assert not np.allclose(kin.forward(q), pt)
     assert kin.condition(q)[0] > kin.singularity_limit
     assert not kin.well_conditioned(pt, q)[0] and not kin.reachable(pt)[0]
+
+
+def test_rotary_inverse_without_numba_gives_nan_out_of_reach():
+    """The kernels' pure-Python fallback (deltaslice.jit without numba) runs the same code: a point
+    out of reach is a NaN row, not a math domain error from the discriminant's square root."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np; from deltaslice import load_printer; "
+            "q = load_printer('delta_etitc').kinematics().inverse(np.array([[0, 0, 100.0], [0, 0, 5000.0]])); "
+            "assert np.isfinite(q[0]).all() and np.isnan(q[1]).all(), q; print('ok')")
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-2000:]

@@ -217,6 +217,7 @@ def test_stage_frames_and_derivatives_are_those_at_each_stages_arc_lengths(block
     dq, ddq = rp.stage_derivatives(x, topp.CHECK)
     wq, wqq = rp.derivatives(at, piece)
     assert np.array_equal(dq.reshape(wq.shape), wq) and np.array_equal(ddq.reshape(wqq.shape), wqq)
+    assert rp.stage_derivatives(x, np.zeros(0))[0].shape == (len(x) - 1, 0, rp.dof)  # no fractions: nothing
 
 
 @pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel"])
@@ -617,3 +618,21 @@ def test_the_filaments_rows_once_give_the_same_solution(name):
         full = topp.fast_solve(a, b, -np.tile(amax, f), np.tile(amax, f), cap2, ds, interpolation=False)
         once = topp.fast_solve(a1, b1, -amax[ch], amax[ch], cap2, ds, interpolation=False)
         assert all(np.array_equal(u, v, equal_nan=True) for u, v in zip(full, once))
+
+
+def test_the_samplers_walk_is_searchsorted_from_any_start():
+    """The sampler's search for a sample's stage and piece walks from the previous answer and
+    bisects once it is more than a few steps away: from every start index, for values inside,
+    on, before and after a sorted array with repeated values (and NaN, which sorts last), it
+    gives numpy's clipped searchsorted."""
+    from deltaslice.planning.blend import WALK, _last_at_or_below_from
+
+    rng = np.random.default_rng(8)
+    a = np.sort(np.concatenate([rng.uniform(0, 10, 60), [3.0, 3.0, 3.0]]))
+    n_max = len(a) - 1
+    values = np.concatenate([a, rng.uniform(-1, 11, 40), [np.nan, -np.inf, np.inf]])
+    want = np.clip(np.searchsorted(a, values, side="right") - 1, 0, n_max - 1)
+    for j in range(len(a)):
+        got = [_last_at_or_below_from(a, float(v), n_max, j) for v in values]
+        assert got == want.tolist(), j
+    assert len(a) > 4 * WALK  # starts far from the answer bisect

@@ -68,6 +68,10 @@ def test_counts_are_numpys_rounding_half_to_even(name):
     want = np.rint(lim.counts_per_unit[None] * values + lim.zero_count[None]).astype(np.int64)
     assert np.array_equal(lim.joint_and_channel_counts(values[:, :J], values[:, J]), want)
     assert np.array_equal(lim.to_counts(values), want)
+    assert np.array_equal(lim.to_counts(values[0]), want[:1])  # one row
+    for bad in (values[:, :J], np.hstack([values, values])):  # a channel short, or too many: refused
+        with pytest.raises(ValueError, match="channels"):
+            lim.to_counts(bad)
 
 
 @pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel", "fivebar_atlas", "delta_espe_laser"])

@@ -200,7 +200,7 @@ def _root(wx, wy, wz, ux, uy, L1, L2):
     rho2 = a * a + b * b
     disc = rho2 - c * c
     exists = disc >= 0.0 and rho2 > 0.0 and math.isfinite(rho2) and math.isfinite(c)
-    h = math.sqrt(disc)  # NaN where disc < 0, where the root does not exist anyway
+    h = math.sqrt(disc if disc >= 0.0 else 0.0)  # where disc < 0 the root does not exist: any value
     return a * c + b * h, b * c - a * h, rho2, a + c, b, exists
 
 

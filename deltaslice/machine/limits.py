@@ -166,15 +166,21 @@ class Limits:
         return SampledCheck(vmax, amax, wv, nv, wa, na, tolerance)
 
     def to_counts(self, values: np.ndarray) -> np.ndarray:
-        """values: (n, C) float, channel units -> (n, C) int64 actuator counts (rounded)."""
-        values = np.asarray(values, dtype=float)
+        """values: (n, C) float, channel units (or one row (C,)) -> (n, C) int64 actuator counts
+        (rounded)."""
+        values = np.atleast_2d(np.asarray(values, dtype=float))
         return self.joint_and_channel_counts(values[:, :-1], values[:, -1])
 
     def joint_and_channel_counts(self, q: np.ndarray, channel: np.ndarray) -> np.ndarray:
         """:meth:`to_counts` of the joints q (n, J) and the tool channel (n,) given apart (a
         sample block's arrays, not copied into one): (n, J + 1) int64, zero + cpu * value rounded
         half to even, in one compiled pass (the stream writer's per-block call)."""
-        out = np.empty((len(q), q.shape[1] + 1), dtype=np.int64)
+        q, channel = np.asarray(q, dtype=float), np.asarray(channel, dtype=float)
+        C = len(self.counts_per_unit)
+        if q.ndim != 2 or q.shape[1] != C - 1 or channel.shape != (len(q),):
+            raise ValueError(f"Limits counts: joints {q.shape} and tool channel {channel.shape}: expected "
+                             f"(n, {C - 1}) and (n,) for {C} channels")
+        out = np.empty((len(q), C), dtype=np.int64)
         _counts_kernel(q, channel, self.counts_per_unit, self.zero_count, out)
         return out
 

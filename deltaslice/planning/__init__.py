@@ -417,7 +417,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     read only after it. n_moves: the moves in all (for progress), or None; few: too few jobs for
     worker processes to pay (they are planned here). first: a callable run here before anything
     is put away, once the workers have their first chunks (so it costs no time where it raises
-    nothing; where it raises, the chunks not yet started are cancelled), or None."""
+    nothing; where it raises, the chunks not yet started are cancelled and the running ones
+    waited for), or None."""
     workers = resolve_workers(workers, "plan")
     job_start, job_piece = array("q"), array("q")  # per job: its first move, the index of its first piece
     done = 0
@@ -475,7 +476,9 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                     try:
                         first()
                     except BaseException:
-                        pool.shutdown(wait=False, cancel_futures=True)
+                        # no worker outlives the error: the chunks not started are dropped, the
+                        # ones running finish (a few tenths of a second)
+                        pool.shutdown(wait=True, cancel_futures=True)
                         raise
                     first = None
 

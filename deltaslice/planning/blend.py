@@ -157,19 +157,44 @@ def _frame_kernel(s0, ds, frac, k, staged, piece_start, kind, p0, d0, normal, ra
                     out[2, row, c] = 0.0
 
 
+WALK = 8  # steps _last_at_or_below_from takes before it bisects
+
+
+@njit
+def _last_at_or_below(a, v, n_max):
+    """``clip(searchsorted(a, v, side="right") - 1, 0, n_max - 1)`` for a sorted (m,) a (NaN
+    sorts last, as in searchsorted)."""
+    if v != v:
+        return n_max - 1
+    lo, hi = 0, a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] <= v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return min(max(lo - 1, 0), n_max - 1)
+
+
 @njit
 def _last_at_or_below_from(a, v, n_max, j):
-    """``clip(searchsorted(a, v, side="right") - 1, 0, n_max - 1)`` for a sorted (m,) a (NaN sorts
-    last, as in searchsorted), walking from index j (0 <= j < m: the previous answer) instead of
-    bisecting: a step or two where v moves little from one call to the next (samples in time
-    order), and right from any j."""
+    """:func:`_last_at_or_below`, walking from index j instead of bisecting: a step or two from the
+    answer for a value near v (samples in time order); an answer more than WALK steps away is
+    bisected for. j must not be at or past a NaN of a (NaN sorts last)."""
     if v != v:
         return n_max - 1
     n = a.shape[0]
+    steps = 0
     while j + 1 < n and a[j + 1] <= v:
         j += 1
+        steps += 1
+        if steps > WALK:
+            return _last_at_or_below(a, v, n_max)
     while j > 0 and a[j] > v:
         j -= 1
+        steps += 1
+        if steps > WALK:
+            return _last_at_or_below(a, v, n_max)
     return min(j, n_max - 1)
 
 
@@ -183,13 +208,21 @@ def sample_kernel(tau, t, x, xd, xdd, S, piece_start, kind, p0, d0, normal, radi
     methods they replace (the same values). Here, beside the frame kernel whose point formula it
     repeats: a change to one is a change to the other."""
     duration = t[t.shape[0] - 1]
-    j = m = 0  # the stage and the piece of the sample before: the next is at most a few further
+    j = m = 0  # the stage and the piece of the sample before: in time order, the next is a few further
+    before = np.nan
     for i in range(tau.shape[0]):
         ta = min(max(tau[i], 0.0), duration)
-        j = _last_at_or_below_from(t, ta, xdd.shape[0], j)
+        if ta >= before:  # in order after a sample that was not NaN: walk
+            j = _last_at_or_below_from(t, ta, xdd.shape[0], j)
+        else:
+            j = _last_at_or_below(t, ta, xdd.shape[0])
         dt = ta - t[j]
         s = min(max(x[j] + xd[j] * dt + 0.5 * xdd[j] * dt * dt, 0.0), 1.0) * S
-        m = _last_at_or_below_from(piece_start, s, kind.shape[0], m)
+        if ta >= before:  # s then moves forward too (or back by a rounding, within its piece's neighbours)
+            m = _last_at_or_below_from(piece_start, s, kind.shape[0], m)
+        else:
+            m = _last_at_or_below(piece_start, s, kind.shape[0])
+        before = ta
         k[i] = m
         # the point as _frame_kernel computes it, written out here: a shared per-point helper
         # (even inlined) made both kernels three times slower

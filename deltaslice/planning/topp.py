@@ -186,7 +186,7 @@ class RunPath:
         n, f = len(ds), len(frac)
         dq, ddq = np.empty((n, f, self._dof)), np.empty((n, f, self._dof))
         flat_dq, flat_ddq = dq.reshape(n * f, self._dof), ddq.reshape(n * f, self._dof)
-        per = max(1, DERIVATIVE_BLOCK // f)  # stages a block
+        per = max(1, DERIVATIVE_BLOCK // max(f, 1))  # stages a block
         for a in range(0, n, per):
             b = min(a + per, n)
             self._joint_rates(self.path.stage_frame(s[a:b], ds[a:b], frac, owner[a:b]), flat_dq[a * f : b * f],
