@@ -249,8 +249,8 @@ def _inverse_kernel(points, offsets, L1, L2, q):
     point is not finite)."""
     n = points.shape[0]
     p = np.empty((3, BLOCK))
-    x, y, rho2 = np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK))
-    apc, bb, ok = np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK), dtype=np.bool_)
+    x, y, apc, bb = np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK))
+    ok = np.empty((3, BLOCK), dtype=np.bool_)
     for k0 in range(0, n, BLOCK):
         m = min(BLOCK, n - k0)
         _to_rows(points, k0, m, p, 0)
@@ -258,9 +258,9 @@ def _inverse_kernel(points, offsets, L1, L2, q):
         for i in range(3):
             ux, uy = U[i, 0], U[i, 1]
             ox, oy, oz = offsets[i, 0], offsets[i, 1], offsets[i, 2]
-            xi, yi, ri, ai, bi, oki = x[i], y[i], rho2[i], apc[i], bb[i], ok[i]
+            xi, yi, ai, bi, oki = x[i], y[i], apc[i], bb[i], ok[i]
             for k in range(m):
-                xi[k], yi[k], ri[k], ai[k], bi[k], oki[k] = _root(px[k] + ox, py[k] + oy, pz[k] + oz, ux, uy, L1, L2)
+                xi[k], yi[k], _, ai[k], bi[k], oki[k] = _root(px[k] + ox, py[k] + oy, pz[k] + oz, ux, uy, L1, L2)
         for k in range(m):
             good = ok[0, k] and ok[1, k] and ok[2, k]
             for i in range(3):

@@ -212,17 +212,13 @@ def sample_kernel(tau, t, x, xd, xdd, S, piece_start, kind, p0, d0, normal, radi
     before = np.nan
     for i in range(tau.shape[0]):
         ta = min(max(tau[i], 0.0), duration)
-        if ta >= before:  # in order after a sample that was not NaN: walk
-            j = _last_at_or_below_from(t, ta, xdd.shape[0], j)
-        else:
-            j = _last_at_or_below(t, ta, xdd.shape[0])
+        # in order after a sample that was not NaN: walk (s moves forward too, or back by a rounding)
+        walk = ta >= before
+        before = ta
+        j = _last_at_or_below_from(t, ta, xdd.shape[0], j) if walk else _last_at_or_below(t, ta, xdd.shape[0])
         dt = ta - t[j]
         s = min(max(x[j] + xd[j] * dt + 0.5 * xdd[j] * dt * dt, 0.0), 1.0) * S
-        if ta >= before:  # s then moves forward too (or back by a rounding, within its piece's neighbours)
-            m = _last_at_or_below_from(piece_start, s, kind.shape[0], m)
-        else:
-            m = _last_at_or_below(piece_start, s, kind.shape[0])
-        before = ta
+        m = _last_at_or_below_from(piece_start, s, kind.shape[0], m) if walk else _last_at_or_below(piece_start, s, kind.shape[0])
         k[i] = m
         # the point as _frame_kernel computes it, written out here: a shared per-point helper
         # (even inlined) made both kernels three times slower

@@ -238,15 +238,13 @@ class StageAccelerationConstraint:
         d = np.diff(gridpoints)
         n, f, dof = dq.shape
         ch = self.channels(last_once)
+        c = np.ones(n + 1) if unit is None else np.asarray(unit, dtype=float)  # x / 1.0 is x, bit for bit
         a = np.empty((n + 1, len(ch)))
         b = np.empty((n + 1, len(ch)))
-        _rows_kernel(dq, ddq, self.frac, d, np.empty(0) if unit is None else unit, last_once, a, b)
+        _rows_kernel(dq, ddq, self.frac, d, c, last_once, a, b)
         # The last grid point has no stage ahead: its own (end) derivatives, no u-term.
-        a[-1] = dq[-1, -1][ch]
-        b[-1] = ddq[-1, -1][ch]
-        if unit is not None:
-            a[-1] /= unit[-1]
-            b[-1] /= unit[-1] * unit[-1]
+        a[-1] = dq[-1, -1][ch] / c[-1]
+        b[-1] = ddq[-1, -1][ch] / (c[-1] * c[-1])
         return a, b
 
     def channels(self, last_once: bool = False) -> np.ndarray:
@@ -268,25 +266,20 @@ class StageAccelerationConstraint:
 def _rows_kernel(dq, ddq, frac, d, unit, last_once, a, b):
     """a[i, k dof + j] = q'_j + 2 f_k d_i q''_j and b[i, k dof + j] = q''_j at fraction f_k of stage i
     (dq, ddq: (n, f, dof); rows i < n of a, b), in one pass: the same operations, in the same
-    order, as the numpy expression ``dq + 2 * frac * d * ddq``; where unit (n+1,) is not empty,
-    each row i then divided by unit[i] (a) and unit[i]^2 (b), as numpy's ``a / c, b / (c * c)``.
-    last_once: the last channel at the first fraction only (the columns of
+    order, as the numpy expression ``dq + 2 * frac * d * ddq``, each row i then divided by unit[i]
+    (a) and unit[i]^2 (b), as numpy's ``a / c, b / (c * c)`` (unit (n+1,); ones leave the rows as
+    they are). last_once: the last channel at the first fraction only (the columns of
     StageAccelerationConstraint.channels)."""
     n, f, dof = dq.shape
-    scaled = unit.shape[0] > 0
     for i in range(n):
-        c = unit[i] if scaled else 1.0
+        c = unit[i]
         cc = c * c
         col = 0
         for k in range(f):
             w = 2.0 * frac[k] * d[i]
             for j in range(dof if not (last_once and k > 0) else dof - 1):
-                if scaled:
-                    a[i, col] = (dq[i, k, j] + w * ddq[i, k, j]) / c
-                    b[i, col] = ddq[i, k, j] / cc
-                else:
-                    a[i, col] = dq[i, k, j] + w * ddq[i, k, j]
-                    b[i, col] = ddq[i, k, j]
+                a[i, col] = (dq[i, k, j] + w * ddq[i, k, j]) / c
+                b[i, col] = ddq[i, k, j] / cc
                 col += 1
 
 
