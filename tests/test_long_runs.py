@@ -7,6 +7,8 @@ defaults are thousands (``deltaslice.planning.topp.LONG_RUN``, ``WINDOW``, ``LOO
 
 from __future__ import annotations
 
+import dataclasses
+import pickle
 import tracemalloc
 
 import numpy as np
@@ -286,6 +288,55 @@ def test_the_spool_writes_pieces_in_batches_and_reads_them_back_in_order(monkeyp
     assert sp[119].amount == pytest.approx(12.0) and sp[-120].layer == 0
     np.testing.assert_array_equal(np.asarray(sp.durations), [p.duration for p in pieces])
     sp.close()
+
+
+def _same_piece(a, b):
+    """a and b hold the same values bit for bit, b's arrays as the compiled kernels take them."""
+    assert type(a) is type(b)
+    for f in dataclasses.fields(a):
+        u, v = getattr(a, f.name), getattr(b, f.name)
+        if dataclasses.is_dataclass(u):
+            _same_piece(u, v)
+        elif isinstance(u, np.ndarray):
+            assert (v.dtype, v.shape, v.tobytes()) == (u.dtype, u.shape, u.tobytes()), f.name
+            assert v.flags.c_contiguous and v.flags.writeable, f.name
+        else:
+            assert v == u, f.name
+
+
+def test_a_piece_batch_pickles_its_pieces_bit_for_bit():
+    """Planning workers hand their pieces back as a PieceBatch, the runs' arrays a column a
+    field: every piece comes back the same, in its job's list, and samples the same. Runs with
+    laser power beside runs without, and runs sharing a path (kept shared), too."""
+    from deltaslice.planning.pieces import PieceBatch, RunPiece
+
+    printer = load_printer("linear_kossel")
+    kin = printer.kinematics()
+    b = ToolpathBuilder((0.0, 0.0, 2.0))
+    b.new_layer(0.3)
+    for k in range(4):
+        b.add([[-10.0 + 5 * k, -25.0, 0.3]], 100, -0.5 * (k % 2), 0, Role.TRAVEL)
+        b.add([[-10.0 + 5 * k, -20.0, 0.3], [-8.0 + 5 * k, -18.0, 0.3], [-8.0 + 5 * k, -12.0, 0.3]], 30, 0.2, 1,
+              Role.INFILL)
+    pieces = list(plan(b.build(), printer, workers=1).pieces)
+    assert {type(p).__name__ for p in pieces} >= {"RunPiece", "FilamentPiece"}
+    runs = [i for i, p in enumerate(pieces) if type(p) is RunPiece]
+    assert len(runs) >= 4
+    for i in runs[::2]:  # laser power on every other run, None on the rest
+        pieces[i] = dataclasses.replace(pieces[i], power=np.linspace(0.2, 1.0, len(pieces[i].e_ratio)))
+    groups = [pieces[:3], [], pieces[3:]]
+    back = pickle.loads(pickle.dumps(PieceBatch(groups))).groups
+    assert [len(g) for g in back] == [len(g) for g in groups]
+    tau = np.linspace(0.0, 1.0, 7)
+    for a, c in zip(pieces, [p for g in back for p in g]):
+        _same_piece(a, c)
+        for u, v in zip(a.sample(kin, tau * a.duration), c.sample(kin, tau * a.duration)):
+            np.testing.assert_array_equal(u, v)
+    shared = [pieces[runs[0]], dataclasses.replace(pieces[runs[1]], path=pieces[runs[0]].path)]
+    back = pickle.loads(pickle.dumps(PieceBatch([shared]))).groups[0]
+    assert back[0].path is back[1].path
+    for a, c in zip(shared, back):
+        _same_piece(a, c)
 
 
 def test_a_true_spiral_vase_from_gcode_plans_in_windows(tmp_path, monkeypatch):

@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DeltasliceError, UnreachableError
 from ..pool import resolve_workers, start_pool
 from ..toolpath import WAIT_KINDS, Role, Toolpath
-from .pieces import Piece
+from .pieces import Piece, PieceBatch
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, iter_run_parts, plan_runs
 from .trajectory import Trajectory
@@ -134,7 +134,7 @@ def _init_worker(printer):
 
 def _plan_chunk(args):
     """Plan a chunk of jobs in print order: ("run", RunSpec) or ("travel", plan_travel's keywords).
-    Returns one list of pieces per job."""
+    Returns a PieceBatch of one list of pieces per job (what a worker hands back)."""
     jobs, speed_limit, solver = args
     printer, kin = _WORKER["printer"], _WORKER["kin"]
     out = [None] * len(jobs)
@@ -147,7 +147,7 @@ def _plan_chunk(args):
     runs = [i for i, (kind, _job) in enumerate(jobs) if kind != "travel"]
     for i, pieces in zip(runs, plan_runs(kin, printer, [jobs[i][1] for i in runs], speed_limit, solver=solver)):
         out[i] = pieces
-    return out
+    return PieceBatch(out)
 
 
 def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None,
@@ -431,7 +431,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
             progress(min(int(round(done)), n_moves) if n_moves else int(round(done)), n_moves)
 
     def put_away(group, results):
-        for (start, end, _kind, _job), res in zip(group, results):
+        for (start, end, _kind, _job), res in zip(group, results.groups):
             job_start.append(start)
             job_piece.append(len(pieces))
             pieces.extend(res)

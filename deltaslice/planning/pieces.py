@@ -11,11 +11,13 @@ start (n,) mm and tool state (n,) at times tau (n,) s from the piece start.
 * :class:`JointMovePiece`: a ruckig jerk-limited joint-space move (travels),
 * :class:`FilamentPiece`: a retract or unretract at rest,
 * :class:`TrapezoidPiece`: the conventional planner's whole toolpath.
+
+:class:`PieceBatch` carries lists of pieces between processes (planning workers, the spool).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -280,3 +282,75 @@ class TrapezoidPiece:
         q = kin.inverse(pts)
         e = self.e0[k] + frac * self.e[k]
         return q, e, self.tool[k]
+
+
+class PieceBatch:
+    """Lists of pieces (``groups``: one list per job) that pickle column by column.
+
+    A RunPiece holds about fifteen arrays, and numpy pickles each with a few microseconds of
+    Python around it: handing featuretype's 4,500 runs from the planning workers to the parent
+    cost about 0.45 s to pickle and 0.3 s to unpickle, more than copying their 80 MB. Here the
+    runs' arrays of one field travel as one array with their lengths beside it, and come back as
+    views of it: the same values, C-contiguous and writable, as the compiled kernels took them.
+    Other pieces, and runs sharing a path (pickle keeps that sharing), are pickled as they are."""
+
+    __slots__ = ("groups",)
+
+    def __init__(self, groups):
+        self.groups = groups
+
+    def __reduce__(self):
+        flat = [p for g in self.groups for p in g]
+        return _unpack_batch, (*_pack_runs(flat), [len(g) for g in self.groups])
+
+
+_RUN_FIELDS = tuple(f.name for f in fields(RunPiece) if f.name != "path")
+_PATH_FIELDS = tuple(f.name for f in fields(BlendedPath))
+
+
+def _pack_runs(pieces: list) -> tuple:
+    """(path columns, run columns, the pieces with None where each run was) of
+    :class:`PieceBatch`; (None, None, pieces) where there is nothing to gain."""
+    runs = [p for p in pieces if type(p) is RunPiece]
+    if not runs or len({id(p.path) for p in runs}) < len(runs):
+        return None, None, pieces
+    rest = [None if type(p) is RunPiece else p for p in pieces]
+    return _columns([p.path for p in runs], _PATH_FIELDS), _columns(runs, _RUN_FIELDS), rest
+
+
+def _columns(objs: list, names: tuple) -> list:
+    """Per field of ``objs``: (lengths (n,) int64, the arrays concatenated) where every object's
+    value is an array of one dtype and one shape past its first axis; else (None, the values)."""
+    cols = []
+    for name in names:
+        vals = [getattr(o, name) for o in objs]
+        v0 = vals[0]
+        if type(v0) is np.ndarray and v0.ndim >= 1 and all(
+                type(v) is np.ndarray and v.dtype == v0.dtype and v.shape[1:] == v0.shape[1:] for v in vals):
+            cols.append((np.fromiter(map(len, vals), np.int64, len(vals)), np.concatenate(vals)))
+        else:
+            cols.append((None, vals))
+    return cols
+
+
+def _rows(cols: list) -> zip:
+    """Each object's field values back from :func:`_columns`' columns (arrays as views)."""
+    out = []
+    for lengths, data in cols:
+        if lengths is None:
+            out.append(data)
+        else:
+            ends = np.cumsum(lengths).tolist()
+            out.append([data[a:b] for a, b in zip([0, *ends[:-1]], ends)])
+    return zip(*out)
+
+
+def _unpack_batch(path_cols, run_cols, rest, sizes) -> PieceBatch:
+    if path_cols is not None:
+        runs = (RunPiece(BlendedPath(*path), *row) for path, row in zip(_rows(path_cols), _rows(run_cols)))
+        rest = [next(runs) if p is None else p for p in rest]
+    groups, i = [], 0
+    for n in sizes:
+        groups.append(rest[i : i + n])
+        i += n
+    return PieceBatch(groups)

@@ -18,6 +18,8 @@ from bisect import bisect_right
 
 import numpy as np
 
+from .pieces import PieceBatch
+
 #: moves in a toolpath above which ``plan`` spools its pieces (about 200 MB of pieces in memory)
 SPOOL_MOVES = 200_000
 #: pieces are pickled together until this many grid points (a few MB) or BATCH_PIECES pieces wait:
@@ -60,7 +62,7 @@ class PieceSpool:
         if not self._pending:
             return
         self._file.seek(self._offsets[-1])
-        pickle.dump(self._pending, self._file, protocol=pickle.HIGHEST_PROTOCOL)
+        pickle.dump(PieceBatch([self._pending]), self._file, protocol=pickle.HIGHEST_PROTOCOL)
         self._file.flush()  # batches are read back with os.pread, past the file object's buffer
         self._offsets.append(self._file.tell())
         self._first.append(self._first[-1] + len(self._pending))
@@ -80,7 +82,7 @@ class PieceSpool:
         if self._cached[0] != b:
             # read at an offset, not seek-then-read: forked samplers share the file position
             lo, hi = self._offsets[b], self._offsets[b + 1]
-            self._cached = (b, pickle.loads(os.pread(self._file.fileno(), hi - lo, lo)))
+            self._cached = (b, pickle.loads(os.pread(self._file.fileno(), hi - lo, lo)).groups[0])
         return self._cached[1]
 
     def __getitem__(self, i: int):
