@@ -50,7 +50,7 @@ logging.getLogger("toppra").setLevel(logging.ERROR)
 
 # Grid: spacing grows geometrically from each join up to MAX_STEP (mm).
 SOLVERS = ("fast", "toppra")  # the speed-profile solvers: compiled reachability (default), toppra (reference)
-MIN_STEP = 0.01
+MIN_STEP = 0.02
 MAX_STEP = 2.0
 GROWTH = 2.0
 ARC_STEP = 0.15  # rad of tangent turn between grid points inside a blend arc
