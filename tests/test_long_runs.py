@@ -332,6 +332,15 @@ def test_a_piece_batch_pickles_its_pieces_bit_for_bit():
         _same_piece(a, c)
         for u, v in zip(a.sample(kin, tau * a.duration), c.sample(kin, tau * a.duration)):
             np.testing.assert_array_equal(u, v)
+    # F-ordered 2-D fields come back C-ordered; a field 1-D in one run and 0-d in another, as it is
+    fortran = [dataclasses.replace(pieces[i], path=dataclasses.replace(
+        pieces[i].path, p0=np.asfortranarray(pieces[i].path.p0), d0=np.asfortranarray(pieces[i].path.d0)))
+        for i in runs]
+    fortran = [dataclasses.replace(p, nominal_feed=np.array(30.0) if k == 1 else np.array([30.0]))
+               for k, p in enumerate(fortran)]
+    back = pickle.loads(pickle.dumps(PieceBatch([fortran]))).groups[0]
+    for a, c in zip(fortran, back):
+        _same_piece(a, c)
     shared = [pieces[runs[0]], dataclasses.replace(pieces[runs[1]], path=pieces[runs[0]].path)]
     back = pickle.loads(pickle.dumps(PieceBatch([shared]))).groups[0]
     assert back[0].path is back[1].path

@@ -409,7 +409,7 @@ def test_a_refined_run_in_a_batch_refines_only_itself(monkeypatch):
         out = real(rp, x, *args, **kwargs)
         s = np.asarray(x) * rp.S
         first = np.linalg.norm(rp.path.evaluate(s[:-1]) - start, axis=1) < 1e-9
-        first &= np.diff(s) > 0.005  # the grid's first stage (0.01 mm), not its refined quarters
+        first &= np.diff(s) > 0.75 * topp.MIN_STEP  # the grid's first stage (MIN_STEP), not its refined quarters
         per_stage = np.where(first, 2.0, out.per_stage)
         return topp.StageMaxima(out.velocity, out.acceleration, out.stage_v, out.stage_a, per_stage)
 

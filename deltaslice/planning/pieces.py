@@ -309,12 +309,12 @@ _PATH_FIELDS = tuple(f.name for f in fields(BlendedPath))
 
 
 def _pack_runs(pieces: list) -> tuple:
-    """(path columns, run columns, the pieces with None where each run was) of
+    """(path columns, run columns, the pieces with the RunPiece class where each run was) of
     :class:`PieceBatch`; (None, None, pieces) where there is nothing to gain."""
     runs = [p for p in pieces if type(p) is RunPiece]
     if not runs or len({id(p.path) for p in runs}) < len(runs):
         return None, None, pieces
-    rest = [None if type(p) is RunPiece else p for p in pieces]
+    rest = [RunPiece if type(p) is RunPiece else p for p in pieces]  # the class: pickled by name, no piece
     return _columns([p.path for p in runs], _PATH_FIELDS), _columns(runs, _RUN_FIELDS), rest
 
 
@@ -326,8 +326,11 @@ def _columns(objs: list, names: tuple) -> list:
         vals = [getattr(o, name) for o in objs]
         v0 = vals[0]
         if type(v0) is np.ndarray and v0.ndim >= 1 and all(
-                type(v) is np.ndarray and v.dtype == v0.dtype and v.shape[1:] == v0.shape[1:] for v in vals):
-            cols.append((np.fromiter(map(len, vals), np.int64, len(vals)), np.concatenate(vals)))
+                type(v) is np.ndarray and v.dtype == v0.dtype and v.ndim == v0.ndim and v.shape[1:] == v0.shape[1:]
+                for v in vals):
+            # C order whatever the pieces' (concatenating F-ordered arrays keeps F: its rows' views would not be)
+            data = np.ascontiguousarray(np.concatenate(vals))
+            cols.append((np.fromiter(map(len, vals), np.int64, len(vals)), data))
         else:
             cols.append((None, vals))
     return cols
@@ -348,7 +351,7 @@ def _rows(cols: list) -> zip:
 def _unpack_batch(path_cols, run_cols, rest, sizes) -> PieceBatch:
     if path_cols is not None:
         runs = (RunPiece(BlendedPath(*path), *row) for path, row in zip(_rows(path_cols), _rows(run_cols)))
-        rest = [next(runs) if p is None else p for p in rest]
+        rest = [next(runs) if p is RunPiece else p for p in rest]
     groups, i = [], 0
     for n in sizes:
         groups.append(rest[i : i + n])
