@@ -292,7 +292,8 @@ class PieceBatch:
     cost about 0.45 s to pickle and 0.3 s to unpickle, more than copying their 80 MB. Here the
     runs' arrays of one field travel as one array with their lengths beside it, and come back as
     views of it: the same values, C-contiguous and writable, as the compiled kernels took them.
-    Other pieces, and runs sharing a path (pickle keeps that sharing), are pickled as they are."""
+    Other pieces are pickled as they are, and so is a batch where two runs share a path (pickle
+    keeps that sharing; columns would not)."""
 
     __slots__ = ("groups",)
 

@@ -56,7 +56,7 @@ GROWTH = 2.0
 ARC_STEP = 0.2  # rad of tangent turn between grid points inside a blend arc
 REFINE = 1  # stages per grid interval; tests set 10 to check grid convergence
 ACTIVE = 0.95  # a limit counts as active within 5 % of it
-SHORT_PIECE = 4  # pieces shorter than this many MIN_STEP get interior grid points
+SHORT_PIECE_STEPS = 4  # pieces shorter than this many MIN_STEP get interior grid points
 SHORT_FRACTIONS = np.array([0.25, 0.5, 0.75])
 MERGE_LENGTH = 0.02  # mm: segments shorter than this are merged where the path allows
 MERGE_DEVIATION = 0.25  # of the blend tolerance: what merging may move the path
@@ -372,7 +372,7 @@ def grid(path: BlendedPath) -> np.ndarray:
     # A piece too short for the geometric steps still gets interior points: one that starts
     # and stops at rest needs a stage whose end can move.
     length = np.diff(path.piece_start)
-    short = np.flatnonzero((length < SHORT_PIECE * MIN_STEP) & (length > 0))
+    short = np.flatnonzero((length < SHORT_PIECE_STEPS * MIN_STEP) & (length > 0))
     in_short = (path.piece_start[short, None] + length[short, None] * SHORT_FRACTIONS[None]).ravel()
     g = np.unique(np.concatenate([joins, left[inside], right[inside], on_arcs, in_short]))
     # Points closer than 1e-7 mm add nothing but ill-conditioned stages.
