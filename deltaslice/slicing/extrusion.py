@@ -30,8 +30,9 @@ def filament_per_mm(width, height: float, filament_area: float, multiplier: floa
     return bead_spacing(width, height) * height / filament_area * multiplier
 
 
-def feed_for(role: int, settings, first_layer: bool) -> float:
-    """Requested speed of a move of ``role``, mm/s (first-layer speed caps working moves on layer 0)."""
+def feed_table(settings, first_layer: bool) -> np.ndarray:
+    """Requested speed of a move of each role, mm/s, indexed by role ((len(Role),) float):
+    :func:`feed_for` of every role at once, for a layer's paths."""
     s = settings
     table = {
         Role.EXTERNAL_PERIMETER: s.external_perimeter_speed,
@@ -45,13 +46,20 @@ def feed_for(role: int, settings, first_layer: bool) -> float:
         Role.BRIDGE_INFILL: s.bridge_speed,
         Role.GAP_FILL: s.perimeter_speed,
     }
+    out = np.empty(max(Role) + 1)
+    for r in Role:
+        # the first-layer speed caps working moves on layer 0
+        out[r] = s.first_layer_speed if first_layer and r != Role.TRAVEL else table.get(r, s.perimeter_speed)
+    return out
+
+
+def feed_for(role, settings, first_layer: bool):
+    """Requested speed of a move of ``role`` (an int, or an array of them: one speed each), mm/s
+    (first-layer speed caps working moves on layer 0)."""
+    table = feed_table(settings, first_layer)
     if np.ndim(role):
-        r = np.asarray(role, int)
-        return np.array([feed_for(int(x), s, first_layer) for x in range(int(r.max()) + 1)])[r]
-    v = float(table.get(Role(role), s.perimeter_speed))
-    if first_layer and role != Role.TRAVEL:
-        v = float(s.first_layer_speed)
-    return v
+        return table[np.asarray(role, int)]
+    return float(table[int(Role(role))])
 
 
 def bridge_flow(nozzle: float, filament_area: float, ratio: float) -> float:

@@ -17,6 +17,7 @@ import numpy as np
 import shapely
 
 from ..toolpath import Role
+from .extrusion import feed_table, filament_per_mm
 
 
 @dataclass
@@ -37,7 +38,7 @@ class Path:
         def fix(v):
             if np.ndim(v) == 0:
                 return v
-            return v[::-1] if reverse else np.roll(v, -start)
+            return v[::-1] if reverse else np.concatenate([v[start:], v[:start]])  # np.roll(v, -start), cheaper
 
         return Path(pts, fix(self.role), fix(self.width), False, None if self.flow is None else fix(self.flow))
 
@@ -68,22 +69,24 @@ def nearest_order(paths: list[Path], position: np.ndarray, seam: str = "aligned"
                 heads[i] = tails[i] = c
     out = []
     alive = np.ones(len(paths), bool)
+    closed = np.array([p.closed for p in paths])
     for _ in range(len(paths)):
-        idx = np.flatnonzero(alive)
-        dh = np.sum((heads[idx] - pos) ** 2, axis=1)
-        dt = np.sum((tails[idx] - pos) ** 2, axis=1)
-        closed = np.array([paths[i].closed for i in idx])
-        dt[closed] = np.inf
+        # the dead (and a loop's tail) at infinity: argmin takes the first alive minimum, as
+        # over the alive ones in order
+        dh = np.sum((heads - pos) ** 2, axis=1)
+        dt = np.sum((tails - pos) ** 2, axis=1)
+        dh[~alive] = np.inf
+        dt[~alive | closed] = np.inf
         best_h, best_t = int(np.argmin(dh)), int(np.argmin(dt))
         if dt[best_t] < dh[best_h]:
-            i = int(idx[best_t])
+            i = best_t
             pts = paths[i].points[::-1]
             alive[i] = False
             out.append((pts, paths[i].oriented(pts, reverse=True)))
             pos = pts[-1]
             continue
         else:
-            i = int(idx[best_h])
+            i = best_h
             p = paths[i]
             if p.closed:
                 j = loop_seams[i]
@@ -99,8 +102,10 @@ def nearest_order(paths: list[Path], position: np.ndarray, seam: str = "aligned"
 
 
 class MoveWriter:
-    """Appends paths and the travels between them to a :class:`ToolpathBuilder`,
-    chunk by chunk (one array per path)."""
+    """Appends paths and the travels between them to a :class:`ToolpathBuilder`, a layer at a
+    time: a layer's moves are gathered chunk by chunk (one per path or travel) and handed over
+    in one call when the layer ends (the builder checks every call's columns, and a layer has
+    hundreds of chunks). Call :meth:`finish` after the last layer."""
 
     def __init__(self, builder, settings, tool, filament_area: float):
         self.b = builder
@@ -112,6 +117,34 @@ class MoveWriter:
         self.first_layer = True
         self.extruded = False  # no retract before anything was extruded
         self.inside = None  # prepared shapely region a travel may cross without retracting
+        self.pos = np.array(builder.pos, float)  # (3,) mm: where the last move gathered ends
+        self._chunks = []  # (xyz (k, 3) mm, feed, e, tool, role): each a scalar or (k,)
+
+    def _add(self, xyz: np.ndarray, feed, e, tool, role) -> None:
+        self._chunks.append((xyz, feed, e, tool, role))
+        self.pos = xyz[-1]
+
+    def _flush(self) -> None:
+        """The gathered moves to the builder, in one call."""
+        if not self._chunks:
+            return
+        chunks, self._chunks = self._chunks, []
+        lengths = np.array([len(c[0]) for c in chunks])
+        ends = np.cumsum(lengths)
+        xyz = np.concatenate([c[0] for c in chunks])
+
+        def column(k, dtype):
+            # the chunks' scalars repeated over their moves, then their arrays put in place
+            values = [c[k] for c in chunks]
+            arrays = [i for i, v in enumerate(values) if np.ndim(v)]
+            for i in arrays:
+                values[i] = 0
+            out = np.repeat(np.asarray(values, dtype), lengths)
+            for i in arrays:
+                out[ends[i] - lengths[i] : ends[i]] = chunks[i][k]
+            return out
+
+        self.b.add(xyz, column(1, float), column(2, float), column(3, float), column(4, np.uint8))
 
     def _stays_inside(self, a: np.ndarray, b: np.ndarray) -> bool:
         if self.inside is None:
@@ -119,51 +152,65 @@ class MoveWriter:
         return bool(self.inside.contains(shapely.LineString([a[:2], b[:2]])))
 
     def new_layer(self, z: float, first: bool) -> None:
+        self._flush()
         self.b.new_layer(z)
         self.z = z
         self.first_layer = first
+        self.feeds = feed_table(self.s, first)
+
+    def finish(self) -> None:
+        """After the last layer: the moves gathered to the builder, and the filament pulled
+        back if it is not."""
+        if self.retracted:
+            self._add(self.pos[None], self.tool.retract_speed, self.tool.retract_length, 0.0, Role.RETRACT)
+            self.retracted = False
+        self._flush()
 
     def travel(self, xy: np.ndarray) -> None:
-        b, s, t = self.b, self.s, self.tool
+        s, t = self.s, self.tool
         target = np.array([xy[0], xy[1], self.z])
-        dist = float(np.linalg.norm(target - b.pos))
+        dist = float(np.linalg.norm(target - self.pos))
         if dist < 1e-9:
             return
-        long = dist > t.retract_min_travel and not self._stays_inside(b.pos, target)
+        long = dist > t.retract_min_travel and not self._stays_inside(self.pos, target)
         if long and t.retract_length > 0 and not self.retracted and self.extruded:
-            b.add(b.pos, t.retract_speed, -t.retract_length, 0.0, Role.RETRACT)
+            self._add(self.pos[None], t.retract_speed, -t.retract_length, 0.0, Role.RETRACT)
             self.retracted = True
         lift = t.z_hop if long else 0.0
         if lift > 0:
-            up = b.pos.copy()
+            up = self.pos.copy()
             up[2] = max(up[2], self.z) + lift
-            b.add(up, s.travel_speed, 0.0, 0.0, Role.TRAVEL)
-            b.add([target[0], target[1], up[2]], s.travel_speed, 0.0, 0.0, Role.TRAVEL)
-        b.add(target, s.travel_speed, 0.0, 0.0, Role.TRAVEL)
+            self._add(np.array([up, [target[0], target[1], up[2]]]), s.travel_speed, 0.0, 0.0, Role.TRAVEL)
+        self._add(target[None], s.travel_speed, 0.0, 0.0, Role.TRAVEL)
 
-    def extrude(self, pts: np.ndarray, role, width, height: float, feed, flow=None) -> None:
-        """Extrude along ``pts`` (k, 2); role, width (mm) and feed (mm/s) scalar or (k-1,);
-        ``flow``: filament mm per mm of path, overriding the width's flow."""
-        from .extrusion import filament_per_mm
-
+    def extrude(self, pts: np.ndarray, role, width, height: float, flow=None) -> None:
+        """Extrude along ``pts`` (k, 2) at the layer's speed for ``role``; role and width (mm)
+        scalar or (k-1,); ``flow``: filament mm per mm of path, overriding the width's flow."""
         if len(pts) < 2:
             return
         self.travel(pts[0])
-        b = self.b
         if self.retracted:
-            b.add(b.pos, self.tool.retract_speed, self.tool.retract_length, 0.0, Role.RETRACT)
+            self._add(self.pos[None], self.tool.retract_speed, self.tool.retract_length, 0.0, Role.RETRACT)
             self.retracted = False
         seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         keep = seg > 1e-6
-        if not keep.any():
+        every = bool(keep.all())
+        if not every and not keep.any():
             return
-        xyz = np.column_stack([pts[1:][keep], np.full(int(keep.sum()), self.z)])
-        n = len(seg)
-        per_seg = lambda v: np.broadcast_to(np.asarray(v, float), (n,))[keep]  # noqa: E731
-        if flow is not None:
-            fpm = per_seg(flow)
-        else:
-            fpm = filament_per_mm(per_seg(width), height, self.area, self.s.extrusion_multiplier)
-        e = seg[keep] * fpm
-        b.add(xyz, per_seg(feed), e, 1.0, per_seg(role).astype(np.uint8))
+
+        def per_seg(v):
+            # a scalar stays one (repeated when the layer is handed over)
+            if np.ndim(v) == 0:
+                return v
+            v = np.asarray(v)
+            return v if every else v[keep]
+
+        m = len(seg) if every else int(keep.sum())
+        xyz = np.empty((m, 3))
+        xyz[:, :2] = pts[1:] if every else pts[1:][keep]
+        xyz[:, 2] = self.z
+        fpm = per_seg(flow) if flow is not None else filament_per_mm(per_seg(width), height, self.area, self.s.extrusion_multiplier)
+        role = per_seg(role)
+        feed = self.feeds[role.astype(np.intp)] if np.ndim(role) else float(self.feeds[int(role)])
+        self._add(xyz, feed, (seg if every else seg[keep]) * fpm, 1.0, role)
         self.extruded = True

@@ -61,8 +61,10 @@ def concave_corners(poly: np.ndarray) -> np.ndarray:
     """(k,) bool: vertices of a loop (material on its left, as manifold3d orients outlines
     and holes) where it turns right by more than :data:`CONCAVE_SEAM_TURN`: inside
     corners of the printed surface, where a seam hides."""
-    d_in = poly - np.roll(poly, 1, axis=0)
-    d_out = np.roll(poly, -1, axis=0) - poly
+    d_out = np.empty_like(poly, dtype=float)  # poly[i + 1] - poly[i] round the loop
+    d_out[:-1] = poly[1:] - poly[:-1]
+    d_out[-1] = poly[0] - poly[-1]
+    d_in = np.concatenate([d_out[-1:], d_out[:-1]])
     cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
     dot = np.sum(d_in * d_out, axis=1)
     turn = np.arctan2(cross, dot)
@@ -103,5 +105,4 @@ def overhang_segments(poly: np.ndarray, below, step: float) -> tuple[np.ndarray,
 
 def loop_path(poly: np.ndarray, start: int) -> np.ndarray:
     """A closed loop as a polyline starting and ending at vertex ``start``."""
-    rolled = np.roll(poly, -start, axis=0)
-    return np.vstack([rolled, rolled[:1]])
+    return np.concatenate([poly[start:], poly[: start + 1]])

@@ -13,7 +13,7 @@ from ..errors import DeltasliceError, MeshError
 from ..pool import can_fork, check_workers, forked_map, inherited
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .bridges import bridge_angle, bridge_region
-from .extrusion import bead_spacing, bridge_flow, feed_for
+from .extrusion import bead_spacing, bridge_flow
 from .gapfill import medial_lines, to_shapely
 from .heaters import start_heating
 from .infill import clean, rectilinear, solid_masks
@@ -64,11 +64,10 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     for li, plan in enumerate(_layer_plans(layers, workers)):
         first = li == 0
         writer.new_layer(float(top[li]), first)
-        _order_layer(writer, plan, float(thick[li]), s, first)
+        _order_layer(writer, plan, float(thick[li]), s)
         if progress is not None:
             progress(li + 1, n)
-    if writer.retracted:
-        builder.add(builder.pos, tool.retract_speed, tool.retract_length, 0.0, Role.RETRACT)
+    writer.finish()
     return builder.build()
 
 
@@ -273,17 +272,17 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
     return _LayerPlan(skirt, islands), _union(sparse_all)
 
 
-def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s, first: bool) -> None:
+def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
     """Write a layer's paths: the skirt, then the islands nearest first (by their bounding-box
     centre), each from where the tool is: perimeters, gap fill, infill groups."""
     if plan.skirt:
-        _emit(writer, nearest_order(plan.skirt, writer.b.pos, "nearest"), h, s, first)
+        _emit(writer, nearest_order(plan.skirt, writer.pos, "nearest"), h)
     islands = plan.islands
     centres = np.array([isl.centre for isl in islands]).reshape(-1, 2)
     alive = np.ones(len(islands), bool)
     for _ in range(len(islands)):
         idx = np.flatnonzero(alive)
-        pos = writer.b.pos[:2]
+        pos = writer.pos[:2]
         j = int(idx[np.argmin(np.sum((centres[idx] - pos) ** 2, axis=1))])
         alive[j] = False
         island = islands[j]
@@ -291,10 +290,10 @@ def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s, first: bool)
         if writer.inside is not None:
             shapely.prepare(writer.inside)
         for paths in island.perimeters:
-            _emit(writer, nearest_order(paths, writer.b.pos, s.seam), h, s, first)
-        _emit(writer, nearest_order(island.gaps, writer.b.pos), h, s, first)
+            _emit(writer, nearest_order(paths, writer.pos, s.seam), h)
+        _emit(writer, nearest_order(island.gaps, writer.pos), h)
         for group in island.groups:
-            _emit(writer, nearest_order(group, writer.b.pos), h, s, first)
+            _emit(writer, nearest_order(group, writer.pos), h)
     writer.inside = None
 
 
@@ -324,9 +323,9 @@ def _plan_range(a: int, b: int) -> list:
     return plans
 
 
-def _emit(writer: MoveWriter, ordered, height: float, s, first: bool) -> None:
+def _emit(writer: MoveWriter, ordered, height: float) -> None:
     for pts, path in ordered:
-        writer.extrude(pts, path.role, path.width, height, feed_for(path.role, s, first), path.flow)
+        writer.extrude(pts, path.role, path.width, height, path.flow)
 
 
 def _coverage(loops: list[tuple[int, np.ndarray]], spacing: float) -> CrossSection:
