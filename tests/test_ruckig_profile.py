@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from deltaslice import load_printer
 from deltaslice.planning import plan
-from deltaslice.planning.ruckig_profile import RuckigProfile
+from deltaslice.planning.ruckig_profile import RuckigProfile, positions_many
 from deltaslice.planning.travel import JointMovePiece
 from deltaslice.toolpath import Role, ToolpathBuilder
 
@@ -44,6 +44,23 @@ def test_profile_samples_equal_at_time(n, seed):
     tau = np.concatenate([np.linspace(-0.1, traj.duration * 1.1, 300), prof.t_end.ravel()])
     ref = np.array([traj.at_time(float(np.clip(t, 0, traj.duration)))[0] for t in tau]).reshape(len(tau), n)
     np.testing.assert_allclose(prof.positions(tau), ref, rtol=0, atol=1e-12)
+
+
+def test_many_profiles_sample_as_each_alone():
+    """positions_many (the clearance check of a batch of travels) gives each move the samples its
+    own at_time gives, each at its own times: its phase ends, inside its phases, outside
+    [0, duration] (clipped to it), moves of different durations side by side."""
+    rng = np.random.default_rng(7)
+    trajs = [_move(rng.normal(0, 1, 3), rng.normal(0, 1, 3), rng.uniform(0.1, 5, 3), rng.uniform(0.1, 50, 3),
+                   rng.uniform(1, 2000, 3)) for _ in range(12)]
+    trajs.sort(key=lambda t: t.duration)  # the shortest first: each row is clipped to its own duration
+    profs = [RuckigProfile.from_trajectory(t) for t in trajs]
+    tau = np.stack([np.concatenate([np.linspace(-0.1, t.duration * 1.1, 100), p.t_end.ravel()]) for t, p in zip(trajs, profs)])
+    many = positions_many(profs, tau)
+    assert many.shape == (12, tau.shape[1], 3)
+    for traj, row, q in zip(trajs, tau, many):
+        ref = np.array([traj.at_time(float(np.clip(t, 0, traj.duration)))[0] for t in row])
+        np.testing.assert_allclose(q, ref, rtol=0, atol=1e-12)
 
 
 def test_joint_move_piece_is_picklable_and_exact():

@@ -51,15 +51,29 @@ class RuckigProfile:
 
     def positions(self, tau: np.ndarray) -> np.ndarray:
         """Joint positions (n,J) at times tau (n,) s, clipped to [0, duration]."""
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
-        n_dof = self.t_end.shape[0]
-        q = np.empty((len(tau), n_dof))
-        for d in range(n_dof):  # a loop over the 3-4 joints, not the samples
-            k = np.searchsorted(self.t_end[d], tau, side="right")
-            done = k >= self.t_end.shape[1]
-            k = np.minimum(k, self.t_end.shape[1] - 1)
-            start = np.where(k > 0, self.t_end[d][np.maximum(k - 1, 0)], 0.0)
-            dt = tau - start
-            qd = self.p[d, k] + dt * (self.v[d, k] + dt * (0.5 * self.a[d, k] + dt * self.j[d, k] / 6.0))
-            q[:, d] = np.where(done, self.pf[d], qd)
-        return q
+        return positions_many([self], np.asarray(tau, dtype=float)[None])[0]
+
+
+def positions_many(profiles, tau: np.ndarray) -> np.ndarray:
+    """Joint positions (P, n, J) of P profiles with as many joints, each at its own times: tau
+    (P, n) s, each row clipped to its profile's [0, duration]. One pass over all of them (the
+    clearance check of a batch of travels samples hundreds of moves)."""
+    t_end = np.array([pr.t_end for pr in profiles])  # (P, J, 7)
+    p, v, a, j = (np.array([getattr(pr, f) for pr in profiles]) for f in ("p", "v", "a", "j"))
+    pf = np.array([pr.pf for pr in profiles])
+    duration = np.array([pr.duration for pr in profiles])
+    tau = np.clip(np.asarray(tau, dtype=float), 0.0, duration[:, None])
+    n_phases = t_end.shape[2]
+    rows = np.arange(len(profiles))[:, None]
+    q = np.empty(tau.shape + (t_end.shape[1],))
+    for d in range(t_end.shape[1]):  # a loop over the 3-4 joints, not the samples
+        # the phase holding each time: searchsorted(side="right") on each row's cumulative ends
+        # (NaN after them all, as searchsorted puts it)
+        k = np.where(np.isnan(tau), n_phases, (t_end[:, d, None, :] <= tau[:, :, None]).sum(axis=2))
+        done = k >= n_phases
+        k = np.minimum(k, n_phases - 1)
+        start = np.where(k > 0, t_end[rows, d, np.maximum(k - 1, 0)], 0.0)
+        dt = tau - start
+        qd = p[rows, d, k] + dt * (v[rows, d, k] + dt * (0.5 * a[rows, d, k] + dt * j[rows, d, k] / 6.0))
+        q[:, :, d] = np.where(done, pf[:, d, None], qd)
+    return q

@@ -16,30 +16,39 @@ import ruckig
 
 from ..errors import PlanningError
 from .pieces import FilamentPiece, JointMovePiece
-from .ruckig_profile import RuckigProfile
+from .ruckig_profile import RuckigProfile, positions_many
 from .topp import RunSpec, plan_lines, plan_run
 
 CHECK_SAMPLES = 48
 
 
-def _ruckig_move(printer, q0, q1, layer):
-    n = len(q0)
-    otg = ruckig.Ruckig(n)
-    inp = ruckig.InputParameter(n)
+def _ruckig_limits(printer, n: int) -> tuple:
+    """ruckig's velocity, acceleration and jerk limits of the first n joints (lists of floats):
+    the planned limits; joints without a jerk limit in the printer file get a stiff default (50 x
+    their acceleration per s)."""
     lim = printer.planned_limits()
     acc = lim.acceleration[:n]
-    # Joints without a jerk limit in the printer file get a stiff default (50 x their acceleration per s).
     given = np.isfinite(lim.jerk[:n]) & (np.nan_to_num(lim.jerk[:n]) > 0)
     jerk = np.where(given, lim.jerk[:n], 50.0 * acc)
+    return list(map(float, lim.velocity[:n])), list(map(float, acc)), list(map(float, jerk))
+
+
+def _ruckig_move(printer, q0, q1, layer, limits=None):
+    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece).
+    limits: :func:`_ruckig_limits` (computed here when None; a batch of travels passes it)."""
+    n = len(q0)
+    vel, acc, jerk = _ruckig_limits(printer, n) if limits is None else limits
+    otg = ruckig.Ruckig(n)
+    inp = ruckig.InputParameter(n)
     inp.current_position = list(map(float, q0))
     inp.target_position = list(map(float, q1))
     inp.current_velocity = [0.0] * n
     inp.current_acceleration = [0.0] * n
     inp.target_velocity = [0.0] * n
     inp.target_acceleration = [0.0] * n
-    inp.max_velocity = list(map(float, lim.velocity[:n]))
-    inp.max_acceleration = list(map(float, acc))
-    inp.max_jerk = list(map(float, jerk))
+    inp.max_velocity = vel
+    inp.max_acceleration = acc
+    inp.max_jerk = jerk
     traj = ruckig.Trajectory(n)
     result = otg.calculate(inp, traj)
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
@@ -58,7 +67,16 @@ def joint_moves_clear(kin, pieces, z_min: np.ndarray) -> np.ndarray:
     of all their samples): (k,) bool. z_min: (k,) mm."""
     if not pieces:
         return np.zeros(0, dtype=bool)
-    q = np.concatenate([p.sample(kin, np.linspace(0.0, p.duration, CHECK_SAMPLES))[0] for p in pieces])
+    # the moves with arrays sampled in one pass; ruckig's own (rare) one sample at a time
+    arrays = [p for p in pieces if p.profile is not None]
+    q = np.empty((len(pieces), CHECK_SAMPLES, kin.n_joints))
+    if arrays:
+        tau = np.linspace(0.0, [p.duration for p in arrays], CHECK_SAMPLES, axis=1)
+        q[[p.profile is not None for p in pieces]] = positions_many([p.profile for p in arrays], tau)
+    for i, p in enumerate(pieces):
+        if p.profile is None:
+            q[i] = p.sample(kin, np.linspace(0.0, p.duration, CHECK_SAMPLES))[0]
+    q = q.reshape(-1, kin.n_joints)
     p = kin.forward(q)
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(p).all(axis=1) & (p[:, 2] >= np.repeat(np.asarray(z_min, float), CHECK_SAMPLES) - 1e-6)
@@ -110,8 +128,9 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     q = kin.inverse(np.concatenate([a, b, a_up, b_up])).reshape(4, k, -1)
     short = (np.linalg.norm(b - a, axis=1) < tool.retract_min_travel) & (retract == 0)
     cands = []  # (travel, joint move, its own travel's time)
+    limits = _ruckig_limits(printer, q.shape[2])
     for n in np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2))):
-        joint = _ruckig_move(printer, q[2, n], q[3, n], layers[n])
+        joint = _ruckig_move(printer, q[2, n], q[3, n], layers[n], limits)
         # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
         # travel, its clearance check and its lift and lower moves need not be planned.
         own_time = sum(p.duration for p in best[n])
