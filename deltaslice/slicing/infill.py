@@ -112,15 +112,15 @@ def chain_segments(k: np.ndarray, xa: np.ndarray, xb: np.ndarray, spacing: float
         one_a = ov.sum(axis=1) == 1
         one_b = ov.sum(axis=0) == 1
         ii, jj = np.nonzero(ov)
-        for i, j in zip(ii.tolist(), jj.tolist()):
-            if one_a[i] and one_b[j]:
-                nxt[s0 + i] = s1 + j
-                prev[s1 + j] = s0 + i
+        sole = one_a[ii] & one_b[jj]
+        nxt[s0 + ii[sole]] = s1 + jj[sole]
+        prev[s1 + jj[sole]] = s0 + ii[sole]
     chains = []
+    nxt_l = nxt.tolist()
     for head in np.flatnonzero(prev < 0).tolist():
         chain = [head]
-        while nxt[chain[-1]] >= 0:
-            chain.append(int(nxt[chain[-1]]))
+        while nxt_l[chain[-1]] >= 0:
+            chain.append(nxt_l[chain[-1]])
         chains.append(chain)
     # split chains where the zig-zag link would be too long
     out = []
