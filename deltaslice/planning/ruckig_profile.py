@@ -51,13 +51,29 @@ class RuckigProfile:
 
     def positions(self, tau: np.ndarray) -> np.ndarray:
         """Joint positions (n,J) at times tau (n,) s, clipped to [0, duration]."""
-        return positions_many([self], np.asarray(tau, dtype=float)[None])[0]
+        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+        n_phases = self.t_end.shape[1]
+        q = np.empty((len(tau), self.t_end.shape[0]))
+        for d in range(self.t_end.shape[0]):  # a loop over the 3-4 joints, not the samples
+            k = np.searchsorted(self.t_end[d], tau, side="right")
+            done = k >= n_phases
+            k = np.minimum(k, n_phases - 1)
+            start = np.where(k > 0, self.t_end[d][np.maximum(k - 1, 0)], 0.0)
+            q[:, d] = np.where(done, self.pf[d], _cubic(tau - start, self.p[d, k], self.v[d, k], self.a[d, k], self.j[d, k]))
+        return q
+
+
+def _cubic(dt, p, v, a, j):
+    """A constant-jerk phase's position dt s after its start (p, v, a: its start state; j: its jerk),
+    as ruckig evaluates it."""
+    return p + dt * (v + dt * (0.5 * a + dt * j / 6.0))
 
 
 def positions_many(profiles, tau: np.ndarray) -> np.ndarray:
-    """Joint positions (P, n, J) of P profiles with as many joints, each at its own times: tau
-    (P, n) s, each row clipped to its profile's [0, duration]. One pass over all of them (the
-    clearance check of a batch of travels samples hundreds of moves)."""
+    """:meth:`RuckigProfile.positions` of P profiles with as many joints, each at its own times:
+    tau (P, n) s, each row clipped to its profile's [0, duration] -> (P, n, J). One pass over all
+    of them (the clearance check of a batch of travels samples hundreds of moves); for one
+    profile, its own method is cheaper."""
     t_end = np.array([pr.t_end for pr in profiles])  # (P, J, 7)
     p, v, a, j = (np.array([getattr(pr, f) for pr in profiles]) for f in ("p", "v", "a", "j"))
     pf = np.array([pr.pf for pr in profiles])
@@ -66,14 +82,13 @@ def positions_many(profiles, tau: np.ndarray) -> np.ndarray:
     n_phases = t_end.shape[2]
     rows = np.arange(len(profiles))[:, None]
     q = np.empty(tau.shape + (t_end.shape[1],))
-    for d in range(t_end.shape[1]):  # a loop over the 3-4 joints, not the samples
+    for d in range(t_end.shape[1]):
         # the phase holding each time: searchsorted(side="right") on each row's cumulative ends
         # (NaN after them all, as searchsorted puts it)
         k = np.where(np.isnan(tau), n_phases, (t_end[:, d, None, :] <= tau[:, :, None]).sum(axis=2))
         done = k >= n_phases
         k = np.minimum(k, n_phases - 1)
         start = np.where(k > 0, t_end[rows, d, np.maximum(k - 1, 0)], 0.0)
-        dt = tau - start
-        qd = p[rows, d, k] + dt * (v[rows, d, k] + dt * (0.5 * a[rows, d, k] + dt * j[rows, d, k] / 6.0))
-        q[:, :, d] = np.where(done, pf[:, d, None], qd)
+        q[:, :, d] = np.where(done, pf[:, d, None], _cubic(tau - start, p[rows, d, k], v[rows, d, k], a[rows, d, k],
+                                                            j[rows, d, k]))
     return q
