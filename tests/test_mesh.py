@@ -214,3 +214,142 @@ def test_arrays_without_triangles_are_a_mesh_error():
     for vertices in (np.zeros((0, 3)), np.eye(3)):
         with pytest.raises(MeshError, match="no triangles"):
             mesh_from_arrays(vertices, np.zeros((0, 3), dtype=np.int64))
+
+
+# ---------------------------------------------------------------- OBJ read here, without trimesh
+
+PARTS = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "parts"
+
+
+def _trimesh_arrays(path):
+    """What the loader got from trimesh before OBJ was read here (trimesh.load, process=False)."""
+    from deltaslice.mesh import _flatten_scene
+
+    loaded = trimesh.load(str(path), process=False)
+    if isinstance(loaded, trimesh.Scene):
+        return _flatten_scene(loaded, str(path), [])[:2]
+    return np.asarray(loaded.vertices, float), np.asarray(loaded.faces, np.int64)
+
+
+def _triangles(v, f):
+    """The triangles as a sorted list of corner triples, each rotated to start at its smallest
+    corner (so a triangle is the same whichever corner a reader starts it at; orientation kept)."""
+    out = []
+    for tri in np.asarray(v)[np.asarray(f)].round(9).tolist():
+        k = min(range(3), key=lambda i: tri[i])
+        out.append(tuple(map(tuple, tri[k:] + tri[:k])))
+    return sorted(out)
+
+
+def _cube_quads(size: float):
+    """A cube's corners (8, 3) (corner i at the bits of i as x, y, z) and its six faces as quads
+    wound counter-clockwise seen from outside."""
+    v = np.array([[(i >> 2) & 1, (i >> 1) & 1, i & 1] for i in range(8)], float) * size
+    quads = []
+    for axis in range(3):
+        for side in (0, 1):
+            ring = [i for i in range(8) if (v[i, axis] > 0) == side]
+            c = v[ring].mean(axis=0)
+            u, w = [k for k in range(3) if k != axis]
+            ring.sort(key=lambda i: np.arctan2(v[i, w] - c[w], v[i, u] - c[u]))
+            n = np.cross(v[ring[1]] - v[ring[0]], v[ring[2]] - v[ring[0]])
+            if (n[axis] > 0) != side:
+                ring.reverse()
+            quads.append(ring)
+    return v, quads
+
+
+def test_obj_polygons_as_trimesh_reads_them(tmp_path):
+    """Quads and pentagons fanned, v/vt/vn groups, negative indices, vertex colours, comments,
+    groups, materials, CRLF line ends: the triangles trimesh reads, without importing it."""
+    v, quads = _cube_quads(10.0)
+    a, b = quads[2][:2]
+    polys = []
+    for ring in quads:  # the edge a-b split at vertex 8: both faces on it become pentagons, started there
+        if a in ring and b in ring:
+            k = [(ring[i], ring[(i + 1) % 4]) in ((a, b), (b, a)) for i in range(4)].index(True)
+            ring = [8] + ring[k + 1 :] + ring[: k + 1]
+        polys.append(ring)
+    lines = ["# a cube of quads", "mtllib none.mtl", "o cube"]
+    lines += [f"v {x} {y} {z} 0.5 0.5 0.5" for x, y, z in np.vstack([v, (v[a] + v[b]) / 2])]  # with a colour
+    lines += ["vt 0 0", "vn 0 0 1", "g side", "usemtl red", "s off"]
+    forms = ["{}/1/1", "{}//1", "{}", "{}/1"]
+    for k, ring in enumerate(polys):
+        if k == 1:  # counted back from the last vertex (-1 is vertex 8)
+            lines.append("f " + " ".join(f"{i - 9}//1" for i in ring))
+        else:
+            lines.append("f " + " ".join(forms[k % 4].format(i + 1) for i in ring))
+    path = tmp_path / "quads.obj"
+    path.write_bytes("\r\n".join(lines).encode())
+    import subprocess
+    import sys
+
+    code = ("import sys; from deltaslice.mesh import load_mesh; m = load_mesh(sys.argv[1]); "
+            "print('trimesh' in sys.modules, round(m.volume, 6), m.closed)")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "1000.0", "True"]
+    from deltaslice.mesh import _read_obj
+
+    mine = _read_obj(path, [])
+    assert len(mine[1]) == 14  # 4 quads of 2 triangles and 2 pentagons of 3
+    assert _triangles(*mine[:2]) == _triangles(*_trimesh_arrays(path))
+
+
+def test_obj_errors_name_the_line(tmp_path):
+    head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    cases = [
+        (head + "f 1 2 x\n", r"line 5: 'f 1 2 x': expected vertex numbers"),
+        (head + "f 1 2\n", r"line 5: .*at least three vertices"),
+        (head + "f 0 1 2\n", r"line 5: .*vertex 0 \(OBJ vertices count from 1\)"),
+        (head + "f 1 2 9\n", r"line 5: a face refers to vertex 9, the file has 4"),
+        (head + "f -5 1 2\n", r"line 5: .*vertex -5 is before the first vertex \(4 read so far\)"),
+        ("v 0 0 zero\n" + head + "f 1 2 3\n", r"line 1: 'v 0 0 zero': expected three numbers"),
+        ("v 0 0\n" + head + "f 1 2 3\n", r"line 1: 'v 0 0': expected 'v x y z'"),
+        (head, r"no faces \('f' lines\)"),
+    ]
+    for k, (text, message) in enumerate(cases):
+        (tmp_path / f"bad{k}.obj").write_text(text)
+        with pytest.raises(MeshError, match=message):
+            load_mesh(tmp_path / f"bad{k}.obj")
+
+
+def test_obj_with_other_statements_goes_to_trimesh(tmp_path):
+    """A statement this reader does not know (a free-form curve) hands the file to trimesh."""
+    from deltaslice.mesh import _read_obj
+
+    tm = meshes.cube_trimesh(10)
+    text = "".join(f"v {a} {b} {c}\n" for a, b, c in tm.vertices) + "".join(f"f {a+1} {b+1} {c+1}\n" for a, b, c in tm.faces)
+    (tmp_path / "curve.obj").write_text("cstype bspline\n" + text)
+    assert _read_obj(tmp_path / "curve.obj", []) is None
+    assert load_mesh(tmp_path / "curve.obj").volume == pytest.approx(1000)
+
+
+@pytest.mark.skipif(not PARTS.is_dir(), reason="../shared/parts is absent")
+def test_obj_parts_read_as_trimesh_read_them():
+    """Every OBJ of ../shared/parts: after the repair, the vertices and faces trimesh's reading gave,
+    array for array; where the file has texture coordinates (trimesh splits a vertex per texture
+    coordinate, which the merge joins again, in another order) the same triangles."""
+    from deltaslice.mesh import _read_obj, _repair
+
+    parts = sorted(PARTS.glob("*.obj"))
+    assert parts
+    for path in parts:
+        mine = _read_obj(path, [])
+        assert mine is not None, path.name
+        a, b = _repair(mine[0], mine[1], path.name), _repair(*_trimesh_arrays(path), path.name)
+        assert (a.closed, a.consistent) == (b.closed, b.consistent), path.name
+        if "\nvt " in path.read_text(errors="replace"):
+            assert _triangles(a.vertices, a.faces) == _triangles(b.vertices, b.faces), path.name
+        else:
+            np.testing.assert_array_equal(a.vertices, b.vertices, err_msg=path.name)
+            np.testing.assert_array_equal(a.faces, b.faces, err_msg=path.name)
+
+
+def test_obj_negative_indices_count_back_from_the_vertices_read_so_far(tmp_path):
+    """-1 is the last vertex read before the face (the format's rule), not the file's last."""
+    from deltaslice.mesh import _read_obj
+
+    (tmp_path / "neg.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf -3 -2 -1\n")
+    vertices, faces, _ = _read_obj(tmp_path / "neg.obj", [])
+    np.testing.assert_array_equal(faces, [[0, 1, 2], [3, 4, 5]])
+    assert vertices.shape == (6, 3)
