@@ -385,7 +385,9 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
         raise MeshError(f"{shown}: {int(bad.sum())} vertices have NaN or infinite coordinates (first: vertex {int(np.flatnonzero(bad)[0])})")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise MeshError(f"{shown}: faces refer to vertices that do not exist (index {int(faces.max())} of {len(vertices)})")
-    used = vertices[np.unique(faces)]
+    referenced = np.zeros(len(vertices), dtype=bool)
+    referenced[faces] = True
+    used = vertices[referenced]
     extent = used.max(axis=0) - used.min(axis=0)
     if extent.max() > MAX_EXTENT or np.abs(used).max() > 100 * MAX_EXTENT:
         raise MeshError(
@@ -492,11 +494,20 @@ def _merge_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray
     referenced = np.zeros(len(vertices), dtype=bool)
     referenced[faces] = True
     keys = np.round(vertices[referenced] * 10**MERGE_DIGITS).astype(np.int64)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    order = first.argsort()
+    # equal rows grouped by a stable sort of the columns (np.unique(axis=0) sorts rows as bytes:
+    # several times slower); each group's first row is its first occurrence
+    by_key = np.lexsort(keys.T[::-1])
+    k = keys[by_key]
+    starts = np.ones(len(k), dtype=bool)
+    starts[1:] = (k[1:] != k[:-1]).any(axis=1)
+    group = np.empty(len(k), dtype=np.int64)
+    group[by_key] = np.cumsum(starts) - 1
+    first = by_key[starts]  # (groups,) in key order
+    rank = np.empty(len(first), dtype=np.int64)  # each group's place by first occurrence
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
     new_index = np.empty(len(vertices), dtype=np.int64)
-    new_index[referenced] = order.argsort()[inverse.ravel()]
-    return vertices[np.flatnonzero(referenced)[first[order]]], new_index[faces]
+    new_index[referenced] = rank[group]
+    return vertices[np.flatnonzero(referenced)[np.sort(first)]], new_index[faces]
 
 
 def _sound_surface(vertices: np.ndarray, faces: np.ndarray):
@@ -508,7 +519,8 @@ def _sound_surface(vertices: np.ndarray, faces: np.ndarray):
     v, f = _merge_vertices(vertices, faces)
     directed = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     n = len(v)
-    if not (_edge_counts(f)[1] == 2).all() or len(np.unique(directed[:, 0] * n + directed[:, 1])) < len(directed):
+    runs = np.sort(directed[:, 0] * n + directed[:, 1])  # a directed edge twice: sorted, side by side
+    if not (_edge_counts(f)[1] == 2).all() or (runs[1:] == runs[:-1]).any():
         return None
     return v, f, len(vertices) - len(v)
 
