@@ -1,8 +1,13 @@
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from deltaslice.errors import DeltasliceError, MeshError, UnreachableError
 from deltaslice.mesh import check_fits, load_mesh
@@ -218,7 +223,7 @@ def test_arrays_without_triangles_are_a_mesh_error():
 
 # ---------------------------------------------------------------- OBJ read here, without trimesh
 
-PARTS = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "parts"
+PARTS = Path(__file__).resolve().parents[2] / "shared" / "parts"
 
 
 def _trimesh_arrays(path):
@@ -281,9 +286,6 @@ def test_obj_polygons_as_trimesh_reads_them(tmp_path):
             lines.append("f " + " ".join(forms[k % 4].format(i + 1) for i in ring))
     path = tmp_path / "quads.obj"
     path.write_bytes("\r\n".join(lines).encode())
-    import subprocess
-    import sys
-
     code = ("import sys; from deltaslice.mesh import load_mesh; m = load_mesh(sys.argv[1]); "
             "print('trimesh' in sys.modules, round(m.volume, 6), m.closed)")
     out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True).stdout
@@ -353,3 +355,23 @@ def test_obj_negative_indices_count_back_from_the_vertices_read_so_far(tmp_path)
     vertices, faces, _ = _read_obj(tmp_path / "neg.obj", [])
     np.testing.assert_array_equal(faces, [[0, 1, 2], [3, 4, 5]])
     assert vertices.shape == (6, 3)
+
+
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_vertex_merge_equals_trimesh(seed):
+    """The merge the sound-surface path does without trimesh gives trimesh's merge_vertices arrays:
+    repeated positions, positions equal once rounded to its 1e-8 (and some not), unreferenced
+    vertices, faces repeating a vertex."""
+    from deltaslice.mesh import _merge_vertices
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3, 60))
+    grid = rng.integers(-3, 4, size=(n, 3)) * 0.5
+    v = grid[rng.integers(0, n, size=n)] + (rng.random((n, 1)) < 0.3) * rng.choice([0.0, 1e-10, 3e-9, 1e-7], size=(n, 1))
+    f = rng.integers(0, n, size=(int(rng.integers(1, 40)), 3))
+    tm = trimesh.Trimesh(v, f, process=False)
+    tm.merge_vertices()
+    mv, mf = _merge_vertices(v, f)
+    np.testing.assert_array_equal(mv, tm.vertices)
+    np.testing.assert_array_equal(mf, tm.faces)
