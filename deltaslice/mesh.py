@@ -148,8 +148,12 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     if isinstance(loaded, trimesh.Scene):
         vertices, faces = _flatten_scene(loaded, shown, notes)
     elif hasattr(loaded, "faces") and loaded.vertices is not None:
-        vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
-        faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
+        try:
+            vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
+            faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
+        except (TypeError, ValueError):  # a vertex of two numbers, a face of four indices left whole
+            raise MeshError(f"{shown}: cannot read as {suffix or 'a mesh'}: its vertices are not x y z "
+                            "triples or its faces not triangles") from None
     else:
         raise MeshError(f"{shown}: no triangle mesh found in the file")
     if len(faces) == 0 or len(vertices) == 0:
@@ -160,77 +164,151 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
 #: OBJ statements that are not polygons (texture and normal vertices, names, groups, smoothing,
 #: materials, polylines and points): read past.
 _OBJ_PASSED = frozenset({"vt", "vn", "vp", "o", "g", "s", "usemtl", "mtllib", "l", "p", "mg"})
+#: What follows the keyword of ``v`` and ``f`` lines may hold (ASCII only: Python's int and float
+#: also take '1_0' and other scripts' digits; a form feed is no separator).
+_OBJ_VERTEX_TEXT = re.compile(r"[0-9+\-.eEnaifNAIF \t\n]*", re.ASCII)
+_OBJ_FACE_TEXT = re.compile(r"[0-9+\-/ \t\n]*", re.ASCII)
+
+
+def _quote(line: str) -> str:
+    """A file's line for a message: quoted, at most 60 characters of it."""
+    line = line.strip()
+    return repr(line if len(line) <= 60 else line[:57] + "...")
+
+
+#: A line's first two characters -> 0: a vertex, 1: a face, 3: vt, vn or vp (if a separator follows),
+#: 4: nothing; anything else (2) is told by its keyword.
+_OBJ_HEADS = {"v ": 0, "v\t": 0, "v": 0, "f ": 1, "f\t": 1, "f": 1, "vt": 3, "vn": 3, "vp": 3, "": 4}
+
+
+def _tokens_per_line(joined: str) -> np.ndarray:
+    """How many space- or tab-separated tokens each line of ASCII ``joined`` has, (lines,) int."""
+    b = np.frombuffer(joined.encode("ascii"), dtype=np.uint8)
+    tok = (b != 32) & (b != 9) & (b != 10)
+    start = tok.copy()
+    start[1:] &= ~tok[:-1]
+    newlines = np.flatnonzero(b == 10)
+    return np.bincount(np.searchsorted(newlines, np.flatnonzero(start)), minlength=len(newlines) + 1)
 
 
 def _read_obj(path: Path, notes: list[str]):
     """A Wavefront OBJ's polygons (``v`` and ``f``) fanned into triangles (0, i, i+1), as trimesh
-    reads them; None for a file using what only trimesh reads (line continuations, free-form
-    curves and surfaces, other statements): trimesh reads it then, or says why not.
+    reads them, with the vertices its faces use (in file order); None for a file using what only
+    trimesh reads (line continuations, free-form curves and surfaces, other statements): trimesh
+    reads it then, or says why not.
 
     A face's vertex is the first number of each ``v/vt/vn`` group: a positive index counts from
     the file's first vertex (1), a negative one back from the last vertex read before the face
-    (-1), as the format says. Faces are kept in file order; what is not a face (normals, texture
-    coordinates, groups, materials) is read past."""
-    text = path.read_bytes().decode("utf-8", errors="replace")
-    if "\\\n" in text or "\\\r\n" in text:
+    (-1), as the format says. Faces are kept in file order; a face of fewer than three vertices is
+    skipped (with a note); what is not a face (normals, texture coordinates, groups, materials,
+    comments) is read past. Lines end at LF, CRLF or CR only. Errors name the line. The numbers
+    are read all at once (joined and split, then numpy): a line at a time took seconds for a few
+    hundred thousand faces."""
+    raw = path.read_bytes().decode("utf-8-sig", errors="replace").replace("\r\n", "\n").replace("\r", "\n")
+    if "\\" in raw and re.search(r"\\[ \t]*(\n|$)", raw):  # a line continued on the next
         return None
-    coords: list[list[str]] = []
-    face_rows: list[list[int]] = []
-    lines: list[int] = []  # the line of each face, for messages
-    for no, line in enumerate(text.splitlines(), 1):
-        parts = line.split()
-        if not parts or parts[0][0] == "#":
-            continue
-        key = parts[0]
-        if key == "v":
-            if len(parts) < 4:
-                raise MeshError(f"{path}: line {no}: {line.strip()!r}: expected 'v x y z'")
-            coords.append(parts[1:4])
-        elif key == "f":
-            if len(parts) < 4:
-                raise MeshError(f"{path}: line {no}: {line.strip()!r}: a face needs at least three vertices")
-            try:
-                idx = [int(t.split("/", 1)[0]) for t in parts[1:]]
-            except ValueError:
-                raise MeshError(f"{path}: line {no}: {line.strip()!r}: expected vertex numbers") from None
-            row = []
-            for i in idx:
-                if i == 0:
-                    raise MeshError(f"{path}: line {no}: {line.strip()!r}: vertex 0 (OBJ vertices count from 1)")
-                row.append(len(coords) + i if i < 0 else i - 1)
-                if row[-1] < 0:
-                    raise MeshError(f"{path}: line {no}: {line.strip()!r}: vertex {i} is before the first vertex "
-                                    f"({len(coords)} read so far)")
-            face_rows.append(row)
-            lines.append(no)
-        elif key not in _OBJ_PASSED:
-            return None
-    if not face_rows:
+    text = re.sub(r"#[^\n]*", "", raw) if "#" in raw else raw  # comments out, every line kept
+    lines = text.split("\n")
+    if text[:1] in (" ", "\t") or "\n " in text or "\n\t" in text:
+        lines = [ln.lstrip(" \t") for ln in lines]
+    kind = np.array([_OBJ_HEADS.get(ln[:2], 2) for ln in lines], dtype=np.int8)
+    v_at, f_at = np.flatnonzero(kind == 0).tolist(), np.flatnonzero(kind == 1).tolist()
+    # vt, vn and vp need a separator after them (vtx is no statement); any other line its keyword
+    if not all(lines[i][2:3] in (" ", "\t", "") for i in np.flatnonzero(kind == 3).tolist()):
+        return None
+    if not {lines[i].split(None, 1)[0] for i in np.flatnonzero(kind == 2).tolist() if lines[i].strip()} <= _OBJ_PASSED:
+        return None
+
+    def fail(at, k: int, message: str):
+        """MeshError at line at[k] (0-based)."""
+        raise MeshError(f"{path}: line {at[k] + 1}: {_quote(raw.split(chr(10))[at[k]])}: {message}")
+
+    def first(items, bad) -> int:
+        return next(i for i, item in enumerate(items) if bad(item))
+
+    if not f_at:
         raise MeshError(f"{path}: no faces ('f' lines) in the OBJ file: expected a triangle mesh")
+    v_rest = [lines[i][1:] for i in v_at]
+    joined = "\n".join(v_rest)
+    if not _OBJ_VERTEX_TEXT.fullmatch(joined):
+        fail(v_at, first(v_rest, lambda r: not _OBJ_VERTEX_TEXT.fullmatch(r)), "expected numbers")
+    counts = _tokens_per_line(joined) if v_rest else np.zeros(0, np.int64)
+    if (counts < 3).any():
+        fail(v_at, int(np.argmax(counts < 3)), "expected 'v x y z'")
     try:
-        vertices = np.array(coords, dtype=np.float64).reshape(-1, 3)
+        values = np.array(joined.split(), dtype=np.float64)
     except ValueError:
-        for no, line in enumerate(text.splitlines(), 1):
-            parts = line.split()
-            if parts and parts[0] == "v":
-                try:
-                    [float(x) for x in parts[1:4]]
-                except ValueError:
-                    raise MeshError(f"{path}: line {no}: {line.strip()!r}: expected three numbers") from None
-        raise
-    counts = np.array([len(r) for r in face_rows])
-    flat = np.fromiter((i for r in face_rows for i in r), dtype=np.int64, count=int(counts.sum()))
-    if flat.max() >= len(vertices):
-        k = int(np.searchsorted(np.cumsum(counts), int(np.argmax(flat >= len(vertices))), side="right"))
-        raise MeshError(f"{path}: line {lines[k]}: a face refers to vertex {int(flat.max()) + 1}, "
-                        f"the file has {len(vertices)}")
+        fail(v_at, first(v_rest, lambda r: not _floats(r.split())), "expected numbers")
+    vertices = values[(np.cumsum(counts) - counts)[:, None] + np.arange(3)].reshape(-1, 3)  # x y z of each
+
+    f_rest = [lines[i][1:] for i in f_at]
+    joined = "\n".join(f_rest)
+
+    def malformed(r) -> bool:  # a character no vertex number has, or a group without its vertex
+        return (not _OBJ_FACE_TEXT.fullmatch(r) or r.lstrip(" \t").startswith("/") or " /" in r or "\t/" in r
+                or "\n/" in r)
+
+    if malformed(joined):
+        fail(f_at, first(f_rest, malformed), "expected vertex numbers (each v, v/vt, v//vn or v/vt/vn)")
+    if "/" in joined:
+        joined = re.sub(r"/[^ \t\n]*", "", joined)  # each group's vertex number
+    counts = _tokens_per_line(joined)
+    try:
+        flat = np.array(joined.split(), dtype=np.int64)
+    except (ValueError, OverflowError):
+        fail(f_at, first(f_rest, lambda r: not _vertex_numbers(r.split())),
+             "expected vertex numbers (each v, v/vt, v//vn or v/vt/vn)")
+    face = np.repeat(np.arange(len(counts)), counts)  # the face of each vertex number
+    bad = flat == 0
+    if bad.any():
+        fail(f_at, int(face[np.argmax(bad)]), "vertex 0 (OBJ vertices count from 1)")
+    before = np.searchsorted(np.asarray(v_at), np.asarray(f_at))  # the vertices read before each face
+    flat = np.where(flat < 0, flat + before[face], flat - 1)
+    bad = flat < 0
+    if bad.any():
+        k = int(face[np.argmax(bad)])
+        fail(f_at, k, f"a vertex counted back before the first one ({int(before[k])} read so far)")
+    bad = flat >= len(vertices)
+    if bad.any():
+        i = int(np.argmax(bad))
+        fail(f_at, int(face[i]), f"vertex {int(flat[i]) + 1}: the file has {len(vertices)}")
+    few = counts < 3
+    if few.any():
+        notes.append(f"skipped {int(few.sum())} face{'s' if few.sum() > 1 else ''} of fewer than three vertices "
+                     f"(first: line {f_at[int(np.argmax(few))] + 1})")
+        flat, counts = flat[~few[face]], counts[~few]
+        if not len(counts):
+            raise MeshError(f"{path}: no face of three or more vertices in the OBJ file: expected a triangle mesh")
+    # the vertices the faces use, in file order (as trimesh keeps them)
+    used = np.zeros(len(vertices), dtype=bool)
+    used[flat] = True
+    bad = used & ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        fail(v_at, int(np.argmax(bad)), "NaN or infinite coordinates")
+    flat = (np.cumsum(used) - 1)[flat]
     # the fan of each face: its first vertex with each pair of consecutive others
-    first = np.cumsum(counts) - counts
+    first_of = np.cumsum(counts) - counts
     tri = counts - 2
-    owner = np.repeat(np.arange(len(counts)), tri)
+    of = np.repeat(np.arange(len(counts)), tri)
     step = np.arange(int(tri.sum())) - np.repeat(np.cumsum(tri) - tri, tri)
-    faces = np.column_stack([flat[first[owner]], flat[first[owner] + step + 1], flat[first[owner] + step + 2]])
-    return vertices, faces, notes
+    faces = np.column_stack([flat[first_of[of]], flat[first_of[of] + step + 1], flat[first_of[of] + step + 2]])
+    return vertices[used], faces, notes
+
+
+def _floats(tokens) -> bool:
+    try:
+        [float(t) for t in tokens]
+    except ValueError:
+        return False
+    return True
+
+
+def _vertex_numbers(tokens) -> bool:
+    """Whether every v/vt/vn group starts with a vertex number that fits an int64."""
+    try:
+        return all(abs(int(t.split("/", 1)[0])) < 2**62 for t in tokens)
+    except ValueError:
+        return False
 
 
 #: 3MF model units (the spec's list) in mm.

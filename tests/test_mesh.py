@@ -297,22 +297,49 @@ def test_obj_polygons_as_trimesh_reads_them(tmp_path):
     assert _triangles(*mine[:2]) == _triangles(*_trimesh_arrays(path))
 
 
+TET = "v 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 0 10\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"  # a tetrahedron, outward
+
+
 def test_obj_errors_name_the_line(tmp_path):
-    head = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    """Every refusal names the line, quoted (cut short), and what was expected; order in the file
+    does not matter; nothing but MeshError comes out (a bad-input campaign's cases)."""
     cases = [
-        (head + "f 1 2 x\n", r"line 5: 'f 1 2 x': expected vertex numbers"),
-        (head + "f 1 2\n", r"line 5: .*at least three vertices"),
-        (head + "f 0 1 2\n", r"line 5: .*vertex 0 \(OBJ vertices count from 1\)"),
-        (head + "f 1 2 9\n", r"line 5: a face refers to vertex 9, the file has 4"),
-        (head + "f -5 1 2\n", r"line 5: .*vertex -5 is before the first vertex \(4 read so far\)"),
-        ("v 0 0 zero\n" + head + "f 1 2 3\n", r"line 1: 'v 0 0 zero': expected three numbers"),
-        ("v 0 0\n" + head + "f 1 2 3\n", r"line 1: 'v 0 0': expected 'v x y z'"),
-        (head, r"no faces \('f' lines\)"),
+        (TET + "f 1 2 x\n", r"line 9: 'f 1 2 x': expected vertex numbers"),
+        (TET + "f 1 2 4 # c\nf 1 /2 3\n", r"line 10: 'f 1 /2 3': expected vertex numbers \(each v"),
+        (TET + "f 0 1 2\n", r"line 9: .*vertex 0 \(OBJ vertices count from 1\)"),
+        (TET + "f 1 3 2\nf 2 3 400\nf 2 3 9\n", r"line 10: 'f 2 3 400': vertex 400: the file has 4"),
+        (TET + "f 1 2 99999999999999999999\n", r"line 9: .*expected vertex numbers"),
+        ("v 0 0 0\nf -2 1 1\n" + TET, r"line 2: .*counted back before the first one \(1 read so far\)"),
+        ("v 0 0 zero\n" + TET, r"line 1: 'v 0 0 zero': expected numbers"),
+        ("v 0 0 1_0\n" + TET, r"line 1: 'v 0 0 1_0': expected numbers"),
+        ("v 0 0 1e\n" + TET, r"line 1: 'v 0 0 1e': expected numbers"),
+        ("v 0 0\n" + TET, r"line 1: 'v 0 0': expected 'v x y z'"),
+        ("v 0 1\x0c.0 2\n" + TET, r"line 1: .*expected numbers"),  # a form feed is not a separator
+        ("v 0 0 " + "1" * 5000 + "x\n" + TET, r"line 1: 'v 0 0 1{51}\.\.\.': expected numbers"),
+        (TET.replace("v 0 0 10", "v 0 0 nan"), r"line 4: 'v 0 0 nan': NaN or infinite coordinates"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", r"no faces \('f' lines\)"),
+        ("v 0 0 0\nv 1 0 0\nf 1 2\n", r"no face of three or more vertices"),
     ]
     for k, (text, message) in enumerate(cases):
         (tmp_path / f"bad{k}.obj").write_text(text)
         with pytest.raises(MeshError, match=message):
             load_mesh(tmp_path / f"bad{k}.obj")
+
+
+def test_obj_edge_cases_that_load(tmp_path):
+    """What a real exporter writes and still loads: a UTF-8 BOM, lone CR line ends, comments after
+    the numbers, an unused vertex (no 'merged' note, and a NaN one is no error: trimesh kept only the
+    vertices faces use), a face of two vertices (skipped, with a note), a comment hiding a line
+    separator that str.splitlines would split at."""
+    from deltaslice.mesh import _read_obj
+
+    tet = TET.replace("\n", "\r").replace("f 1 3 2", "f 1 3 2 # first face")
+    (tmp_path / "a.obj").write_bytes(b"\xef\xbb\xbf" + ("# by X\u2028v 50 50 50\r" + tet + "v 5 5 5\rv nan 1 1\rf 1 2\r").encode())
+    m = load_mesh(tmp_path / "a.obj")
+    assert m.closed and m.volume == pytest.approx(1000 / 6)
+    assert m.repairs == ("skipped 1 face of fewer than three vertices (first: line 12)",)
+    vertices, faces, _ = _read_obj(tmp_path / "a.obj", [])
+    assert len(vertices) == 4 and len(faces) == 4
 
 
 def test_obj_with_other_statements_goes_to_trimesh(tmp_path):
@@ -324,6 +351,10 @@ def test_obj_with_other_statements_goes_to_trimesh(tmp_path):
     (tmp_path / "curve.obj").write_text("cstype bspline\n" + text)
     assert _read_obj(tmp_path / "curve.obj", []) is None
     assert load_mesh(tmp_path / "curve.obj").volume == pytest.approx(1000)
+    # what trimesh then reads wrong is refused, not a traceback
+    (tmp_path / "short.obj").write_text(TET + "foo\nv 1 2\n")
+    with pytest.raises(MeshError, match="vertices are not x y z triples"):
+        load_mesh(tmp_path / "short.obj")
 
 
 @pytest.mark.skipif(not PARTS.is_dir(), reason="../shared/parts is absent")
