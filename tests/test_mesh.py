@@ -334,7 +334,8 @@ def test_obj_edge_cases_that_load(tmp_path):
     from deltaslice.mesh import _read_obj
 
     tet = TET.replace("\n", "\r").replace("f 1 3 2", "f 1 3 2 # first face")
-    (tmp_path / "a.obj").write_bytes(b"\xef\xbb\xbf" + ("# by X\u2028v 50 50 50\r" + tet + "v 5 5 5\rv nan 1 1\rf 1 2\r").encode())
+    text = "# by X\u2028v 50 50 50\r" + tet + "v 5 5 5\rv nan 1 1\rf 1 2\r"
+    (tmp_path / "a.obj").write_bytes(b"\xef\xbb\xbf" + text.encode())
     m = load_mesh(tmp_path / "a.obj")
     assert m.closed and m.volume == pytest.approx(1000 / 6)
     assert m.repairs == ("skipped 1 face of fewer than three vertices (first: line 12)",)

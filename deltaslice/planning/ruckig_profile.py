@@ -59,7 +59,8 @@ class RuckigProfile:
             done = k >= n_phases
             k = np.minimum(k, n_phases - 1)
             start = np.where(k > 0, self.t_end[d][np.maximum(k - 1, 0)], 0.0)
-            q[:, d] = np.where(done, self.pf[d], _cubic(tau - start, self.p[d, k], self.v[d, k], self.a[d, k], self.j[d, k]))
+            q[:, d] = np.where(done, self.pf[d],
+                               _cubic(tau - start, self.p[d, k], self.v[d, k], self.a[d, k], self.j[d, k]))
         return q
 
 

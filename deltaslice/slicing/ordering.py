@@ -114,7 +114,7 @@ class MoveWriter:
         self.area = filament_area
         self.retracted = False
         self.z = 0.0
-        self.first_layer = True
+        self.feeds = feed_table(settings, True)  # speed by role on this layer, mm/s
         self.extruded = False  # no retract before anything was extruded
         self.inside = None  # prepared shapely region a travel may cross without retracting
         self.pos = np.array(builder.pos, float)  # (3,) mm: where the last move gathered ends
@@ -155,7 +155,6 @@ class MoveWriter:
         self._flush()
         self.b.new_layer(z)
         self.z = z
-        self.first_layer = first
         self.feeds = feed_table(self.s, first)
 
     def finish(self) -> None:
@@ -209,7 +208,10 @@ class MoveWriter:
         xyz = np.empty((m, 3))
         xyz[:, :2] = pts[1:] if every else pts[1:][keep]
         xyz[:, 2] = self.z
-        fpm = per_seg(flow) if flow is not None else filament_per_mm(per_seg(width), height, self.area, self.s.extrusion_multiplier)
+        if flow is not None:
+            fpm = per_seg(flow)
+        else:
+            fpm = filament_per_mm(per_seg(width), height, self.area, self.s.extrusion_multiplier)
         role = per_seg(role)
         feed = self.feeds[role.astype(np.intp)] if np.ndim(role) else float(self.feeds[int(role)])
         self._add(xyz, feed, (seg if every else seg[keep]) * fpm, 1.0, role)
