@@ -16,6 +16,7 @@ import math
 import numbers
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -145,17 +146,17 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         raise
     except Exception as exc:  # trimesh raises many types on bad input
         raise MeshError(f"{shown}: cannot parse as {suffix or 'a mesh'}: {type(exc).__name__}: {exc}") from None
-    if isinstance(loaded, trimesh.Scene):
-        vertices, faces = _flatten_scene(loaded, shown, notes)
-    elif hasattr(loaded, "faces") and loaded.vertices is not None:
-        try:
+    try:
+        if isinstance(loaded, trimesh.Scene):
+            vertices, faces = _flatten_scene(loaded, shown, notes)
+        elif hasattr(loaded, "faces") and loaded.vertices is not None:
             vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
             faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
-        except (TypeError, ValueError):  # a vertex of two numbers, a face of four indices left whole
-            raise MeshError(f"{shown}: cannot read as {suffix or 'a mesh'}: its vertices are not x y z "
-                            "triples or its faces not triangles") from None
-    else:
-        raise MeshError(f"{shown}: no triangle mesh found in the file")
+        else:
+            raise MeshError(f"{shown}: no triangle mesh found in the file")
+    except (TypeError, ValueError):  # what trimesh read is not triangles: a vertex of two numbers, a face left whole
+        raise MeshError(f"{shown}: cannot read as {suffix or 'a mesh'}: its vertices are not x y z "
+                        "triples or its faces not triangles") from None
     if len(faces) == 0 or len(vertices) == 0:
         raise MeshError(f"{shown}: the mesh has no triangles")
     return vertices, faces, notes
@@ -211,7 +212,7 @@ def _read_obj(path: Path, notes: list[str]):
     lines = text.split("\n")
     if text[:1] in (" ", "\t") or "\n " in text or "\n\t" in text:
         lines = [ln.lstrip(" \t") for ln in lines]
-    kind = np.array([_OBJ_HEADS.get(ln[:2], 2) for ln in lines], dtype=np.int8)
+    kind = np.fromiter((_OBJ_HEADS.get(ln[:2], 2) for ln in lines), dtype=np.int8, count=len(lines))
     v_at, f_at = np.flatnonzero(kind == 0).tolist(), np.flatnonzero(kind == 1).tolist()
     # vt, vn and vp need a separator after them (vtx is no statement); any other line its keyword
     if not all(lines[i][2:3] in (" ", "\t", "") for i in np.flatnonzero(kind == 3).tolist()):
@@ -235,9 +236,8 @@ def _read_obj(path: Path, notes: list[str]):
     counts = _tokens_per_line(joined) if v_rest else np.zeros(0, np.int64)
     if (counts < 3).any():
         fail(v_at, int(np.argmax(counts < 3)), "expected 'v x y z'")
-    try:
-        values = np.array(joined.split(), dtype=np.float64)
-    except ValueError:
+    values = _numbers(joined, np.float64)
+    if values is None or len(values) != counts.sum():
         fail(v_at, first(v_rest, lambda r: not _floats(r.split())), "expected numbers")
     vertices = values[(np.cumsum(counts) - counts)[:, None] + np.arange(3)].reshape(-1, 3)  # x y z of each
 
@@ -253,9 +253,9 @@ def _read_obj(path: Path, notes: list[str]):
     if "/" in joined:
         joined = re.sub(r"/[^ \t\n]*", "", joined)  # each group's vertex number
     counts = _tokens_per_line(joined)
-    try:
-        flat = np.array(joined.split(), dtype=np.int64)
-    except (ValueError, OverflowError):
+    flat = _numbers(joined, np.int64)
+    clamped = flat is not None and np.isin(flat, [_INT64.min, _INT64.max]).any()  # a number past int64
+    if flat is None or len(flat) != counts.sum() or clamped:
         fail(f_at, first(f_rest, lambda r: not _vertex_numbers(r.split())),
              "expected vertex numbers (each v, v/vt, v//vn or v/vt/vn)")
     face = np.repeat(np.arange(len(counts)), counts)  # the face of each vertex number
@@ -293,6 +293,20 @@ def _read_obj(path: Path, notes: list[str]):
     step = np.arange(int(tri.sum())) - np.repeat(np.cumsum(tri) - tri, tri)
     faces = np.column_stack([flat[first_of[of]], flat[first_of[of] + step + 1], flat[first_of[of] + step + 2]])
     return vertices[used], faces, notes
+
+
+_INT64 = np.iinfo(np.int64)
+
+
+def _numbers(joined: str, dtype):
+    """The whitespace-separated numbers of ``joined`` as one array, None where one is malformed
+    (numpy's text parser: no list of strings, whose objects cost more memory than the file)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # "could not be read to its end"
+        try:
+            return np.fromstring(joined, dtype=dtype, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
 
 
 def _floats(tokens) -> bool:

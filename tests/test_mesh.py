@@ -356,6 +356,9 @@ def test_obj_with_other_statements_goes_to_trimesh(tmp_path):
     (tmp_path / "short.obj").write_text(TET + "foo\nv 1 2\n")
     with pytest.raises(MeshError, match="vertices are not x y z triples"):
         load_mesh(tmp_path / "short.obj")
+    (tmp_path / "scene.obj").write_text("usemtl a\n" + TET.replace("v 0 10 0", "v 0 10") + "v9n 0 0 1\nusemtl b\nf 1 2 3\n")
+    with pytest.raises(MeshError, match="vertices are not x y z triples"):  # read by trimesh as a scene
+        load_mesh(tmp_path / "scene.obj")
 
 
 @pytest.mark.skipif(not PARTS.is_dir(), reason="../shared/parts is absent")
