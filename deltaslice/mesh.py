@@ -203,8 +203,8 @@ def _read_obj(path: Path, notes: list[str]):
     (-1), as the format says. Faces are kept in file order; a face of fewer than three vertices is
     skipped (with a note); what is not a face (normals, texture coordinates, groups, materials,
     comments) is read past. Lines end at LF, CRLF or CR only. Errors name the line. The numbers
-    are read all at once (joined and split, then numpy): a line at a time took seconds for a few
-    hundred thousand faces."""
+    are read all at once (the lines joined, then numpy's text parser): a line at a time took
+    seconds for a few hundred thousand faces."""
     raw = path.read_bytes().decode("utf-8-sig", errors="replace").replace("\r\n", "\n").replace("\r", "\n")
     if "\\" in raw and re.search(r"\\[ \t]*(\n|$)", raw):  # a line continued on the next
         return None
@@ -220,12 +220,14 @@ def _read_obj(path: Path, notes: list[str]):
     if not {lines[i].split(None, 1)[0] for i in np.flatnonzero(kind == 2).tolist() if lines[i].strip()} <= _OBJ_PASSED:
         return None
 
-    def fail(at, k: int, message: str):
-        """MeshError at line at[k] (0-based)."""
+    def fail(at, k: int | None, message: str):
+        """MeshError at line at[k] (0-based), or without a line where none was found."""
+        if k is None:
+            raise MeshError(f"{path}: {message}")
         raise MeshError(f"{path}: line {at[k] + 1}: {_quote(raw.split(chr(10))[at[k]])}: {message}")
 
-    def first(items, bad) -> int:
-        return next(i for i, item in enumerate(items) if bad(item))
+    def first(items, bad) -> int | None:
+        return next((i for i, item in enumerate(items) if bad(item)), None)
 
     if not f_at:
         raise MeshError(f"{path}: no faces ('f' lines) in the OBJ file: expected a triangle mesh")
