@@ -5,13 +5,17 @@ import. The handler records the request and raises ``KeyboardInterrupt``; if an 
 library swallows the exception (trimesh's optional imports catch ``BaseException``), the
 recorded request still stops the work at the next :func:`check` (the pipeline checks
 between stages and before replacing an output), so a previous output is never overwritten
-after Ctrl-C. A second Ctrl-C exits at once with status 130. Where Python itself cannot
+after Ctrl-C. Inside an import nothing is raised: a C extension being initialised (manifold3d)
+aborts the process on an exception it does not expect; the handler leaves at once instead (status
+130), or, while an output is being written (:func:`writing`), only records the request. A second
+Ctrl-C exits at once with status 130. Where Python itself cannot
 propagate the exception (a ctypes callback: llvmlite's, while numba writes its cache), it
 reports it as "Exception ignored"; that report is dropped, the recorded request stands.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -20,7 +24,7 @@ import threading
 EXIT_INTERRUPTED = 130
 MESSAGE = "interrupted: no output written (any previous output is unchanged)"
 
-_state = {"requested": False, "installed": False, "unraisable": sys.__unraisablehook__}
+_state = {"requested": False, "installed": False, "writing": 0, "unraisable": sys.__unraisablehook__}
 
 
 def _handler(signum, frame):
@@ -29,7 +33,22 @@ def _handler(signum, frame):
         sys.stderr.flush()
         os._exit(EXIT_INTERRUPTED)
     _state["requested"] = True
+    if _in_import(frame):
+        if not _state["writing"]:
+            exit_now()  # nothing is half written: leave now, without raising into the import
+        return  # an output is being written: recorded, the next check() stops before it replaces anything
     raise KeyboardInterrupt
+
+
+def _in_import(frame) -> bool:
+    """Whether ``frame`` runs inside an import. A KeyboardInterrupt raised there can surface inside
+    a C extension's initialisation, which does not expect one: manifold3d's aborts the process
+    ("Fatal Python error: Aborted", or a segmentation fault) instead of raising."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _unraisable(report) -> None:
@@ -65,6 +84,17 @@ def install(at_once: bool = False) -> None:
         _state["unraisable"] = sys.unraisablehook
         sys.unraisablehook = _unraisable
     _state["installed"] = True
+
+
+@contextlib.contextmanager
+def writing():
+    """Around the writing of an output: a Ctrl-C inside an import is then recorded (the writer's
+    next check stops it and its temporary file is removed) instead of leaving at once."""
+    _state["writing"] += 1
+    try:
+        yield
+    finally:
+        _state["writing"] -= 1
 
 
 def requested() -> bool:

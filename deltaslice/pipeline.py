@@ -135,6 +135,11 @@ def atomic_output(path, mode: str = "wb", *, max_bytes=None, **open_kwargs):
     pipe (``/dev/null``, ``/dev/stdout``) is written directly, never replaced. ``max_bytes``
     bounds the bytes written (OutputError beyond). OSError (full disk, permissions) becomes
     OutputError naming the path."""
+    with interrupt.writing():
+        yield from _atomic_output(path, mode, max_bytes=max_bytes, **open_kwargs)
+
+
+def _atomic_output(path, mode: str, *, max_bytes=None, **open_kwargs):
     target, direct = _resolve_output(path)
     if direct:
         fd = _own_fd(target)

@@ -368,6 +368,80 @@ else:
 """
 
 
+_SIGINT_IN_AN_EXTENSION_INIT = """
+import importlib.abc, os, signal, sys
+
+state = {{"armed": False}}
+
+class Arm(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        state["armed"] = state["armed"] or name == "manifold3d"
+        return None
+
+def profiler(frame, event, arg):
+    # manifold3d's C initialisation calls Python's enum: the signal lands inside it
+    if state["armed"] and event == "call" and frame.f_code.co_filename.endswith("enum.py"):
+        sys.setprofile(None)
+        os.kill(os.getpid(), signal.SIGINT)
+
+sys.meta_path.insert(0, Arm())
+sys.setprofile(profiler)
+sys.argv = ["deltaslice", {part!r}, "--printer", {printer!r}, "-o", {out!r}, "--quiet", "--workers", "1"]
+from deltaslice.cli import run
+run()
+"""
+
+
+def test_ctrl_c_inside_a_c_extensions_initialisation_is_130(tmp_path):
+    """SIGINT while manifold3d's C initialisation runs Python code (the slicer imports it lazily,
+    about a second into a compile): a KeyboardInterrupt raised there aborted the process (status
+    134, or a segmentation fault; once in CI). Now the one line and 130, the previous output kept."""
+    out = tmp_path / "cube.dsl"
+    out.write_bytes(b"previous output")
+    code = _SIGINT_IN_AN_EXTENSION_INIT.format(part=str(CUBE), printer=ETITC, out=str(out))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 130 and r.stderr.strip() == "interrupted: no output written (any previous output is unchanged)", (
+        r.returncode, r.stderr[-2000:])
+    assert out.read_bytes() == b"previous output"
+    assert [p.name for p in tmp_path.iterdir()] == ["cube.dsl"]
+
+
+def test_ctrl_c_inside_an_import_while_writing_is_recorded(tmp_path, monkeypatch):
+    """Inside an import while an output is being written, the handler neither raises nor leaves:
+    it records the request, the writer's check stops it before the rename, and its temporary
+    file is removed."""
+    from deltaslice import interrupt
+    from deltaslice.pipeline import atomic_output
+
+    def left():
+        raise AssertionError("left at once while an output was being written")
+
+    monkeypatch.setattr(interrupt, "exit_now", left)
+    out = tmp_path / "x.bin"
+    out.write_bytes(b"previous")
+    interrupt.reset()
+    went_on = []
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with atomic_output(out) as f:
+                f.write(b"new")
+                interrupt._handler(signal.SIGINT, _frame_in_import())  # as if the signal landed in an import
+                went_on.append(interrupt.requested())
+    finally:
+        interrupt.reset()
+    assert went_on == [True]
+    assert out.read_bytes() == b"previous"
+    assert [p.name for p in tmp_path.iterdir()] == ["x.bin"]
+
+
+def _frame_in_import():
+    """A frame of code named as importlib's frozen bootstrap (what an import runs)."""
+    namespace = {"sys": sys}
+    exec(compile("frame = sys._getframe()", "<frozen importlib._bootstrap>", "exec"), namespace)  # noqa: S102
+    return namespace["frame"]
+
+
 @pytest.mark.parametrize("entry", ["module", "console script"])
 @pytest.mark.parametrize("target", ["click", "click.core", "deltaslice.report"])
 def test_ctrl_c_while_the_cli_imports_is_one_line_and_130(entry, target):
