@@ -24,7 +24,7 @@ import threading
 EXIT_INTERRUPTED = 130
 MESSAGE = "interrupted: no output written (any previous output is unchanged)"
 
-_state = {"requested": False, "installed": False, "writing": 0, "unraisable": sys.__unraisablehook__}
+_state = {"requested": False, "installed": False, "writing": 0, "pid": None, "unraisable": sys.__unraisablehook__}
 
 
 def _handler(signum, frame):
@@ -34,6 +34,8 @@ def _handler(signum, frame):
         os._exit(EXIT_INTERRUPTED)
     _state["requested"] = True
     if _in_import(frame):
+        if os.getpid() != _state["pid"]:
+            os._exit(EXIT_INTERRUPTED)  # a forked worker: the parent (signalled too) says it, once
         if not _state["writing"]:
             exit_now()  # nothing is half written: leave now, without raising into the import
         return  # an output is being written: recorded, the next check() stops before it replaces anything
@@ -80,6 +82,7 @@ def install(at_once: bool = False) -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     signal.signal(signal.SIGINT, _exit_handler if at_once else _handler)
+    _state["pid"] = os.getpid()  # forked workers inherit the handler, not this process's id
     if not at_once and sys.unraisablehook is not _unraisable:
         _state["unraisable"] = sys.unraisablehook
         sys.unraisablehook = _unraisable

@@ -435,6 +435,31 @@ def test_ctrl_c_inside_an_import_while_writing_is_recorded(tmp_path, monkeypatch
     assert [p.name for p in tmp_path.iterdir()] == ["x.bin"]
 
 
+_SIGINT_IN_A_WORKERS_IMPORT = """
+import os, sys
+from deltaslice import interrupt
+
+interrupt.install()
+frame_in_import = dict()
+exec(compile("frame = sys._getframe()", "<frozen importlib._bootstrap>", "exec"), dict(sys=sys), frame_in_import)
+pid = os.fork()
+if pid == 0:  # a forked worker: the signal lands inside one of its imports
+    interrupt._handler(2, frame_in_import["frame"])
+    os._exit(0)
+_, status = os.waitpid(pid, 0)
+print(os.waitstatus_to_exitcode(status))
+"""
+
+
+def test_ctrl_c_inside_a_forked_workers_import_leaves_quietly():
+    """A forked worker inherits the handler: inside one of its imports it leaves with 130 and says
+    nothing (its parent, signalled too, prints the one line)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-c", _SIGINT_IN_A_WORKERS_IMPORT], capture_output=True, text=True,
+                       env=env, timeout=60)
+    assert (r.stdout.strip(), r.stderr) == ("130", "")
+
+
 def _frame_in_import():
     """A frame of code named as importlib's frozen bootstrap (what an import runs)."""
     namespace = {"sys": sys}
