@@ -68,11 +68,12 @@ def joint_moves_clear(kin, pieces, z_min: np.ndarray) -> np.ndarray:
     if not pieces:
         return np.zeros(0, dtype=bool)
     # the moves with arrays sampled in one pass; ruckig's own (rare) one sample at a time
-    arrays = [p for p in pieces if p.profile is not None]
+    has = np.array([p.profile is not None for p in pieces])
+    arrays = [p for p, h in zip(pieces, has) if h]
     q = np.empty((len(pieces), CHECK_SAMPLES, kin.n_joints))
     if arrays:
         tau = np.linspace(0.0, [p.duration for p in arrays], CHECK_SAMPLES, axis=1)
-        q[[p.profile is not None for p in pieces]] = positions_many([p.profile for p in arrays], tau)
+        q[has] = positions_many([p.profile for p in arrays], tau)
     for i, p in enumerate(pieces):
         if p.profile is None:
             q[i] = p.sample(kin, np.linspace(0.0, p.duration, CHECK_SAMPLES))[0]

@@ -31,8 +31,8 @@ def filament_per_mm(width, height: float, filament_area: float, multiplier: floa
 
 
 def feed_table(settings, first_layer: bool) -> np.ndarray:
-    """Requested speed of a move of each role, mm/s, indexed by role ((len(Role),) float):
-    :func:`feed_for` of every role at once, for a layer's paths."""
+    """Requested speed of a move of each role on a layer, mm/s, indexed by role ((max(Role) + 1,)
+    float); the first-layer speed caps working moves on layer 0."""
     s = settings
     table = {
         Role.EXTERNAL_PERIMETER: s.external_perimeter_speed,
@@ -48,18 +48,8 @@ def feed_table(settings, first_layer: bool) -> np.ndarray:
     }
     out = np.empty(max(Role) + 1)
     for r in Role:
-        # the first-layer speed caps working moves on layer 0
         out[r] = s.first_layer_speed if first_layer and r != Role.TRAVEL else table.get(r, s.perimeter_speed)
     return out
-
-
-def feed_for(role, settings, first_layer: bool):
-    """Requested speed of a move of ``role`` (an int, or an array of them: one speed each), mm/s
-    (first-layer speed caps working moves on layer 0)."""
-    table = feed_table(settings, first_layer)
-    if np.ndim(role):
-        return table[np.asarray(role, int)]
-    return float(table[int(Role(role))])
 
 
 def bridge_flow(nozzle: float, filament_area: float, ratio: float) -> float:
