@@ -105,7 +105,7 @@ class _Interrupted(Exception):
 
 
 def _interrupted():
-    click.echo(interrupt.MESSAGE, err=True)
+    click.echo(interrupt.message(), err=True)
     sys.exit(EXIT_INTERRUPTED)
 
 

@@ -24,14 +24,13 @@ import threading
 EXIT_INTERRUPTED = 130
 MESSAGE = "interrupted: no output written (any previous output is unchanged)"
 
-_state = {"requested": False, "installed": False, "writing": 0, "pid": None, "unraisable": sys.__unraisablehook__}
+_state = {"requested": False, "installed": False, "writing": 0, "written": [], "pid": None,
+          "unraisable": sys.__unraisablehook__}
 
 
 def _handler(signum, frame):
     if _state["requested"]:
-        sys.stderr.write(MESSAGE + "\n")
-        sys.stderr.flush()
-        os._exit(EXIT_INTERRUPTED)
+        exit_now()
     _state["requested"] = True
     if _in_import(frame):
         if os.getpid() != _state["pid"]:
@@ -61,10 +60,18 @@ def _unraisable(report) -> None:
     _state["unraisable"](report)
 
 
+def message() -> str:
+    """The one interrupt line: nothing written, or which outputs were put in place, whole, before
+    the Ctrl-C (one that lands after an output's rename cannot take it back)."""
+    if not _state["written"]:
+        return MESSAGE
+    return f"interrupted: {', '.join(_state['written'])} written in full before it; nothing else written"
+
+
 def exit_now() -> None:
     """Print the one interrupt line and leave with status 130 at once (no traceback, no cleanup:
-    nothing has been written yet)."""
-    sys.stderr.write(MESSAGE + "\n")
+    nothing is half written)."""
+    sys.stderr.write(message() + "\n")
     sys.stderr.flush()
     os._exit(EXIT_INTERRUPTED)
 
@@ -100,6 +107,25 @@ def writing():
         _state["writing"] -= 1
 
 
+@contextlib.contextmanager
+def held():
+    """SIGINT held back (delivered when the block ends): around an output's rename and its record,
+    so that the interrupt line never says "no output written" about a file already replaced."""
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def wrote(path) -> None:
+    """An output was put in place whole (renamed over its target, or written to a device)."""
+    _state["written"].append(str(path))
+
+
 def requested() -> bool:
     """True once Ctrl-C was pressed, even if the KeyboardInterrupt was swallowed."""
     return _state["requested"]
@@ -112,5 +138,6 @@ def check() -> None:
 
 
 def reset() -> None:
-    """Forget a recorded Ctrl-C (each CLI run starts clean)."""
+    """Forget a recorded Ctrl-C and the outputs written (each CLI run starts clean)."""
     _state["requested"] = False
+    _state["written"] = []

@@ -151,6 +151,7 @@ def _atomic_output(path, mode: str, *, max_bytes=None, **open_kwargs):
                 yield _BoundedFile(f, max_bytes, str(path))
         except OSError as exc:
             raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        interrupt.wrote(path)
         return
     if target.exists():
         file_mode = target.stat().st_mode & 0o7777
@@ -167,8 +168,10 @@ def _atomic_output(path, mode: str, *, max_bytes=None, **open_kwargs):
             f.flush()
             os.fsync(f.fileno())
         interrupt.check()  # a Ctrl-C swallowed by a library still keeps the previous file
-        os.replace(tmp, target)
-        tmp = None
+        with interrupt.held():
+            os.replace(tmp, target)
+            tmp = None
+            interrupt.wrote(path)
     except OSError as exc:
         raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
     finally:
