@@ -379,6 +379,31 @@ def test_rotary_kernels_equal_point_by_point_across_their_blocks(name):
     assert not d1[:, 3].any() and not d2[:, 3].any()
 
 
+@pytest.mark.parametrize("name", [n for n in CASES if n != "cartesian" and printer(n).family == "rotary_delta"])
+def test_rotary_inverse_is_the_knee_outward_root_in_its_range(name):
+    """The compiled inverse (its atan2 taken by numpy afterwards, then moved into (-2 pi, pi]) against
+    the module's formula per arm in numpy, theta = atan2(b, a) - acos(c / hypot(a, b)), over a box
+    wider than the reach: the same angles, the same NaN rows, and angles below -pi among them on
+    the printers whose joints go there (a wrong range would be off by 2 pi)."""
+    from deltaslice.kinematics.rotary_delta import U
+
+    kin = kin_of(name)
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-400.0, 400.0, (50_000, 3))
+    w = pts[:, None, :] + kin._offsets[None]
+    a, b = np.einsum("nij,ij->ni", w, U), -w[..., 2]
+    c = (kin.L1**2 + np.einsum("nij,nij->ni", w, w) - kin.L2**2) / (2 * kin.L1)
+    with np.errstate(invalid="ignore"):
+        want = np.arctan2(b, a) - np.arccos(c / np.hypot(a, b))
+    want[np.isnan(want).any(axis=1)] = np.nan
+    got = kin.inverse(pts)
+    assert np.array_equal(np.isnan(got), np.isnan(want)) and np.isfinite(got).any()
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert got[np.isfinite(got)].min() > -2 * np.pi and got[np.isfinite(got)].max() <= np.pi
+    if name != "delta_etitc":  # its arms never reach past -pi in this box
+        assert (got < -np.pi).sum() > 100
+
+
 # --------------------------------------------------------------------------- source numbers and regressions
 
 

@@ -99,8 +99,13 @@ class RotaryDelta(Kinematics):
     def inverse(self, points):
         """points: (N,3) float, mm, bed frame -> q: (N,3) float, rad (NaN where out of reach)."""
         points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)))
-        q = np.empty((len(points), 3))
-        _inverse_kernel(points, self._offsets, self.L1, self.L2, q)
+        n = len(points)
+        x, y, wrap = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3), dtype=bool)
+        _inverse_kernel(points, self._offsets, self.L1, self.L2, x, y, wrap)
+        # numpy's arctan2 runs on vector instructions; numba's is scalar libm, two thirds of the
+        # kernel's time when it was called there (the same angle within an ulp)
+        q = np.arctan2(y, x, out=y)
+        _wrap_angles(q, wrap)
         return q
 
     def forward(self, q):
@@ -179,8 +184,8 @@ class RotaryDelta(Kinematics):
 # (_scaled_rates_kernel) and the sampler's (_inverse_kernel) go a block of BLOCK points at a time,
 # copied into rows of one coordinate each: the loop over a block's points for one arm then has no
 # branch and only unit strides, and compiles to vector instructions (the same bits; on the shared
-# AVX-512 machine the rates went from ~68 to ~36 ns a point, the inverse, whose atan2 stays scalar,
-# from ~91 to ~54).
+# AVX-512 machine the rates went from ~68 to ~36 ns a point; the inverse, its atan2 then numpy's
+# over the whole array, from ~110 to ~46).
 BLOCK = 256
 
 
@@ -205,14 +210,21 @@ def _root(wx, wy, wz, ux, uy, L1, L2):
 
 
 @njit
-def _angle(x, y, a_plus_c, b):
-    """theta in (-2 pi, pi] from :func:`_root`'s values: atan2(b, a) - acos(c / rho) lies there,
-    below -pi exactly when b < 0 and a + c < 0 (atan2(b, a) + pi < acos(c / rho)), where one
-    atan2 gives it plus 2 pi."""
-    th = math.atan2(y, x)
-    if b < 0.0 and a_plus_c < 0.0 and th > 0.0:
-        th -= 2.0 * math.pi
-    return th
+def _wraps(a_plus_c, b):
+    """Whether an arm's theta, taken as atan2 of :func:`_root`'s (y, x) in (-pi, pi], must go down by
+    2 pi where that is positive: atan2(b, a) - acos(c / rho) lies in (-2 pi, pi], below -pi exactly
+    when b < 0 and a + c < 0 (atan2(b, a) + pi < acos(c / rho)), where one atan2 gives it plus 2 pi."""
+    return b < 0.0 and a_plus_c < 0.0
+
+
+@njit
+def _wrap_angles(q, wrap):
+    """q (N,3) rad from atan2 into (-2 pi, pi] where ``wrap`` (:func:`_wraps`), in place."""
+    two_pi = 2.0 * math.pi
+    for k in range(q.shape[0]):
+        for i in range(3):
+            if wrap[k, i] and q[k, i] > 0.0:
+                q[k, i] -= two_pi
 
 
 @njit
@@ -244,12 +256,15 @@ def _to_rows(src, k0, m, rows, r0):
 
 
 @njit
-def _inverse_kernel(points, offsets, L1, L2, q):
-    """q (N,3) rad of points (N,3) mm; a row is NaN where any arm has no real root (or the
-    point is not finite)."""
+def _inverse_kernel(points, offsets, L1, L2, x, y, wrap):
+    """Each arm's knee-outward root at points (N,3) mm as x, y (N,3): cos and sin theta times rho^2
+    (theta = atan2(y, x), then :func:`_wrap_angles` with ``wrap`` (N,3) bool); x is NaN in every
+    arm of a row where any arm has no real root (or the point is not finite). Where every arm has
+    one, x and y are finite or infinite, never NaN (|a c|, |b h| <= rho^2, which is finite), so
+    the angles of a row are all finite or all NaN."""
     n = points.shape[0]
     p = np.empty((3, BLOCK))
-    x, y, apc, bb = np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK))
+    xs, ys, apc, bb = np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK))
     ok = np.empty((3, BLOCK), dtype=np.bool_)
     for k0 in range(0, n, BLOCK):
         m = min(BLOCK, n - k0)
@@ -258,17 +273,15 @@ def _inverse_kernel(points, offsets, L1, L2, q):
         for i in range(3):
             ux, uy = U[i, 0], U[i, 1]
             ox, oy, oz = offsets[i, 0], offsets[i, 1], offsets[i, 2]
-            xi, yi, ai, bi, oki = x[i], y[i], apc[i], bb[i], ok[i]
+            xi, yi, ai, bi, oki = xs[i], ys[i], apc[i], bb[i], ok[i]
             for k in range(m):
                 xi[k], yi[k], _, ai[k], bi[k], oki[k] = _root(px[k] + ox, py[k] + oy, pz[k] + oz, ux, uy, L1, L2)
         for k in range(m):
             good = ok[0, k] and ok[1, k] and ok[2, k]
             for i in range(3):
-                if good:
-                    q[k0 + k, i] = _angle(x[i, k], y[i, k], apc[i, k], bb[i, k])
-                    good = q[k0 + k, i] == q[k0 + k, i]  # an overflow far out of reach
-            if not good:
-                q[k0 + k, 0] = q[k0 + k, 1] = q[k0 + k, 2] = np.nan
+                x[k0 + k, i] = xs[i, k] if good else np.nan
+                y[k0 + k, i] = ys[i, k]
+                wrap[k0 + k, i] = _wraps(apc[i, k], bb[i, k])
 
 
 @njit
