@@ -636,3 +636,7 @@ def test_the_samplers_walk_is_searchsorted_from_any_start():
         got = [_last_at_or_below_from(a, float(v), n_max, j) for v in values]
         assert got == want.tolist(), j
     assert len(a) > 4 * WALK  # starts far from the answer bisect
+    tail = np.concatenate([a, [np.nan] * 3])  # NaN at the end; starts before it
+    want = np.clip(np.searchsorted(tail, values, side="right") - 1, 0, len(tail) - 2)
+    for j in range(len(a)):
+        assert [_last_at_or_below_from(tail, float(v), len(tail) - 1, j) for v in values] == want.tolist(), j
