@@ -100,12 +100,12 @@ class RotaryDelta(Kinematics):
         """points: (N,3) float, mm, bed frame -> q: (N,3) float, rad (NaN where out of reach)."""
         points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)))
         n = len(points)
-        x, y, wrap = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3), dtype=bool)
-        _inverse_kernel(points, self._offsets, self.L1, self.L2, x, y, wrap)
+        x, y, shift = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        _inverse_kernel(points, self._offsets, self.L1, self.L2, x, y, shift)
         # numpy's arctan2 runs on vector instructions; numba's is scalar libm, two thirds of the
         # kernel's time when it was called there (the same angle within an ulp)
         q = np.arctan2(y, x, out=y)
-        _wrap_angles(q, wrap)
+        q += shift
         return q
 
     def forward(self, q):
@@ -210,21 +210,13 @@ def _root(wx, wy, wz, ux, uy, L1, L2):
 
 
 @njit
-def _wraps(a_plus_c, b):
-    """Whether an arm's theta, taken as atan2 of :func:`_root`'s (y, x) in (-pi, pi], must go down by
-    2 pi where that is positive: atan2(b, a) - acos(c / rho) lies in (-2 pi, pi], below -pi exactly
-    when b < 0 and a + c < 0 (atan2(b, a) + pi < acos(c / rho)), where one atan2 gives it plus 2 pi."""
-    return b < 0.0 and a_plus_c < 0.0
-
-
-@njit
-def _wrap_angles(q, wrap):
-    """q (N,3) rad from atan2 into (-2 pi, pi] where ``wrap`` (:func:`_wraps`), in place."""
-    two_pi = 2.0 * math.pi
-    for k in range(q.shape[0]):
-        for i in range(3):
-            if wrap[k, i] and q[k, i] > 0.0:
-                q[k, i] -= two_pi
+def _shift(x, y, a_plus_c, b):
+    """What an arm's theta, taken as atan2(y, x) of :func:`_root`'s values in (-pi, pi], needs added
+    to lie in (-2 pi, pi]: atan2(b, a) - acos(c / rho) lies there, below -pi exactly when b < 0 and
+    a + c < 0 (atan2(b, a) + pi < acos(c / rho)), where one atan2 gives it plus 2 pi: -2 pi where
+    that is so and atan2(y, x) > 0 (y > 0, or y = +0 with x < 0), else 0."""
+    positive = y > 0.0 or (y == 0.0 and math.copysign(1.0, y) > 0.0 and x < 0.0)
+    return -2.0 * math.pi if b < 0.0 and a_plus_c < 0.0 and positive else 0.0
 
 
 @njit
@@ -256,9 +248,9 @@ def _to_rows(src, k0, m, rows, r0):
 
 
 @njit
-def _inverse_kernel(points, offsets, L1, L2, x, y, wrap):
+def _inverse_kernel(points, offsets, L1, L2, x, y, shift):
     """Each arm's knee-outward root at points (N,3) mm as x, y (N,3): cos and sin theta times rho^2
-    (theta = atan2(y, x), then :func:`_wrap_angles` with ``wrap`` (N,3) bool); x is NaN in every
+    (theta = atan2(y, x) + shift, shift (N,3) from :func:`_shift`, rad); x is NaN in every
     arm of a row where any arm has no real root (or the point is not finite). Where every arm has
     one, x and y are finite or infinite, never NaN (|a c|, |b h| <= rho^2, which is finite), so
     the angles of a row are all finite or all NaN."""
@@ -281,7 +273,7 @@ def _inverse_kernel(points, offsets, L1, L2, x, y, wrap):
             for i in range(3):
                 x[k0 + k, i] = xs[i, k] if good else np.nan
                 y[k0 + k, i] = ys[i, k]
-                wrap[k0 + k, i] = _wraps(apc[i, k], bb[i, k])
+                shift[k0 + k, i] = _shift(xs[i, k], ys[i, k], apc[i, k], bb[i, k])
 
 
 @njit
