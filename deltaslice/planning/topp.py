@@ -462,24 +462,34 @@ def _stage_bounds(dq, ddq, xd, xdd, frac, vmax, amax, peak, at, per_stage):
             w[m] = max(x0 + (x1 - x0) * frac[m], 0.0)
             sw[m] = math.sqrt(w[m])
         worst = 0.0
+        u = xdd[i]
         for j in range(dof):
             for kind in range(2):
-                for m in range(f):
-                    if kind == 0:
-                        g[m] = abs(dq[i, m, j]) * sw[m] / vmax[j]
-                    else:
-                        g[m] = abs(dq[i, m, j] * xdd[i] + ddq[i, m, j] * w[m]) / amax[j]
+                if kind == 0:
+                    vj = vmax[j]
+                    for m in range(f):
+                        g[m] = abs(dq[i, m, j]) * sw[m] / vj
+                else:
+                    aj = amax[j]
+                    for m in range(f):
+                        g[m] = abs(dq[i, m, j] * u + ddq[i, m, j] * w[m]) / aj
+                # the largest sample and second difference, NaN if any is: a flag beside plain
+                # selects (a NaN test in each select made the pass a quarter slower)
                 top = g[0]
+                nan = g[0] != g[0]
                 for m in range(1, f):
-                    if g[m] > top or g[m] != g[m]:
-                        top = g[m] if top == top else top
+                    top = g[m] if g[m] > top else top
+                    nan |= g[m] != g[m]
                 if f > 2:
                     dd = abs(g[2] - 2 * g[1] + g[0])
+                    nan |= dd != dd
                     for m in range(1, f - 2):
                         v = abs(g[m + 2] - 2 * g[m + 1] + g[m])
-                        if v > dd or v != v:
-                            dd = v if dd == dd else dd
+                        dd = v if v > dd else dd
+                        nan |= v != v
                     top = top + 0.3125 * dd
+                if nan:
+                    top = np.nan
                 if i == 0 or (peak[kind, j] == peak[kind, j] and (top > peak[kind, j] or top != top)):
                     peak[kind, j] = top
                     at[kind, j] = i
