@@ -314,11 +314,13 @@ def test_toppra_degenerate_stage_falls_back_to_a_safe_profile():
     assert np.allclose(s.q[-1], printer.rest_pose)  # then parks
 
 
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", range(6))
 def test_limit_monitor_in_one_pass_equals_brute_force_over_the_whole_signal(seed):
     """The monitor's compiled pass over blocks of any size (one and two samples included) gives
     the peaks, the samples beyond a limit and the stretches of them that a brute-force numpy
-    evaluation of the whole signal gives."""
+    evaluation of the whole signal gives; with seeds 4 and 5 a joint's sample is NaN (numpy's
+    max is then NaN: that joint's peaks, and its rows' velocity or acceleration, which then
+    does not count the row as beyond a limit)."""
     from types import SimpleNamespace
 
     from deltaslice.machine import LimitMonitor
@@ -332,6 +334,10 @@ def test_limit_monitor_in_one_pass_equals_brute_force_over_the_whole_signal(seed
     amp = printer.limits.velocity[:J] / (2 * np.pi * 3.0) * rng.uniform(0.5, 1.2, J)
     q = amp[None] * np.sin(2 * np.pi * 3.0 * t[:, None] + rng.uniform(0, 6, J))
     q[rng.integers(2, n - 2, 6), rng.integers(0, J, 6)] += rng.uniform(-0.05, 0.05, 6)
+    if seed >= 4:  # beside a spike of another joint: the row's other bound still counts
+        k = int(rng.integers(10, n - 10))
+        q[k, 0] = np.nan
+        q[k + 1, 1] += 0.05  # row k - 1: its velocity is beyond, its acceleration NaN
     e = np.cumsum(rng.uniform(0, 2e-3, n))
     tool = (rng.uniform(size=n) > 0.3).astype(float)
     cuts = np.unique(np.concatenate([[0, 1, 3, 4, n], rng.integers(0, n, 40)]))
@@ -341,7 +347,9 @@ def test_limit_monitor_in_one_pass_equals_brute_force_over_the_whole_signal(seed
     v = (q[2:] - q[:-2]) * rate / 2
     acc = (q[2:] - 2 * q[1:-1] + q[:-2]) * rate**2
     rv, ra = np.abs(v) / printer.limits.velocity[:J], np.abs(acc) / printer.limits.acceleration[:J]
-    assert np.allclose(m.peak_v, rv.max(axis=0), rtol=1e-12) and np.allclose(m.peak_a, ra.max(axis=0), rtol=1e-12)
+    assert np.allclose(m.peak_v, rv.max(axis=0), rtol=1e-12, equal_nan=True)
+    assert np.allclose(m.peak_a, ra.max(axis=0), rtol=1e-12, equal_nan=True)
+    assert np.isnan(m.peak_v[0]) == (seed >= 4) and np.isfinite(m.peak_v[1:]).all()
     bad = (rv.max(axis=1) > 1) | (ra.max(axis=1) > 1)
     assert m.violating_samples == int(bad.sum()) > 0
     assert m.events == int((np.diff(np.concatenate([[0], bad.astype(int)])) == 1).sum()) > 1
