@@ -12,7 +12,8 @@ P is a printer file or the name of a shipped printer (``deltaslice printers``).
 
 Exit codes (also in ``deltaslice --help``): 0 done; 1 error (one line on stderr, no traceback);
 2 usage error (unknown command or option, bad value); 3 ``verify`` found violations;
-130 interrupted by Ctrl-C (any previous output is left unchanged).
+130 interrupted by Ctrl-C (any previous output is left unchanged; a Ctrl-C after the new output is in
+place says it was written in full).
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ Examples:
 
 EPILOG_MAIN = """\b
 Exit codes: 0 done, 1 error, 2 usage error, 3 verify found violations,
-130 interrupted (Ctrl-C; any previous output is left unchanged).
+130 interrupted (Ctrl-C; any previous output is left unchanged, or the line
+says the new one was already written in full).
 """
 
 
