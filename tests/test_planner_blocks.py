@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from deltaslice.errors import UnreachableError
 from deltaslice.planning import topp, travel
-from deltaslice.planning.blend import blend_polyline
+from deltaslice.planning.blend import blend_polyline, blend_runs
 from deltaslice.planning.pieces import JointMovePiece, RunPiece
 from deltaslice.planning.trajectory import Trajectory
 from deltaslice.slicing.ordering import Path, nearest_order
@@ -640,3 +640,91 @@ def test_the_samplers_walk_is_searchsorted_from_any_start():
     want = np.clip(np.searchsorted(tail, values, side="right") - 1, 0, len(tail) - 2)
     for j in range(len(a)):
         assert [_last_at_or_below_from(tail, float(v), len(tail) - 1, j) for v in values] == want.tolist(), j
+
+
+def _polyline(rng, kind: int) -> np.ndarray:
+    """A run's polyline (at least two points, no segment under dedupe's micron) with the corners
+    blending treats apart: sharp and gentle turns (0), collinear points and exact reversals (1),
+    and segments short enough for two set-backs to meet (2)."""
+    n = int(rng.integers(2, 9))
+    if kind == 0:
+        pts = np.column_stack([rng.uniform(-20, 20, (n, 2)), rng.uniform(0, 3, n)])
+    elif kind == 1:
+        steps = rng.choice([-1.0, 0.0, 1.0], size=(n - 1, 2)) * rng.uniform(0.5, 8.0, (n - 1, 1))
+        pts = np.vstack([[0.0, 0.0, 1.0], np.column_stack([np.cumsum(steps, axis=0), np.ones(n - 1)])])
+    else:
+        ang = np.cumsum(rng.uniform(0.1, 0.6, n))
+        pts = np.column_stack([np.cos(ang), np.sin(ang), np.ones(n)]) * rng.uniform(0.01, 0.2)
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 2e-3])
+    pts = pts[keep]
+    return pts if len(pts) >= 2 else np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 100_000))
+def test_runs_blended_together_are_each_blended_alone_bit_for_bit(seed):
+    """blend_runs lays many polylines end to end and computes their corners in one pass, the
+    vertices where one run ends and the next starts included: every run's pieces, stops and
+    breaks must be those of blending it alone (no value of a neighbour may leak in)."""
+    rng = np.random.default_rng(seed)
+    polys = [_polyline(rng, int(rng.integers(0, 3))) for _ in range(int(rng.integers(1, 6)))]
+    tols = rng.uniform(0.005, 0.3, len(polys))
+    starts = np.concatenate([[0], np.cumsum([len(p) for p in polys])])
+    together = blend_runs(np.concatenate(polys), starts, tols)
+    fields = ("piece_start", "kind", "p0", "d0", "normal", "radius", "segment")
+    for r, (pts, tol) in enumerate(zip(polys, tols)):
+        alone = blend_runs(pts, np.array([0, len(pts)]), np.array([tol]))
+        a, b = together.path(r), alone.path(0)
+        for f in fields:
+            assert np.array_equal(getattr(a, f), getattr(b, f)) and getattr(a, f).dtype == getattr(b, f).dtype, (r, f)
+        assert np.array_equal(together.stops(r), alone.stops(0))
+        for f in fields:
+            assert np.array_equal(getattr(blend_polyline(pts, tol), f), getattr(b, f))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 100_000))
+def test_blend_breaks_are_where_the_tangent_turns(seed):
+    """The stops blend_runs reports against the path itself: at every join, the unit tangents at
+    the end of the piece before and the start of the piece after (evaluate, order 1); a stop
+    where they differ (an exact reversal), none where the path stays tangent-continuous."""
+    rng = np.random.default_rng(seed)
+    pts = _polyline(rng, int(rng.integers(0, 3)))
+    runs = blend_runs(pts, np.array([0, len(pts)]), np.array([0.05]))
+    path = runs.path(0)
+    j = path.joins()
+    k = path.locate(j)
+    dot = np.einsum("ij,ij->i", path.evaluate(j, 1, k - 1), path.evaluate(j, 1, k))
+    assert np.array_equal(runs.stops(0), j[dot < 1 - 1e-9])
+    assert not runs.breaks[0]
+    d = np.diff(pts, axis=0)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    reversals = int((np.einsum("ij,ij->i", d[:-1], d[1:]) < np.cos(np.pi - 1e-3)).sum())
+    assert len(runs.stops(0)) == reversals
+
+
+@pytest.mark.parametrize("speed_limit", ["feed", "machine"])
+def test_path_inputs_of_many_runs_are_each_runs_own(speed_limit):
+    """_path_inputs_many (what plan_runs prepares a chunk's runs with) against _path_inputs of one
+    run at a time, bit for bit: runs with and without filament, a width change inside a run
+    (a stop), an exact reversal (a stop) and a run of one segment, side by side."""
+    rng = np.random.default_rng(3)
+    polys = []
+    for kind in (0, 1, 2, 0, 1):
+        pts = _polyline(rng, kind)
+        m = len(pts) - 1
+        e = 0.03 * np.linalg.norm(np.diff(pts, axis=0), axis=1) * (kind != 1)
+        e[m // 2 :] *= 1.5 if kind == 0 else 1.0
+        polys.append(topp._Polyline(pts, rng.uniform(20, 80, m), e, None))
+    polys.append(topp._Polyline(np.array([[0.0, 0.0, 1.0], [-10.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), np.full(2, 40.0),
+                                np.full(2, 0.3), None))
+    polys.append(topp._Polyline(np.array([[1.0, 2.0, 1.0], [3.0, 2.0, 1.0]]), np.full(1, 40.0), np.zeros(1), None))
+    tols = rng.uniform(0.01, 0.2, len(polys))
+    many = topp._path_inputs_many(polys, tols, speed_limit)
+    assert sum(len(x.stop_at) > 0 for x in many) >= 2
+    for poly, tol, got in zip(polys, tols, many):
+        want = topp._path_inputs(poly, tol, speed_limit)
+        assert got.extruder == want.extruder
+        for f in ("e_ratio", "cum_e", "piece_feed", "stop_at"):
+            assert np.array_equal(getattr(got, f), getattr(want, f)), f
+        assert np.array_equal(got.path.piece_start, want.path.piece_start)

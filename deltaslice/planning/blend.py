@@ -105,17 +105,6 @@ class BlendedPath:
                       self.piece_start, self.kind, self.p0, self.d0, self.normal, self.radius, out)
         return out[0], out[1], out[2]
 
-    def stops(self) -> np.ndarray:
-        """Arc lengths of joins where the tangent breaks (exact reversals, which no arc can
-        blend): the path speed must be zero there. (k,)"""
-        j = self.joins()
-        if len(j) == 0:
-            return j
-        k = self.locate(j)
-        end_of_previous = self.frame(j, k - 1)[1]
-        start_of_next = self.frame(j, k)[1]
-        return j[np.einsum("ij,ij->i", end_of_previous, start_of_next) < 1 - 1e-9]
-
     def joins(self) -> np.ndarray:
         """Arc lengths of the interior line/arc joins. (k-1,)"""
         return self.piece_start[1:-1]
@@ -240,61 +229,176 @@ def blend_polyline(points: np.ndarray, tolerance: float) -> BlendedPath:
     tolerance: max distance of the blend from the corner, mm.
     """
     points = np.asarray(points, dtype=float)
-    seg = np.diff(points, axis=0)
-    seg_len = np.linalg.norm(seg, axis=1)
-    d = seg / seg_len[:, None]
-    m = len(seg)
+    return blend_runs(points, np.array([0, len(points)]), np.array([float(tolerance)])).path(0)
 
-    # Corners 1..m-1 between segment k-1 and k.
-    din, dout = d[:-1], d[1:]
-    cos_t = np.clip(np.einsum("ij,ij->i", din, dout), -1.0, 1.0)
-    turn = np.arccos(cos_t)
-    blended = (turn > _MIN_TURN) & (turn <= np.pi - _REVERSAL)
-    half = turn / 2
-    with np.errstate(divide="ignore", invalid="ignore"):
+
+@dataclass(frozen=True)
+class BlendedRuns:
+    """Many polylines blended at once (:func:`blend_runs`), their pieces end to end.
+
+    offsets: (R+1,) int, run r's pieces are offsets[r]..offsets[r+1]-1 of the piece arrays;
+    piece_start: (k+R,) float, mm, each run's own arc lengths, 0 to its length (run r's at
+    offsets[r]+r .. offsets[r+1]+r); kind, p0, d0, normal, radius as :class:`BlendedPath`'s;
+    segment: (k,) int, the run's own polyline segment of each piece; breaks: (k,) bool, the
+    tangent breaks where the piece starts (an exact reversal no arc can blend: the path must be
+    at rest there; never a run's first piece)."""
+
+    offsets: np.ndarray
+    piece_start: np.ndarray
+    kind: np.ndarray
+    p0: np.ndarray
+    d0: np.ndarray
+    normal: np.ndarray
+    radius: np.ndarray
+    segment: np.ndarray
+    breaks: np.ndarray
+
+    def path(self, r: int) -> BlendedPath:
+        """Run r's BlendedPath (views of these arrays)."""
+        a, b = int(self.offsets[r]), int(self.offsets[r + 1])
+        return BlendedPath(self.piece_start[a + r : b + r + 1], self.kind[a:b], self.p0[a:b], self.d0[a:b],
+                           self.normal[a:b], self.radius[a:b], self.segment[a:b])
+
+    def stops(self, r: int) -> np.ndarray:
+        """Run r's arc lengths (mm) where the tangent breaks. (j,)"""
+        a, b = int(self.offsets[r]), int(self.offsets[r + 1])
+        return self.piece_start[a + r : b + r][self.breaks[a:b]]
+
+
+def blend_runs(points: np.ndarray, starts: np.ndarray, tolerance: np.ndarray) -> BlendedRuns:
+    """:func:`blend_polyline` of many polylines in one pass (a run of a few dozen segments
+    spends most of its blend in numpy's per-call overhead).
+
+    points: (V, 3) float, mm, the polylines end to end, each with consecutive duplicates removed
+    and at least two points; starts: (R+1,) int, polyline r is points[starts[r]:starts[r+1]];
+    tolerance: (R,) float, mm, each one's blend tolerance.
+
+    The corners' arithmetic runs over every vertex at once in numpy (a vertex that ends one
+    polyline and one that starts the next get values nobody reads), so each polyline's pieces
+    are what blending it alone gives, bit for bit; the pieces are then laid out run by run
+    compiled."""
+    points = np.ascontiguousarray(points, dtype=float)
+    starts = np.ascontiguousarray(starts, dtype=np.int64)
+    n_runs = len(starts) - 1
+    tol = np.repeat(np.asarray(tolerance, dtype=float), np.diff(starts))[1:-1]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        seg = points[1:] - points[:-1]
+        seg_len = np.linalg.norm(seg, axis=1)
+        d = seg / seg_len[:, None]
+        # Corner at vertex v (1..V-2) between segments v-1 and v.
+        din, dout = d[:-1], d[1:]
+        cos_t = np.clip(np.einsum("ij,ij->i", din, dout), -1.0, 1.0)
+        turn = np.arccos(cos_t)
+        blended = (turn > _MIN_TURN) & (turn <= np.pi - _REVERSAL)
+        half = turn / 2
         # Set-back that puts the arc midpoint exactly `tolerance` from the corner.
-        sb_tol = tolerance * np.tan(half) / (1 / np.cos(half) - 1)
+        sb_tol = tol * np.tan(half) / (1 / np.cos(half) - 1)
         # An exact reversal cannot be blended: go to the point and turn there, at rest.
         sb_tol = np.where(turn > np.pi - _REVERSAL, 0.0, sb_tol)
-    room = 0.5 * np.minimum(seg_len[:-1], seg_len[1:])
-    setback = np.where(blended, np.minimum(sb_tol, room), 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
+        room = 0.5 * np.minimum(seg_len[:-1], seg_len[1:])
+        setback = np.where(blended, np.minimum(sb_tol, room), 0.0)
         radius = np.where(blended, setback / np.tan(half), np.inf)
-    perp = dout - cos_t[:, None] * din
-    pn = np.linalg.norm(perp, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
+        # An arc's length; a corner left sharp has none.
+        arc_len = np.where(blended, np.where(np.isfinite(radius), radius, 0.0) * turn, 0.0)
+        perp = dout - cos_t[:, None] * din
+        pn = np.linalg.norm(perp, axis=1)
         normal = np.where(pn[:, None] > 1e-12, perp / pn[:, None], 0.0)
+    cap = max(2 * len(seg) - 1, 0)
+    out = BlendedRuns(np.empty(n_runs + 1, dtype=np.int64), np.empty(cap + n_runs), np.empty(cap, dtype=np.int8),
+                      np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap),
+                      np.empty(cap, dtype=np.int64), np.empty(cap, dtype=bool))
+    lengths = np.empty(cap)
+    k = _lay_out(points, d, seg_len, starts, setback, arc_len, radius, normal, out.offsets, lengths, out.kind, out.p0,
+                 out.d0, out.normal, out.radius, out.segment)
+    run_cumsum(lengths[:k], out.offsets, out.piece_start)
+    _breaks(out.offsets, out.piece_start, out.kind, out.d0, out.normal, out.radius, out.breaks)
+    return BlendedRuns(out.offsets, out.piece_start[: k + n_runs], out.kind[:k], out.p0[:k], out.d0[:k], out.normal[:k],
+                       out.radius[:k], out.segment[:k], out.breaks[:k])
 
-    # Lines: segment k runs from its start set-back to its end set-back.
-    sb_start = np.concatenate([[0.0], setback])  # set-back at the start of segment k
-    sb_end = np.concatenate([setback, [0.0]])
-    line_len = seg_len - sb_start - sb_end
-    line_p0 = points[:-1] + sb_start[:, None] * d
 
-    # Interleave: line 0, arc 1, line 1, arc 2, ..., line m-1 (arcs only where blended).
-    n_pieces = 2 * m - 1
-    kind = np.zeros(n_pieces, dtype=np.int8)
-    kind[1::2] = 1
-    lengths = np.empty(n_pieces)
-    lengths[0::2] = line_len
-    lengths[1::2] = np.where(blended, np.where(np.isfinite(radius), radius, 0.0) * turn, 0.0)
-    p0 = np.empty((n_pieces, 3))
-    p0[0::2] = line_p0
-    p0[1::2] = points[1:-1] - setback[:, None] * din
-    d0 = np.empty((n_pieces, 3))
-    d0[0::2] = d
-    d0[1::2] = din
-    nrm = np.zeros((n_pieces, 3))
-    nrm[1::2] = normal
-    rad = np.full(n_pieces, np.inf)
-    rad[1::2] = radius
-    segment = np.repeat(np.arange(m), 2)[1:]
-    # Pieces of a picometre go, lines too: between two corners that each take half of an equal
-    # segment a line is left of a few ulps, and its two joins, closer than the grid keeps apart,
-    # would make a stop or a feed cap at the second one miss its grid point.
-    keep = lengths > 1e-12
-    lengths, kind, p0, d0, nrm, rad, segment = (a[keep] for a in (lengths, kind, p0, d0, nrm, rad, segment))
-    return BlendedPath(np.concatenate([[0.0], np.cumsum(lengths)]), kind, p0, d0, nrm, rad, segment)
+@njit
+def _lay_out(points, d, seg_len, starts, setback, arc_len, radius, normal, offsets, lengths, kind, p0, d0, nrm, rad,
+             segment):
+    """:func:`blend_runs`' pieces, run by run: line j of a polyline from its start set-back to its
+    end set-back, after the arc of the corner before it, with blend_polyline's arithmetic; pieces
+    of a picometre or less are left out (between two corners that each take half of an equal
+    segment a line is left of a few ulps, and its two joins, closer than the grid keeps apart,
+    would make a stop or a feed cap at the second one miss its grid point). Writes the pieces'
+    lengths and each run's range of pieces (offsets); returns the number of pieces."""
+    k = 0
+    offsets[0] = 0
+    for r in range(starts.shape[0] - 1):
+        v0 = starts[r]
+        m = starts[r + 1] - v0 - 1  # segments
+        for j in range(m):
+            g = v0 + j  # segment j: vertex g to g + 1; corners at vertices g (j > 0) and g + 1 (j < m - 1)
+            if j > 0 and arc_len[g - 1] > 1e-12:
+                kind[k] = 1
+                for c in range(3):
+                    p0[k, c] = points[g, c] - setback[g - 1] * d[g - 1, c]
+                    d0[k, c] = d[g - 1, c]
+                    nrm[k, c] = normal[g - 1, c]
+                rad[k] = radius[g - 1]
+                segment[k] = j
+                lengths[k] = arc_len[g - 1]
+                k += 1
+            sb_start = setback[g - 1] if j > 0 else 0.0
+            sb_end = setback[g] if j < m - 1 else 0.0
+            length = seg_len[g] - sb_start - sb_end
+            if length > 1e-12:
+                kind[k] = 0
+                for c in range(3):
+                    p0[k, c] = points[g, c] + sb_start * d[g, c]
+                    d0[k, c] = d[g, c]
+                    nrm[k, c] = 0.0
+                rad[k] = np.inf
+                segment[k] = j
+                lengths[k] = length
+                k += 1
+        offsets[r + 1] = k
+    return k
+
+
+@njit
+def run_cumsum(values, offsets, out):
+    """Per run r: out[offsets[r] + r] = 0, then the running sum of values[offsets[r]:offsets[r+1]]
+    in order (np.cumsum's sums). values (k,), offsets (R+1,) int, out (k+R,)."""
+    for r in range(offsets.shape[0] - 1):
+        o = offsets[r] + r
+        acc = 0.0
+        out[o] = 0.0
+        for i in range(offsets[r], offsets[r + 1]):
+            acc += values[i]
+            out[o + 1 + i - offsets[r]] = acc
+
+
+@njit
+def _breaks(offsets, piece_start, kind, d0, normal, radius, out):
+    """Whether the tangent breaks where each piece starts (out (k,) bool): the tangents either
+    side of each join as :func:`_frame_kernel` takes them, the piece found as
+    BlendedPath.locate finds it, their dot product below 1 - 1e-9."""
+    for r in range(offsets.shape[0] - 1):
+        a, n = offsets[r], offsets[r + 1] - offsets[r]
+        ps = piece_start[a + r : a + r + n + 1]
+        if n > 0:
+            out[a] = False
+        for i in range(1, n):
+            s = ps[i]
+            q = _last_at_or_below(ps, s, n)
+            dot = 0.0
+            for c in range(3):
+                dot += _tangent(s - ps[q - 1], a + q - 1, kind, d0, normal, radius, c) * \
+                    _tangent(s - ps[q], a + q, kind, d0, normal, radius, c)
+            out[a + i] = dot < 1 - 1e-9
+
+
+@njit
+def _tangent(u, j, kind, d0, normal, radius, c):
+    """Coordinate c of the unit tangent u mm into piece j, as :func:`_frame_kernel` has it."""
+    if kind[j] == 1:
+        a = u / radius[j]
+        return math.cos(a) * d0[j, c] + math.sin(a) * normal[j, c]
+    return d0[j, c]
 
 
 def dedupe(points: np.ndarray, feed: np.ndarray, e: np.ndarray, eps: float = DEDUPE_EPS):

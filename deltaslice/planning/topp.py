@@ -42,7 +42,7 @@ import numpy as np
 
 from ..errors import DeltasliceError, PlanningError, UnreachableError
 from ..jit import njit
-from .blend import DEDUPE_EPS, BlendedPath, blend_polyline, dedupe, merge_short
+from .blend import DEDUPE_EPS, BlendedPath, blend_runs, dedupe, merge_short, run_cumsum
 from .pieces import FilamentPiece, RunPiece
 from .reachability import solve as fast_solve
 
@@ -848,32 +848,59 @@ class _PathInputs:
 
 def _path_inputs(poly: _Polyline, tol: float, speed_limit: str) -> _PathInputs:
     """A prepared polyline blended within ``tol`` (mm) and what the solver needs along it."""
-    pts, feed, e = poly.points, poly.feed, poly.e
-    path = blend_polyline(pts, tol)
+    return _path_inputs_many([poly], [tol], speed_limit)[0]
+
+
+def _path_inputs_many(polys: list, tols, speed_limit: str) -> list:
+    """:func:`_path_inputs` of each prepared polyline (each blended within its tolerance, mm), in
+    one pass over them all (:func:`.blend.blend_runs`): the same arrays, at a fraction of the
+    per-call cost of runs a few dozen segments long."""
+    counts = np.array([len(p.points) for p in polys])
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    pts = np.concatenate([p.points for p in polys]) if len(polys) > 1 else polys[0].points
+    runs = blend_runs(pts, starts, np.asarray(tols, dtype=float))
+    e = np.concatenate([p.e for p in polys]) if len(polys) > 1 else polys[0].e
+    feed = np.concatenate([p.feed for p in polys]) if len(polys) > 1 else polys[0].feed
+    n_runs = len(polys)
+    seg_start = starts - np.arange(n_runs + 1)  # run r's segments: seg_start[r]..seg_start[r+1]-1
+    run = np.repeat(np.arange(n_runs), np.diff(runs.offsets))  # each piece's run
+    seg = seg_start[run] + runs.segment  # each piece's polyline segment, counted across the runs
 
     # Filament per mm of each piece: the polyline segment's own ratio, so the filament
     # pushed is always that ratio times the arc length driven (blend arcs included) and
     # the bead is what the slicer asked for; blending a corner shortens the path and the
     # filament with it.
-    seg_ratio = e / np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    e_ratio = seg_ratio[path.segment]
-    cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
+    own = np.ones(len(pts) - 1, dtype=bool)  # the pairs of points that are a run's segment
+    own[starts[1:-1] - 1] = False
+    seg_ratio = e / np.linalg.norm(np.diff(pts, axis=0)[own], axis=1)
+    e_ratio = seg_ratio[seg]
+    piece_len = np.diff(runs.piece_start)
+    piece_len = np.delete(piece_len, runs.offsets[1:-1] + np.arange(n_runs - 1)) if n_runs > 1 else piece_len
+    cum_e = np.empty(len(e_ratio) + n_runs)
+    run_cumsum(e_ratio * piece_len, runs.offsets, cum_e)
 
     # The tool channel only where filament moves (a laser's e is zero): all-zero rows make the
     # LP degenerate.
-    extruder = bool(np.any(e != 0))
+    extruder = np.bincount(np.repeat(np.arange(n_runs), np.diff(seg_start)), weights=e != 0, minlength=n_runs) > 0
     seg_feed = feed if speed_limit == "feed" else np.full(len(feed), np.inf)
     # An arc is capped by the slower of the segments it joins.
-    prev_seg = np.maximum(path.segment - 1, 0)
-    piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev_seg]), seg_feed[path.segment])
-    stop_at = path.stops()
-    if extruder and len(path.kind) > 1:
-        # Where the filament per mm changes (a new extrusion width) the filament speed would step,
-        # an unbounded filament acceleration: such a join is taken at rest (rare: a role change
-        # inside one run).
-        jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
-        stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
-    return _PathInputs(path, e_ratio, cum_e, extruder, piece_feed, stop_at)
+    prev_seg = seg - (runs.segment > 0)
+    piece_feed = np.where(runs.kind == 1, np.minimum(seg_feed[seg], seg_feed[prev_seg]), seg_feed[seg])
+    # Where the filament per mm changes (a new extrusion width) the filament speed would step,
+    # an unbounded filament acceleration: such a join is taken at rest (rare: a role change
+    # inside one run).
+    jump = np.zeros(len(e_ratio), dtype=bool)  # at the piece's start
+    jump[1:] = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
+    jump[runs.offsets[:-1]] = False
+    out = []
+    for r in range(n_runs):
+        a, b = int(runs.offsets[r]), int(runs.offsets[r + 1])
+        path = runs.path(r)
+        stop_at = runs.stops(r)
+        if extruder[r] and b - a > 1:
+            stop_at = np.concatenate([stop_at, path.piece_start[:-1][jump[a:b]]])
+        out.append(_PathInputs(path, e_ratio[a:b], cum_e[a + r : b + r + 1], bool(extruder[r]), piece_feed[a:b], stop_at))
+    return out
 
 
 def _plan_polyline(kin, printer, spec: RunSpec, poly: _Polyline, speed_limit: str, tol: float, kind: str, solver: str,
@@ -1245,12 +1272,16 @@ def _plan_runs(kin, printer, specs, speed_limit: str, solver: str) -> list:
     # by extruder (a batch plans the tool channel for all its runs or none): [[(index, inputs)]], and
     # the path pieces in each side's last batch
     batches, size = {True: [], False: []}, {True: 0, False: 0}
+    batched, prepared = [], []
     for i, spec in enumerate(specs):
         deduped = None if solver != "fast" or spec.power is not None or is_long(spec) else dedupe(spec.points, spec.feed, spec.e)
         if deduped is None or len(deduped[0]) < 2:
             out[i] = plan_run(kin, printer, spec, speed_limit, solver=solver)
             continue
-        inputs = _path_inputs(*_prepare(printer, spec, None, deduped), speed_limit)
+        batched.append(i)
+        prepared.append(_prepare(printer, spec, None, deduped))
+    every = _path_inputs_many([p for p, _tol in prepared], [tol for _p, tol in prepared], speed_limit) if prepared else []
+    for i, inputs in zip(batched, every):
         groups, side = batches[inputs.extruder], inputs.extruder
         if not groups or size[side] + len(inputs.path.kind) > BATCH_PIECES:
             groups.append([])
