@@ -281,3 +281,45 @@ def test_a_real_part_sliced_in_workers_is_the_part_sliced_here(etitc):
         pytest.skip("../shared/parts is not here")
     mesh = load_mesh(part, scale=5.0)
     _same_toolpath(slice_mesh(mesh, etitc.slicing, etitc.tool), slice_mesh(mesh, etitc.slicing, etitc.tool, workers=2))
+
+
+
+def _scanline_segments(rng):
+    """Segments (k, xa, xb) on a few scanlines (some lines empty), some with touching ends."""
+    lines = np.sort(rng.choice(12, size=int(rng.integers(1, 10)), replace=False))
+    k, xa, xb = [], [], []
+    for line in lines:
+        cuts = np.sort(rng.uniform(0, 20, 2 * int(rng.integers(1, 5))))
+        if rng.random() < 0.3:
+            cuts = np.round(cuts)  # touching ends: open intervals do not overlap there
+        keep = cuts[1::2] > cuts[0::2]
+        k += [line] * int(keep.sum())
+        xa += cuts[0::2][keep].tolist()
+        xb += cuts[1::2][keep].tolist()
+    return np.array(k, dtype=np.int64), np.array(xa), np.array(xb)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 100_000))
+def test_infill_chains_link_exactly_the_sole_overlaps_of_neighbouring_lines(seed):
+    """chain_segments against its rule evaluated pair by pair (no link too long to cut): segment i
+    of scanline k is followed by segment j of scanline k + 1 exactly when each is the other's only
+    overlapping segment (open intervals); every segment is in one chain."""
+    from deltaslice.slicing.infill import chain_segments
+
+    k, xa, xb = _scanline_segments(np.random.default_rng(seed))
+    chains = chain_segments(k, xa, xb, 0.5, np.inf)
+    assert sorted(np.concatenate(chains).tolist()) == list(range(len(k)))
+
+    def overlap(i, j):
+        return xa[i] < xb[j] and xa[j] < xb[i]
+
+    def sole(i, j):
+        return (k[j] == k[i] + 1 and overlap(i, j)
+                and sum(overlap(i, m) for m in range(len(k)) if k[m] == k[j]) == 1
+                and sum(overlap(m, j) for m in range(len(k)) if k[m] == k[i]) == 1)
+
+    follows = {int(i): int(j) for c in chains for i, j in zip(c[:-1], c[1:])}
+    for i in range(len(k)):
+        for j in range(len(k)):
+            assert (follows.get(i) == j) == sole(i, j), (i, j)

@@ -17,6 +17,8 @@ import numpy as np
 import shapely
 from manifold3d import CrossSection, JoinType, OpType
 
+from ..jit import njit
+
 
 def solid_masks(sections: list[CrossSection], layer: int, top: int, bottom: int,
                 covers: list[CrossSection] | None = None) -> tuple[CrossSection, CrossSection]:
@@ -103,18 +105,8 @@ def chain_segments(k: np.ndarray, xa: np.ndarray, xb: np.ndarray, spacing: float
     line_end = np.concatenate([line_start[1:], [m]])
     nxt = np.full(m, -1)
     prev = np.full(m, -1)
-    for a in range(len(line_start) - 1):
-        s0, e0, s1, e1 = line_start[a], line_end[a], line_start[a + 1], line_end[a + 1]
-        if k[s1] != k[s0] + 1:
-            continue
-        # overlap matrix between the two lines (small)
-        ov = (xa[s0:e0, None] < xb[None, s1:e1]) & (xa[None, s1:e1] < xb[s0:e0, None])
-        one_a = ov.sum(axis=1) == 1
-        one_b = ov.sum(axis=0) == 1
-        ii, jj = np.nonzero(ov)
-        sole = one_a[ii] & one_b[jj]
-        nxt[s0 + ii[sole]] = s1 + jj[sole]
-        prev[s1 + jj[sole]] = s0 + ii[sole]
+    _sole_overlaps(np.ascontiguousarray(k, dtype=np.int64), np.ascontiguousarray(xa, dtype=float),
+                   np.ascontiguousarray(xb, dtype=float), line_start, line_end, nxt, prev)
     chains = []
     nxt_l = nxt.tolist()
     for head in np.flatnonzero(prev < 0).tolist():
@@ -137,6 +129,38 @@ def chain_segments(k: np.ndarray, xa: np.ndarray, xb: np.ndarray, spacing: float
         else:
             out.append(c)
     return out
+
+
+@njit
+def _sole_overlaps(k, xa, xb, line_start, line_end, nxt, prev):
+    """nxt[i] = j and prev[j] = i for segment i of scanline k and segment j of scanline k + 1
+    (segments [xa, xb] of each line, its run line_start..line_end) where each is the other's only
+    overlapping segment (open intervals). One pass per pair of neighbouring lines, counting each
+    segment's overlaps (a Python loop over the lines with an overlap matrix each was the slicer's
+    largest per-line cost)."""
+    width = 0
+    for a in range(len(line_start)):
+        width = max(width, line_end[a] - line_start[a])
+    count_a = np.empty(width, dtype=np.int64)
+    count_b = np.empty(width, dtype=np.int64)
+    for a in range(len(line_start) - 1):
+        s0, e0, s1, e1 = line_start[a], line_end[a], line_start[a + 1], line_end[a + 1]
+        if k[s1] != k[s0] + 1:
+            continue
+        count_a[: e0 - s0] = 0
+        count_b[: e1 - s1] = 0
+        for i in range(s0, e0):
+            for j in range(s1, e1):
+                if xa[i] < xb[j] and xa[j] < xb[i]:
+                    count_a[i - s0] += 1
+                    count_b[j - s1] += 1
+        for i in range(s0, e0):
+            if count_a[i - s0] != 1:
+                continue
+            for j in range(s1, e1):
+                if xa[i] < xb[j] and xa[j] < xb[i] and count_b[j - s1] == 1:
+                    nxt[i] = j
+                    prev[j] = i
 
 
 def chain_polylines(k, xa, xb, chains, spacing: float, angle: float) -> list[np.ndarray]:
