@@ -107,28 +107,11 @@ def chain_segments(k: np.ndarray, xa: np.ndarray, xb: np.ndarray, spacing: float
     prev = np.full(m, -1)
     _sole_overlaps(np.ascontiguousarray(k, dtype=np.int64), np.ascontiguousarray(xa, dtype=float),
                    np.ascontiguousarray(xb, dtype=float), line_start, line_end, nxt, prev)
-    chains = []
-    nxt_l = nxt.tolist()
-    for head in np.flatnonzero(prev < 0).tolist():
-        chain = [head]
-        while nxt_l[chain[-1]] >= 0:
-            chain.append(nxt_l[chain[-1]])
-        chains.append(chain)
-    # split chains where the zig-zag link would be too long
-    out = []
-    for chain in chains:
-        c = np.asarray(chain)
-        if len(c) > 1:
-            # the chain alternates direction: link i->i+1 joins the end of i to the start of i+1
-            fwd = np.arange(len(c)) % 2 == 0
-            end_x = np.where(fwd, xb[c], xa[c])
-            start_next = np.where(fwd[:-1], xb[c[1:]], xa[c[1:]])  # the next segment runs the other way
-            link = np.hypot(end_x[:-1] - start_next, spacing)
-            cut = np.flatnonzero(link > max_link) + 1
-            out.extend(np.split(c, cut))
-        else:
-            out.append(c)
-    return out
+    order = np.empty(m, dtype=np.int64)
+    starts = np.empty(m, dtype=np.int64)
+    n = _split_chains(nxt, prev, np.ascontiguousarray(xa, dtype=float), np.ascontiguousarray(xb, dtype=float),
+                      float(spacing), float(max_link), order, starts)
+    return np.split(order, starts[1:n])
 
 
 @njit
@@ -161,6 +144,40 @@ def _sole_overlaps(k, xa, xb, line_start, line_end, nxt, prev):
                 if xa[i] < xb[j] and xa[j] < xb[i] and count_b[j - s1] == 1:
                     nxt[i] = j
                     prev[j] = i
+
+
+@njit
+def _split_chains(nxt, prev, xa, xb, spacing, max_link, order, starts):
+    """The chains of ``nxt`` (from each segment with no ``prev``, in index order) end to end in
+    ``order``, each cut where its zig-zag link is longer than ``max_link``; ``starts``: where each
+    chain begins in ``order``. Returns the number of chains. A chain runs its first segment
+    forward (xa to xb) and alternates, as :func:`chain_polylines` draws it, so a link is measured
+    with the directions its own chain gives after a cut: forward, it joins xb to the next
+    segment's xb; backward, xa to xa."""
+    pos = 0
+    n = 0
+    for head in range(len(nxt)):
+        if prev[head] >= 0:
+            continue
+        starts[n] = pos
+        n += 1
+        i = head
+        order[pos] = i
+        pos += 1
+        forward = True
+        while nxt[i] >= 0:
+            j = nxt[i]
+            gap = xb[i] - xb[j] if forward else xa[i] - xa[j]
+            if math.hypot(gap, spacing) > max_link:
+                starts[n] = pos
+                n += 1
+                forward = True
+            else:
+                forward = not forward
+            order[pos] = j
+            pos += 1
+            i = j
+    return n
 
 
 def chain_polylines(k, xa, xb, chains, spacing: float, angle: float) -> list[np.ndarray]:
