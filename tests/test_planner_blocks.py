@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from deltaslice.errors import UnreachableError
 from deltaslice.planning import topp, travel
-from deltaslice.planning.blend import blend_polyline, blend_runs
+from deltaslice.planning.blend import BlendedPath, blend_polyline, blend_runs
 from deltaslice.planning.pieces import JointMovePiece, RunPiece
 from deltaslice.planning.trajectory import Trajectory
 from deltaslice.slicing.ordering import Path, nearest_order
@@ -660,26 +660,87 @@ def _polyline(rng, kind: int) -> np.ndarray:
     return pts if len(pts) >= 2 else np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]])
 
 
+def _reference_blend(points, tolerance):
+    """Blending one polyline with numpy alone, as the planner did before blend_runs (cf0ef8f):
+    the oracle the compiled layout is held to, bit for bit. -> (BlendedPath, stops (j,))."""
+    seg = np.diff(points, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    d = seg / seg_len[:, None]
+    m = len(seg)
+    din, dout = d[:-1], d[1:]
+    cos_t = np.clip(np.einsum("ij,ij->i", din, dout), -1.0, 1.0)
+    turn = np.arccos(cos_t)
+    blended = (turn > 1e-6) & (turn <= np.pi - 1e-3)
+    half = turn / 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sb_tol = np.where(turn > np.pi - 1e-3, 0.0, tolerance * np.tan(half) / (1 / np.cos(half) - 1))
+        setback = np.where(blended, np.minimum(sb_tol, 0.5 * np.minimum(seg_len[:-1], seg_len[1:])), 0.0)
+        radius = np.where(blended, setback / np.tan(half), np.inf)
+        perp = dout - cos_t[:, None] * din
+        pn = np.linalg.norm(perp, axis=1)
+        normal = np.where(pn[:, None] > 1e-12, perp / pn[:, None], 0.0)
+    sb_start, sb_end = np.concatenate([[0.0], setback]), np.concatenate([setback, [0.0]])
+    n = 2 * m - 1
+    kind = np.tile(np.array([0, 1], dtype=np.int8), m)[:n]
+    lengths = np.empty(n)
+    lengths[0::2] = seg_len - sb_start - sb_end
+    lengths[1::2] = np.where(blended, np.where(np.isfinite(radius), radius, 0.0) * turn, 0.0)
+    p0, d0, nrm, rad = np.empty((n, 3)), np.empty((n, 3)), np.zeros((n, 3)), np.full(n, np.inf)
+    p0[0::2], p0[1::2] = points[:-1] + sb_start[:, None] * d, points[1:-1] - setback[:, None] * din
+    d0[0::2], d0[1::2] = d, din
+    nrm[1::2], rad[1::2] = normal, radius
+    segment = np.repeat(np.arange(m), 2)[1:]
+    keep = lengths > 1e-12
+    path = BlendedPath(np.concatenate([[0.0], np.cumsum(lengths[keep])]), kind[keep], p0[keep], d0[keep], nrm[keep],
+                       rad[keep], segment[keep])
+    j = path.joins()
+    k = path.locate(j)
+    dot = np.einsum("ij,ij->i", path.frame(j, k - 1)[1], path.frame(j, k)[1])
+    return path, j[dot < 1 - 1e-9]
+
+
+def _reference_path_inputs(poly, tol, speed_limit):
+    """_path_inputs with numpy alone, one run, as before _path_inputs_many (cf0ef8f)."""
+    path, stop_at = _reference_blend(poly.points, tol)
+    e_ratio = (poly.e / np.linalg.norm(np.diff(poly.points, axis=0), axis=1))[path.segment]
+    cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
+    extruder = bool(np.any(poly.e != 0))
+    seg_feed = poly.feed if speed_limit == "feed" else np.full(len(poly.feed), np.inf)
+    prev = np.maximum(path.segment - 1, 0)
+    piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev]), seg_feed[path.segment])
+    if extruder and len(path.kind) > 1:
+        jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
+        stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
+    return path, e_ratio, cum_e, extruder, piece_feed, stop_at
+
+
+_PATH_FIELDS = ("piece_start", "kind", "p0", "d0", "normal", "radius", "segment")
+
+
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 100_000))
 def test_runs_blended_together_are_each_blended_alone_bit_for_bit(seed):
     """blend_runs lays many polylines end to end and computes their corners in one pass, the
-    vertices where one run ends and the next starts included: every run's pieces, stops and
-    breaks must be those of blending it alone (no value of a neighbour may leak in)."""
+    vertices where one run ends and the next starts included: every run's pieces and stops must be
+    those of blending it alone (no value of a neighbour may leak in), and those of blending it
+    with numpy alone as the planner did before (the same arithmetic, bit for bit)."""
     rng = np.random.default_rng(seed)
     polys = [_polyline(rng, int(rng.integers(0, 3))) for _ in range(int(rng.integers(1, 6)))]
     tols = rng.uniform(0.005, 0.3, len(polys))
     starts = np.concatenate([[0], np.cumsum([len(p) for p in polys])])
     together = blend_runs(np.concatenate(polys), starts, tols)
-    fields = ("piece_start", "kind", "p0", "d0", "normal", "radius", "segment")
+    fields = _PATH_FIELDS
     for r, (pts, tol) in enumerate(zip(polys, tols)):
         alone = blend_runs(pts, np.array([0, len(pts)]), np.array([tol]))
         a, b = together.path(r), alone.path(0)
         for f in fields:
             assert np.array_equal(getattr(a, f), getattr(b, f)) and getattr(a, f).dtype == getattr(b, f).dtype, (r, f)
         assert np.array_equal(together.stops(r), alone.stops(0))
+        want, stops = _reference_blend(pts, tol)
         for f in fields:
-            assert np.array_equal(getattr(blend_polyline(pts, tol), f), getattr(b, f))
+            assert np.array_equal(getattr(a, f), getattr(want, f)) and getattr(a, f).dtype == getattr(want, f).dtype, (r, f)
+            assert np.array_equal(getattr(blend_polyline(pts, tol), f), getattr(want, f))
+        assert np.array_equal(together.stops(r), stops)
 
 
 @settings(max_examples=40, deadline=None)
@@ -722,9 +783,16 @@ def test_path_inputs_of_many_runs_are_each_runs_own(speed_limit):
     tols = rng.uniform(0.01, 0.2, len(polys))
     many = topp._path_inputs_many(polys, tols, speed_limit)
     assert sum(len(x.stop_at) > 0 for x in many) >= 2
+    assert any(np.any(x.path.kind == 1) for x in many)
     for poly, tol, got in zip(polys, tols, many):
-        want = topp._path_inputs(poly, tol, speed_limit)
-        assert got.extruder == want.extruder
-        for f in ("e_ratio", "cum_e", "piece_feed", "stop_at"):
-            assert np.array_equal(getattr(got, f), getattr(want, f)), f
-        assert np.array_equal(got.path.piece_start, want.path.piece_start)
+        for want in (topp._path_inputs(poly, tol, speed_limit), None):
+            if want is None:  # the numpy arithmetic of one run at a time, as before the batch
+                path, e_ratio, cum_e, extruder, piece_feed, stop_at = _reference_path_inputs(poly, tol, speed_limit)
+            else:
+                path, e_ratio, cum_e, extruder = want.path, want.e_ratio, want.cum_e, want.extruder
+                piece_feed, stop_at = want.piece_feed, want.stop_at
+            assert got.extruder == extruder
+            for f, v in (("e_ratio", e_ratio), ("cum_e", cum_e), ("piece_feed", piece_feed), ("stop_at", stop_at)):
+                assert np.array_equal(getattr(got, f), v), f
+            for f in _PATH_FIELDS:
+                assert np.array_equal(getattr(got.path, f), getattr(path, f)), f

@@ -296,6 +296,8 @@ def _scanline_segments(rng):
         k += [line] * int(keep.sum())
         xa += cuts[0::2][keep].tolist()
         xb += cuts[1::2][keep].tolist()
+    if not k:  # every pair of rounded cuts came out equal: one segment, so there is something to chain
+        k, xa, xb = [int(lines[0])], [0.0], [1.0]
     return np.array(k, dtype=np.int64), np.array(xa), np.array(xb)
 
 

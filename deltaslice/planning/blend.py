@@ -320,8 +320,9 @@ def blend_runs(points: np.ndarray, starts: np.ndarray, tolerance: np.ndarray) ->
 def _lay_out(points, d, seg_len, starts, setback, arc_len, radius, normal, offsets, lengths, kind, p0, d0, nrm, rad,
              segment):
     """:func:`blend_runs`' pieces, run by run: line j of a polyline from its start set-back to its
-    end set-back, after the arc of the corner before it, with blend_polyline's arithmetic; pieces
-    of a picometre or less are left out (between two corners that each take half of an equal
+    end set-back (p0 = its first point + set-back d, length = segment - both set-backs), after the
+    arc of the corner before it (p0 = the corner - set-back d_in, tangent d_in); pieces of a
+    picometre or less are left out (between two corners that each take half of an equal
     segment a line is left of a few ulps, and its two joins, closer than the grid keeps apart,
     would make a stop or a feed cap at the second one miss its grid point). Writes the pieces'
     lengths and each run's range of pieces (offsets); returns the number of pieces."""

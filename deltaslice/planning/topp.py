@@ -891,7 +891,8 @@ def _path_inputs_many(polys: list, tols, speed_limit: str) -> list:
     # inside one run).
     jump = np.zeros(len(e_ratio), dtype=bool)  # at the piece's start
     jump[1:] = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
-    jump[runs.offsets[:-1]] = False
+    first = runs.offsets[:-1]
+    jump[first[first < len(jump)]] = False  # a run's first piece (a run may have none)
     out = []
     for r in range(n_runs):
         a, b = int(runs.offsets[r]), int(runs.offsets[r + 1])
@@ -1253,7 +1254,8 @@ def plan_runs(kin, printer, specs, speed_limit: str, solver: str = "fast") -> li
     path: a run of a few dozen segments spends most of its time in a solve's per-problem set-up
     (grid, derivatives, rows, solve, check: about 2 ms), not in the kernels.
 
-    Each run is prepared and blended alone, as ``plan_run`` does; batches of up to BATCH_PIECES
+    Each run is prepared alone, as ``plan_run`` does, and the runs are blended in one pass (the same
+    paths as blending each alone: :func:`.blend.blend_runs`); batches of up to BATCH_PIECES
     of their pieces are then solved as one path (:func:`_solve_units`, as ``plan_lines`` does
     for straight travels), each run's RunPiece its stretch of the solution: what planning it
     alone gives, to rounding.
