@@ -386,20 +386,19 @@ def _breaks(offsets, piece_start, kind, d0, normal, radius, out):
         for i in range(1, n):
             s = ps[i]
             q = _last_at_or_below(ps, s, n)
-            dot = 0.0
-            for c in range(3):
-                dot += _tangent(s - ps[q - 1], a + q - 1, kind, d0, normal, radius, c) * \
-                    _tangent(s - ps[q], a + q, kind, d0, normal, radius, c)
-            out[a + i] = dot < 1 - 1e-9
+            bx, by, bz = _tangent(s - ps[q - 1], a + q - 1, kind, d0, normal, radius)
+            ax, ay, az = _tangent(s - ps[q], a + q, kind, d0, normal, radius)
+            out[a + i] = bx * ax + by * ay + bz * az < 1 - 1e-9
 
 
 @njit
-def _tangent(u, j, kind, d0, normal, radius, c):
-    """Coordinate c of the unit tangent u mm into piece j, as :func:`_frame_kernel` has it."""
+def _tangent(u, j, kind, d0, normal, radius):
+    """The unit tangent (x, y, z) u mm into piece j, as :func:`_frame_kernel` has it."""
     if kind[j] == 1:
         a = u / radius[j]
-        return math.cos(a) * d0[j, c] + math.sin(a) * normal[j, c]
-    return d0[j, c]
+        sa, ca = math.sin(a), math.cos(a)
+        return (ca * d0[j, 0] + sa * normal[j, 0], ca * d0[j, 1] + sa * normal[j, 1], ca * d0[j, 2] + sa * normal[j, 2])
+    return d0[j, 0], d0[j, 1], d0[j, 2]
 
 
 def dedupe(points: np.ndarray, feed: np.ndarray, e: np.ndarray, eps: float = DEDUPE_EPS):

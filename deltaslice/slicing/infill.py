@@ -100,17 +100,17 @@ def chain_segments(k: np.ndarray, xa: np.ndarray, xb: np.ndarray, spacing: float
     m = len(k)
     if m == 0:
         return []
+    k = np.ascontiguousarray(k, dtype=np.int64)
+    xa, xb = np.ascontiguousarray(xa, dtype=float), np.ascontiguousarray(xb, dtype=float)
     # boundaries of each scanline's run of segments
     line_start = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]]))
     line_end = np.concatenate([line_start[1:], [m]])
     nxt = np.full(m, -1)
     prev = np.full(m, -1)
-    _sole_overlaps(np.ascontiguousarray(k, dtype=np.int64), np.ascontiguousarray(xa, dtype=float),
-                   np.ascontiguousarray(xb, dtype=float), line_start, line_end, nxt, prev)
+    _sole_overlaps(k, xa, xb, line_start, line_end, nxt, prev)
     order = np.empty(m, dtype=np.int64)
     starts = np.empty(m, dtype=np.int64)
-    n = _split_chains(nxt, prev, np.ascontiguousarray(xa, dtype=float), np.ascontiguousarray(xb, dtype=float),
-                      float(spacing), float(max_link), order, starts)
+    n = _split_chains(nxt, prev, xa, xb, float(spacing), float(max_link), order, starts)
     return np.split(order, starts[1:n])
 
 
