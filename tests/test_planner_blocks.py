@@ -557,7 +557,7 @@ def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():
 def test_compiled_grid_quantities_are_their_numpy_forms():
     """The planner's small compiled passes against the numpy they replace, bit for bit, NaN
     derivatives included: the grid-point speed factor (|q'| over both sides of each grid point),
-    the stages with a limit active, and the rows in each move's own units (a / c, b / c^2)."""
+    the velocity cap on x_dot^2 from it, the stages with a limit active, and the rows in each move's own units (a / c, b / c^2)."""
     rng = np.random.default_rng(7)
     for trial in range(60):
         n, dof = int(rng.integers(0, 40)) if trial else 0, int(rng.integers(1, 5))
@@ -569,6 +569,15 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
         want[:-1] = np.maximum(start, mid)
         want[1:] = np.maximum(want[1:], np.maximum(end, mid))
         assert np.array_equal(topp.gridpoint_speed_factor(dq), want, equal_nan=True), trial
+        # the velocity cap from it: zero factors (inf), NaN ones, feeds of zero, inf and NaN
+        factor = want.copy()
+        factor[rng.random(factor.shape) < 0.1] = 0.0
+        vmax, S = rng.uniform(0.5, 2, dof), float(rng.uniform(1, 100))
+        feed = rng.choice([0.0, np.inf, np.nan, 7.0, 30.0], n + 1, p=[0.1, 0.3, 0.05, 0.3, 0.25])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            want_cap2 = np.minimum(np.min(vmax[None] / factor, axis=1), feed / S) ** 2
+        got_cap2 = topp.PathVelocityConstraint(vmax, feed, S, factor).cap2(None, None)
+        assert np.array_equal(got_cap2, want_cap2, equal_nan=True), trial
         if n == 0:
             continue
         sd, xdd = rng.uniform(0, 2, n + 1), rng.normal(size=n)

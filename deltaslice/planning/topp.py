@@ -187,14 +187,16 @@ class RunPath:
         dq, ddq = np.empty((n, f, self._dof)), np.empty((n, f, self._dof))
         flat_dq, flat_ddq = dq.reshape(n * f, self._dof), ddq.reshape(n * f, self._dof)
         per = max(1, DERIVATIVE_BLOCK // max(f, 1))  # stages a block
+        J = self.kin.n_joints
         for a in range(0, n, per):
             b = min(a + per, n)
             self._joint_rates(self.path.stage_frame(s[a:b], ds[a:b], frac, owner[a:b]), flat_dq[a * f : b * f],
                               flat_ddq[a * f : b * f])
-        if self.e_ratio is not None:  # the filament's rate is its piece's: one value per stage
-            J = self.kin.n_joints
-            dq[:, :, J] = (self.e_ratio[owner] * self.S)[:, None]
-            ddq[:, :, J] = 0.0
+            if self.e_ratio is not None:  # the filament's rate is its piece's: one value per stage
+                # block by block, while the block is in the cache (a pass over the whole arrays
+                # cost as much again)
+                dq[a:b, :, J] = (self.e_ratio[owner[a:b]] * self.S)[:, None]
+                ddq[a:b, :, J] = 0.0
         return dq, ddq
 
     def __call__(self, xs, order=0):
@@ -308,8 +310,10 @@ def _speed_factor_kernel(dq, out):
     middle) (NaN where any is, as numpy's maximum); out[0] = ahead_0, out[n] = behind_{n-1}."""
     n, f, dof = dq.shape
     mid = f // 2
-    for j in range(dof):
-        for i in range(n + 1):
+    # grid point by grid point, its channels together: one pass over dq (a pass per channel
+    # read a run's whole derivative array, larger than the cache, once for each)
+    for i in range(n + 1):
+        for j in range(dof):
             top = 0.0
             if i < n:
                 top = _nan_max(abs(dq[i, 0, j]), abs(dq[i, mid, j]))
@@ -336,15 +340,32 @@ class PathVelocityConstraint:
     def cap2(self, path, gridpoints) -> np.ndarray:
         """The bound on x_dot^2 at each grid point (n+1,)."""
         dq = np.abs(path(gridpoints, 1)) if self.speed_factor is None else self.speed_factor
-        with np.errstate(divide="ignore"):
-            cap = np.min(self.vmax[None] / dq, axis=1)
-        cap = np.minimum(cap, self.feed / self.S)
-        return cap**2
+        out = np.empty(len(dq))
+        _cap2_kernel(np.ascontiguousarray(dq, dtype=float), self.vmax, np.ascontiguousarray(self.feed, dtype=float),
+                     float(self.S), out)
+        return out
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
         xbound = np.zeros((len(gridpoints), 2))
         xbound[:, 1] = self.cap2(path, gridpoints)
         return None, None, None, None, None, None, xbound
+
+
+@njit
+def _cap2_kernel(dq, vmax, feed, S, out):
+    """out[i] = min(min_j vmax[j] / dq[i, j], feed[i] / S)^2 (dq (n, dof) >= 0, a zero giving
+    inf), NaN where any term is: numpy's ``np.minimum(np.min(vmax / dq, axis=1), feed / S) ** 2``
+    in one pass (its (n, dof) temporaries and its short reduction along each row cost more than
+    the arithmetic)."""
+    n, dof = dq.shape
+    for i in range(n):
+        cap = feed[i] / S
+        nan = cap != cap
+        for j in range(dof):
+            v = vmax[j] / dq[i, j]
+            nan |= v != v
+            cap = v if v < cap else cap
+        out[i] = np.nan if nan else cap * cap
 
 
 def grid(path: BlendedPath) -> np.ndarray:
@@ -1052,7 +1073,7 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
     # first-order cap, or some joint's acceleration at its limit.
     cap2 = rows[3] if rows is not None else constraints[0].cap2(rp, x_grid)
     active = np.empty(len(xdd), dtype=bool)
-    _active_kernel(dq_st, ddq_st, xdd, sd, cap2, amax, active)
+    _active_kernel(dq_check, ddq_check, xdd, sd, cap2, amax, active)  # fraction 0 of either; these are contiguous
     return _Profile(s_grid, x_grid, sd, xdd, t, dt, active, -1 if cap is None else cut_g(s_grid))
 
 
