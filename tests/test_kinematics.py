@@ -9,6 +9,7 @@ against an independent least-squares solve of the closure equations, NaN and
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 
@@ -505,6 +506,35 @@ def test_well_conditioned_is_the_svd_condition_below_the_limit(name):
     for limit in (kin.singularity_limit, *np.quantile(cond, [0.2, 0.5, 0.9, 0.999])):
         kin.singularity_limit = limit
         np.testing.assert_array_equal(_quiet(kin.well_conditioned, pts, q), cond < limit)
+
+
+@pytest.mark.parametrize("name", ["delta_etitc", "delta_ucb", "delta_uady", "delta_espe_laser"])
+def test_rotary_compiled_reach_tests_are_the_numpy_forms(name):
+    """The rotary delta's compiled condition bound and ball-joint tilt test against the numpy
+    they replace (the base's bound from inverse_jacobian, ball_joint_tilt): the same bound to
+    rounding (inf and NaN where it is), the same tilt decisions, with a limit that cuts through
+    the sample, and NaN joints refused."""
+    from deltaslice.kinematics.base import Kinematics
+
+    kin = printer(name).kinematics()
+    rng = np.random.default_rng(11)
+    pts = _no_raise(kin.forward, rng.uniform(kin.position_min, kin.position_max, (20000, 3)))  # the joint space through
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    q = _quiet(kin.inverse, pts)
+    keep = np.all(np.isfinite(q), axis=1)
+    pts, q = pts[keep], q[keep]
+    q[:5] = [[np.nan, 0, 0], [0, np.inf, 0], [0.3, 0.3, 0.3], [-1.2, -1.2, -1.2], [1.4, -0.9, 0.2]]  # NaN, beyond reach
+    got, want = _no_raise(kin.condition_bound, q), _no_raise(Kinematics.condition_bound, kin, q)
+    finite = np.isfinite(want)
+    assert len(q) > 1000 and finite.sum() > 1000
+    np.testing.assert_array_equal(np.isfinite(got), finite)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_allclose(got[finite], want[finite], rtol=1e-9)
+    tilts = np.abs(_no_raise(kin.ball_joint_tilt, pts, q))
+    for limit in (kin.geometry.ball_joint_tilt_max, *np.nanquantile(tilts.max(axis=1), [0.1, 0.5, 0.9]), math.pi / 2):
+        tilted = type(kin)(dataclasses.replace(kin.geometry, ball_joint_tilt_max=limit), kin.position_min, kin.position_max)
+        want_ok = np.ones(len(q), bool) if limit is None else np.all(tilts <= limit + 1e-12, axis=1)
+        np.testing.assert_array_equal(tilted.extra_ok(pts, q), want_ok)
 
 
 def test_well_conditioned_judges_the_pose_the_joints_hold():

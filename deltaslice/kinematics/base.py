@@ -211,13 +211,19 @@ class Kinematics:
         the limit (less than a millionth of margin) get the exact SVD. The inverse Jacobian is
         taken at q's own pose, as ``condition(q)`` takes the Jacobian (a rotary delta's forward
         solution; ``points`` may be the other root where the joints pass about -90 degrees)."""
-        ji = self.inverse_jacobian(q)
-        adj = np.cross(ji[:, [1, 2, 0]], ji[:, [2, 0, 1]])  # row i: the cofactors of row i
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            det = np.einsum("ni,ni->n", ji[:, 0], adj[:, 0])
-            bound = np.sqrt(np.einsum("nij,nij->n", ji, ji) * np.einsum("nij,nij->n", adj, adj)) / np.abs(det)
-            ok = bound * (1 + 1e-6) < self.singularity_limit
+        with np.errstate(invalid="ignore"):
+            ok = self.condition_bound(q) * (1 + 1e-6) < self.singularity_limit
         rest = np.flatnonzero(~ok)
         if rest.size:
             ok[rest] = self.condition(q[rest]) < self.singularity_limit
         return ok
+
+    def condition_bound(self, q: np.ndarray) -> np.ndarray:
+        """q (N,3) -> (N,) an upper bound on ``condition(q)``: |J^-1|_F |J|_F with J = adj(J^-1) /
+        det(J^-1) from the inverse Jacobian at q's own pose (inf or NaN where that is singular or
+        out of reach: never below the limit, so :meth:`well_conditioned` asks the SVD there)."""
+        ji = self.inverse_jacobian(q)
+        adj = np.cross(ji[:, [1, 2, 0]], ji[:, [2, 0, 1]])  # row i: the cofactors of row i
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            det = np.einsum("ni,ni->n", ji[:, 0], adj[:, 0])
+            return np.sqrt(np.einsum("nij,nij->n", ji, ji) * np.einsum("nij,nij->n", adj, adj)) / np.abs(det)

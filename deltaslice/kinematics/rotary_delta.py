@@ -173,10 +173,74 @@ class RotaryDelta(Kinematics):
         return np.arcsin(np.clip(np.einsum("nij,ij->ni", d, V) / self.L2, -1, 1))
 
     def extra_ok(self, points, q):
+        """Every forearm's tilt within ``ball_joint_tilt_max``: :meth:`ball_joint_tilt`'s test in one
+        compiled pass (a reach check's second largest cost in numpy)."""
         tilt_max = self.geometry.ball_joint_tilt_max
         if tilt_max is None:
             return np.ones(len(points), dtype=bool)
-        return np.all(np.abs(self.ball_joint_tilt(points, q)) <= tilt_max + 1e-12, axis=1)
+        points, q = (np.ascontiguousarray(np.atleast_2d(v), dtype=float) for v in (points, q))
+        out = np.empty(len(q), dtype=bool)
+        _tilt_ok_kernel(points, q, self.shoulders, self.r, self.t, self.L1, self.L2, float(tilt_max) + 1e-12, out)
+        return out
+
+    def condition_bound(self, q):
+        """The base's bound, its inverse Jacobian (:meth:`inverse_jacobian`: the closure at q's
+        forward solution) and cofactors in one compiled pass; the forward solution is numpy's."""
+        q = np.ascontiguousarray(np.atleast_2d(np.asarray(q, dtype=float)))
+        out = np.empty(len(q))
+        _condition_bound_kernel(q, np.ascontiguousarray(self.forward(q)), self.shoulders, self.r, self.t, self.L1, out)
+        return out
+
+
+@njit
+def _arm_vectors(p, q, shoulders, r, t, L1, i):
+    """Arm i at joint angle q (rad) with its ball joint for tool point p (3,): the forearm
+    d = B_i - E_i and the elbow's rate dE_i/dq, mm and mm/rad, as (dx, dy, dz, ex, ey, ez)."""
+    c, s = math.cos(q), math.sin(q)
+    ux, uy = U[i, 0], U[i, 1]
+    dx = p[0] + r * ux - (shoulders[i, 0] + L1 * c * ux)
+    dy = p[1] + r * uy - (shoulders[i, 1] + L1 * c * uy)
+    dz = p[2] + t - (shoulders[i, 2] - L1 * s)
+    return dx, dy, dz, -L1 * s * ux, -L1 * s * uy, -L1 * c
+
+
+@njit
+def _condition_bound_kernel(q, p, shoulders, r, t, L1, out):
+    """Kinematics.condition_bound at joints q (N,3) whose forward solutions are p (N,3): rows
+    J^-1_i = -d_i / (-d_i . dE_i/dq_i), their cofactors, and |J^-1|_F |adj|_F / |det| (NaN where
+    p is)."""
+    ji = np.empty((3, 3))
+    for n in range(q.shape[0]):
+        for i in range(3):
+            dx, dy, dz, ex, ey, ez = _arm_vectors(p[n], q[n, i], shoulders, r, t, L1, i)
+            b = -(dx * ex + dy * ey + dz * ez)
+            ji[i, 0], ji[i, 1], ji[i, 2] = -dx / b, -dy / b, -dz / b
+        f2 = 0.0
+        a2 = 0.0
+        det = 0.0
+        for i in range(3):
+            j, k = (i + 1) % 3, (i + 2) % 3
+            cx = ji[j, 1] * ji[k, 2] - ji[j, 2] * ji[k, 1]
+            cy = ji[j, 2] * ji[k, 0] - ji[j, 0] * ji[k, 2]
+            cz = ji[j, 0] * ji[k, 1] - ji[j, 1] * ji[k, 0]
+            if i == 0:
+                det = ji[0, 0] * cx + ji[0, 1] * cy + ji[0, 2] * cz
+            f2 += ji[i, 0] * ji[i, 0] + ji[i, 1] * ji[i, 1] + ji[i, 2] * ji[i, 2]
+            a2 += cx * cx + cy * cy + cz * cz
+        out[n] = math.sqrt(f2 * a2) / abs(det)
+
+
+@njit
+def _tilt_ok_kernel(points, q, shoulders, r, t, L1, L2, limit, out):
+    """Whether every forearm's sideways tilt asin(d_i . V_i / L2) (d_i at the tool points
+    ``points`` (N,3) and joints q (N,3)) is within ``limit`` rad (False where NaN)."""
+    for n in range(q.shape[0]):
+        ok = True
+        for i in range(3):
+            dx, dy, dz, _ex, _ey, _ez = _arm_vectors(points[n], q[n, i], shoulders, r, t, L1, i)
+            x = (dx * V[i, 0] + dy * V[i, 1] + dz * V[i, 2]) / L2
+            ok = ok and abs(math.asin(min(max(x, -1.0), 1.0))) <= limit  # NaN: kept by max and min, refused
+        out[n] = ok
 
 
 # The kernels below loop over points with the arms' unit vectors U_i = (cos, sin, 0): one pass,
