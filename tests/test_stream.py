@@ -246,11 +246,31 @@ def test_writer_refuses_bad_samples(etitc, tmp_path):
     squeezed = Samples(s.t * 0.999, s.q, s.e, s.tool)
     with pytest.raises(StreamError, match="uniformly spaced"):
         write_samples([squeezed], p, tmp_path / "a.dsl", fmt="stream", rate=1000.0)
+    # the first sample off the grid, counted across blocks, with the time it should have
+    late = s.t.copy()
+    late[[250, 300]] += 2e-6
+    blocks = [Samples(s.t[:200], s.q[:200], s.e[:200], s.tool[:200]), Samples(late[200:], s.q[200:], s.e[200:], s.tool[200:])]
+    with pytest.raises(StreamError, match=r"sample 250: t = 0\.250002000 s, expected 0\.250000000 s"):
+        write_samples(blocks, p, tmp_path / "a.dsl", fmt="stream", rate=1000.0)
     q = s.q.copy()
     q[100, 1] = np.nan
+    q[90, 0] = np.inf
+    e = s.e.copy()
+    e[50] = np.nan  # t, q, e, tool are checked in that order: q's first row is named
     for fmt in ("stream", "csv"):
-        with pytest.raises(StreamError, match="sample 100: non-finite q"):
-            write_samples([Samples(s.t, q, s.e, s.tool)], p, tmp_path / f"a.{fmt}", fmt=fmt, rate=1000.0)
+        with pytest.raises(StreamError, match="sample 90: non-finite q"):
+            write_samples([Samples(s.t, q, e, s.tool)], p, tmp_path / f"a.{fmt}", fmt=fmt, rate=1000.0)
+        with pytest.raises(StreamError, match="sample 50: non-finite e"):
+            write_samples([Samples(s.t, s.q, e, s.tool)], p, tmp_path / f"a.{fmt}", fmt=fmt, rate=1000.0)
+        t = s.t.copy()
+        t[70] = np.nan
+        with pytest.raises(StreamError, match="sample 70: non-finite t"):
+            write_samples([Samples(t, q, e, s.tool)], p, tmp_path / f"a.{fmt}", fmt=fmt, rate=1000.0)
+    # a joint beyond what a count can hold (the player's int32 arithmetic)
+    far = s.q.copy()
+    far[[120, 130], 2] = 1e9
+    with pytest.raises(StreamError, match=r"sample 120: actuator count \[.*\] beyond \+-2\^29"):
+        write_samples([Samples(s.t, far, s.e, s.tool)], p, tmp_path / "a.dsl", fmt="stream", rate=1000.0)
     assert os.listdir(tmp_path) == []
 
 
