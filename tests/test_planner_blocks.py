@@ -805,3 +805,30 @@ def test_path_inputs_of_many_runs_are_each_runs_own(speed_limit):
                 assert np.array_equal(getattr(got, f), v), f
             for f in _PATH_FIELDS:
                 assert np.array_equal(getattr(got.path, f), getattr(path, f)), f
+
+
+def test_locate_is_numpys_searchsorted():
+    """BlendedPath.locate (compiled, each search from the answer before) against the numpy it
+    replaces, clip(searchsorted(piece_start, s, side="right") - 1, 0, pieces - 1): arc lengths
+    in order and not, exactly on piece starts, zero-length pieces (repeated starts), before
+    the path, past its end, NaN and infinities; any shape, a scalar for a scalar."""
+    rng = np.random.default_rng(2)
+    for trial in range(2000):
+        k = int(rng.integers(1, 40))
+        starts = np.concatenate([[0.0], np.cumsum(rng.choice([0.0, 0.5, 1.0, 3.0], k))])
+        path = BlendedPath(starts, np.zeros(k, np.int8), np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 3)),
+                           np.full(k, np.inf), np.arange(k))
+        n = int(rng.integers(0, 60))
+        s = rng.uniform(-1, starts[-1] + 1, n)
+        if trial % 2:
+            s = np.sort(s)
+        if n and trial % 3 == 0:
+            s[rng.integers(0, n, 3)] = rng.choice(starts, 3)
+        if n and trial % 5 == 0:
+            s[rng.integers(0, n)] = rng.choice([np.nan, np.inf, -np.inf])
+        want = np.clip(np.searchsorted(starts, s, side="right") - 1, 0, k - 1)
+        assert np.array_equal(path.locate(s), want), trial
+        assert np.array_equal(path.locate(s.reshape(-1, 1)), want.reshape(-1, 1)), trial
+        if n:
+            got = path.locate(s[0])
+            assert isinstance(got, np.integer) and got == want[0], trial

@@ -52,9 +52,13 @@ class BlendedPath:
         return float(self.piece_start[-1])
 
     def locate(self, s: np.ndarray) -> np.ndarray:
-        """Piece index of each arc length (a join belongs to the piece after it). (n,) int."""
-        idx = np.searchsorted(self.piece_start, s, side="right") - 1
-        return np.clip(idx, 0, len(self.kind) - 1)
+        """Piece index of each arc length (a join belongs to the piece after it). (n,) int.
+        ``clip(searchsorted(piece_start, s, side="right") - 1, 0, pieces - 1)``, compiled: the
+        planner's arc lengths come in order, each a step or two from the one before."""
+        s = np.asarray(s, dtype=float)
+        out = np.empty(s.shape, dtype=np.int64)
+        _locate_kernel(self.piece_start, np.ascontiguousarray(s).reshape(-1), len(self.kind), out.reshape(-1))
+        return out if out.ndim else out[()]
 
     def evaluate(self, s: np.ndarray, order: int = 0, piece: np.ndarray | None = None) -> np.ndarray:
         """Point (order 0), unit tangent (1) or curvature vector (2) at arc lengths s. (n,3)."""
@@ -182,6 +186,16 @@ def _last_at_or_below_from(a, v, n_max, j):
     while j > 0 and a[j] > v:
         j -= 1
     return min(j, n_max - 1)
+
+
+@njit
+def _locate_kernel(a, s, n_max, out):
+    """out[i] = :func:`_last_at_or_below` (a, s[i], n_max), each search starting from the answer
+    before (s (n,), out (n,) int64)."""
+    j = 0
+    for i in range(s.shape[0]):
+        j = _last_at_or_below_from(a, s[i], n_max, j)
+        out[i] = j
 
 
 @njit
