@@ -524,6 +524,7 @@ def test_rotary_compiled_reach_tests_are_the_numpy_forms(name):
     keep = np.all(np.isfinite(q), axis=1)
     pts, q = pts[keep], q[keep]
     q[:5] = [[np.nan, 0, 0], [0, np.inf, 0], [0.3, 0.3, 0.3], [-1.2, -1.2, -1.2], [1.4, -0.9, 0.2]]  # NaN, beyond reach
+    pts[5] += [0.0, 3 * kin.L2, 0.0]  # a forearm sideways beyond its length: the tilt's sine clipped to 1
     got, want = _no_raise(kin.condition_bound, q), _no_raise(Kinematics.condition_bound, kin, q)
     finite = np.isfinite(want)
     assert len(q) > 1000 and finite.sum() > 1000
@@ -535,6 +536,12 @@ def test_rotary_compiled_reach_tests_are_the_numpy_forms(name):
         tilted = type(kin)(dataclasses.replace(kin.geometry, ball_joint_tilt_max=limit), kin.position_min, kin.position_max)
         want_ok = np.ones(len(q), bool) if limit is None else np.all(tilts <= limit + 1e-12, axis=1)
         np.testing.assert_array_equal(tilted.extra_ok(pts, q), want_ok)
+    # the kernels read three columns and a joint row per point unchecked: other shapes are refused
+    with pytest.raises(ValueError):
+        kin.condition_bound(np.zeros((2, 2)))
+    if kin.geometry.ball_joint_tilt_max is not None:
+        with pytest.raises(ValueError):
+            kin.extra_ok(pts[:3], q[:4])
 
 
 def test_well_conditioned_judges_the_pose_the_joints_hold():

@@ -206,6 +206,8 @@ def test_stage_frames_and_derivatives_are_those_at_each_stages_arc_lengths(block
     they are computed in (a block of 7 points holds no whole stage of 9)."""
     monkeypatch.setattr(topp, "DERIVATIVE_BLOCK", block)
     p, path, rp = _run_path("delta_etitc", 0)
+    # a filament rate of its own on every piece: the tool channel is filled block by block too
+    rp = topp.RunPath(rp.kin, path, np.random.default_rng(4).uniform(0.01, 0.05, len(path.kind)), 0)
     x = topp.grid(path) / path.length
     s = x * path.length
     ds = np.diff(s)
@@ -578,6 +580,11 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
             want_cap2 = np.minimum(np.min(vmax[None] / factor, axis=1), feed / S) ** 2
         got_cap2 = topp.PathVelocityConstraint(vmax, feed, S, factor).cap2(None, None)
         assert np.array_equal(got_cap2, want_cap2, equal_nan=True), trial
+        with np.errstate(divide="ignore", invalid="ignore"):  # numpy's broadcasting: one feed for all
+            want_cap2 = np.minimum(np.min(vmax[None] / factor, axis=1), 7.0 / S) ** 2
+        assert np.array_equal(topp.PathVelocityConstraint(vmax, 7.0, S, factor).cap2(None, None), want_cap2, equal_nan=True)
+        with pytest.raises(ValueError):  # and its refusals: a feed for another grid
+            topp.PathVelocityConstraint(vmax, feed[:-1] if n else np.ones(3), S, factor).cap2(None, None)
         if n == 0:
             continue
         sd, xdd = rng.uniform(0, 2, n + 1), rng.normal(size=n)

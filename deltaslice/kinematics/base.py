@@ -211,7 +211,7 @@ class Kinematics:
         the limit (less than a millionth of margin) get the exact SVD. The inverse Jacobian is
         taken at q's own pose, as ``condition(q)`` takes the Jacobian (a rotary delta's forward
         solution; ``points`` may be the other root where the joints pass about -90 degrees)."""
-        with np.errstate(invalid="ignore"):
+        with np.errstate(over="ignore"):
             ok = self.condition_bound(q) * (1 + 1e-6) < self.singularity_limit
         rest = np.flatnonzero(~ok)
         if rest.size:

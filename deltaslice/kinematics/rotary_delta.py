@@ -173,46 +173,47 @@ class RotaryDelta(Kinematics):
         return np.arcsin(np.clip(np.einsum("nij,ij->ni", d, V) / self.L2, -1, 1))
 
     def extra_ok(self, points, q):
-        """Every forearm's tilt within ``ball_joint_tilt_max``: :meth:`ball_joint_tilt`'s test in one
-        compiled pass (a reach check's second largest cost in numpy)."""
+        """points (N,3) mm, q (N,3) rad -> (N,) bool: every forearm's tilt within
+        ``ball_joint_tilt_max``, :meth:`ball_joint_tilt`'s test (to rounding) in one compiled pass
+        (in numpy, a reach check's second largest cost)."""
         tilt_max = self.geometry.ball_joint_tilt_max
         if tilt_max is None:
             return np.ones(len(points), dtype=bool)
-        points, q = (np.ascontiguousarray(np.atleast_2d(v), dtype=float) for v in (points, q))
+        points, q = _rows3(points, "points"), _rows3(q, "q")
+        if len(points) != len(q):
+            raise ValueError(f"extra_ok: {len(points)} points for {len(q)} joint rows")
         out = np.empty(len(q), dtype=bool)
-        _tilt_ok_kernel(points, q, self.shoulders, self.r, self.t, self.L1, self.L2, float(tilt_max) + 1e-12, out)
+        _tilt_ok_kernel(points, q, self._offsets, self.L1, self.L2, float(tilt_max) + 1e-12, out)
         return out
 
     def condition_bound(self, q):
         """The base's bound, its inverse Jacobian (:meth:`inverse_jacobian`: the closure at q's
         forward solution) and cofactors in one compiled pass; the forward solution is numpy's."""
-        q = np.ascontiguousarray(np.atleast_2d(np.asarray(q, dtype=float)))
+        q = _rows3(q, "q")
         out = np.empty(len(q))
-        _condition_bound_kernel(q, np.ascontiguousarray(self.forward(q)), self.shoulders, self.r, self.t, self.L1, out)
+        _condition_bound_kernel(q, np.ascontiguousarray(self.forward(q)), self._offsets, self.L1, out)
         return out
 
 
-@njit
-def _arm_vectors(p, q, shoulders, r, t, L1, i):
-    """Arm i at joint angle q (rad) with its ball joint for tool point p (3,): the forearm
-    d = B_i - E_i and the elbow's rate dE_i/dq, mm and mm/rad, as (dx, dy, dz, ex, ey, ez)."""
-    c, s = math.cos(q), math.sin(q)
-    ux, uy = U[i, 0], U[i, 1]
-    dx = p[0] + r * ux - (shoulders[i, 0] + L1 * c * ux)
-    dy = p[1] + r * uy - (shoulders[i, 1] + L1 * c * uy)
-    dz = p[2] + t - (shoulders[i, 2] - L1 * s)
-    return dx, dy, dz, -L1 * s * ux, -L1 * s * uy, -L1 * c
+def _rows3(v, name: str) -> np.ndarray:
+    """v as contiguous float64 rows of three (a single row becomes (1, 3)); ValueError otherwise
+    (the kernels read three columns unchecked)."""
+    v = np.ascontiguousarray(np.atleast_2d(np.asarray(v, dtype=float)))
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"{name}: expected rows of 3 values, got shape {v.shape}")
+    return v
 
 
 @njit
-def _condition_bound_kernel(q, p, shoulders, r, t, L1, out):
+def _condition_bound_kernel(q, p, offsets, L1, out):
     """Kinematics.condition_bound at joints q (N,3) whose forward solutions are p (N,3): rows
-    J^-1_i = -d_i / (-d_i . dE_i/dq_i), their cofactors, and |J^-1|_F |adj|_F / |det| (NaN where
-    p is)."""
+    J^-1_i = -d_i / (-d_i . e'_i) (forearm d_i and elbow rate e'_i from :func:`_arm`), their
+    cofactors, and |J^-1|_F |adj|_F / |det| (NaN where p is)."""
     ji = np.empty((3, 3))
     for n in range(q.shape[0]):
         for i in range(3):
-            dx, dy, dz, ex, ey, ez = _arm_vectors(p[n], q[n, i], shoulders, r, t, L1, i)
+            dx, dy, dz, ex, ey, ez = _arm(p[n, 0] + offsets[i, 0], p[n, 1] + offsets[i, 1], p[n, 2] + offsets[i, 2],
+                                          U[i, 0], U[i, 1], L1, math.cos(q[n, i]), math.sin(q[n, i]))
             b = -(dx * ex + dy * ey + dz * ez)
             ji[i, 0], ji[i, 1], ji[i, 2] = -dx / b, -dy / b, -dz / b
         f2 = 0.0
@@ -231,15 +232,19 @@ def _condition_bound_kernel(q, p, shoulders, r, t, L1, out):
 
 
 @njit
-def _tilt_ok_kernel(points, q, shoulders, r, t, L1, L2, limit, out):
-    """Whether every forearm's sideways tilt asin(d_i . V_i / L2) (d_i at the tool points
-    ``points`` (N,3) and joints q (N,3)) is within ``limit`` rad (False where NaN)."""
+def _tilt_ok_kernel(points, q, offsets, L1, L2, limit, out):
+    """Whether every forearm's sideways tilt asin(d_i . V_i / L2) (d_i from :func:`_arm` at the
+    tool points ``points`` (N,3) and joints q (N,3)) is within ``limit`` rad (False where NaN)."""
     for n in range(q.shape[0]):
         ok = True
         for i in range(3):
-            dx, dy, dz, _ex, _ey, _ez = _arm_vectors(points[n], q[n, i], shoulders, r, t, L1, i)
+            dx, dy, dz, _ex, _ey, _ez = _arm(points[n, 0] + offsets[i, 0], points[n, 1] + offsets[i, 1],
+                                             points[n, 2] + offsets[i, 2], U[i, 0], U[i, 1], L1, math.cos(q[n, i]),
+                                             math.sin(q[n, i]))
             x = (dx * V[i, 0] + dy * V[i, 1] + dz * V[i, 2]) / L2
-            ok = ok and abs(math.asin(min(max(x, -1.0), 1.0))) <= limit  # NaN: kept by max and min, refused
+            # a NaN x stays NaN through max(x, -1) and min(x, 1) (numba keeps the first argument
+            # when a comparison fails) and fails the test
+            ok = ok and abs(math.asin(min(max(x, -1.0), 1.0))) <= limit
         out[n] = ok
 
 
@@ -284,16 +289,21 @@ def _shift(x, y, a_plus_c, b):
 
 
 @njit
+def _arm(wx, wy, wz, ux, uy, L1, cq, sq):
+    """An arm at cos q, sin q with its ball joint at w from its shoulder (U_i = (ux, uy, 0)):
+    the forearm d = w - L1 (cos q u - sin q z) and the elbow's rate e' = L1 (-sin q u - cos q z),
+    mm and mm/rad, as (dx, dy, dz, ex, ey, ez)."""
+    return (wx - L1 * cq * ux, wy - L1 * cq * uy, wz + L1 * sq, -L1 * sq * ux, -L1 * sq * uy, -L1 * cq)
+
+
+@njit
 def _rates(wx, wy, wz, ux, uy, L1, cq, sq, tx, ty, tz, kx, ky, kz):
     """An arm's q' (rad/mm) and q'' (rad/mm^2) along a curve with unit tangent t and curvature
     vector kappa, its ball joint at w from its shoulder, from cos q and sin q: with the forearm
     d = w - L1 (cos q u - sin q z) and the elbow's rates e' = L1 (-sin q u - cos q z),
     e'' = L1 (-cos q u + sin q z), as closure_derivatives: q' = d.t / d.e',
     q'' = ((d'.t + d.kappa) - q' (d'.e' + d.e'' q')) / d.e', d' = t - e' q'."""
-    dx = wx - L1 * cq * ux
-    dy = wy - L1 * cq * uy
-    dz = wz + L1 * sq
-    ex, ey, ez = -L1 * sq * ux, -L1 * sq * uy, -L1 * cq
+    dx, dy, dz, ex, ey, ez = _arm(wx, wy, wz, ux, uy, L1, cq, sq)
     fx, fy, fz = -L1 * cq * ux, -L1 * cq * uy, L1 * sq
     g = dx * ex + dy * ey + dz * ez
     d1 = (dx * tx + dy * ty + dz * tz) / g

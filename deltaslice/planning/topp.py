@@ -340,9 +340,12 @@ class PathVelocityConstraint:
     def cap2(self, path, gridpoints) -> np.ndarray:
         """The bound on x_dot^2 at each grid point (n+1,)."""
         dq = np.abs(path(gridpoints, 1)) if self.speed_factor is None else self.speed_factor
+        dq = np.ascontiguousarray(dq, dtype=float)
+        # the kernel reads a feed per grid point and a limit per channel unchecked: numpy's broadcast (and its refusals)
+        vmax = np.ascontiguousarray(np.broadcast_to(self.vmax, dq.shape[1:]))
+        feed = np.ascontiguousarray(np.broadcast_to(self.feed, dq.shape[:1]), dtype=float)
         out = np.empty(len(dq))
-        _cap2_kernel(np.ascontiguousarray(dq, dtype=float), self.vmax, np.ascontiguousarray(self.feed, dtype=float),
-                     float(self.S), out)
+        _cap2_kernel(dq, vmax, feed, float(self.S), out)
         return out
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
@@ -359,8 +362,8 @@ def _cap2_kernel(dq, vmax, feed, S, out):
     the arithmetic)."""
     n, dof = dq.shape
     for i in range(n):
-        cap = feed[i] / S
-        nan = cap != cap
+        cap = feed[i] / S  # NaN stays NaN: v < NaN is false
+        nan = False
         for j in range(dof):
             v = vmax[j] / dq[i, j]
             nan |= v != v
