@@ -375,3 +375,30 @@ def test_limit_monitor_over_blocks_equals_whole_array_differences():
         (np.abs(fa) / fw.printer.limits.acceleration[:fw.printer.n_joints]).max(axis=1) > 1
     )
     assert whole["violating_samples"] == int(bad[1:-1].sum()) > 0
+
+
+def test_split_runs_is_the_run_by_run_cut():
+    """split_runs (the extruder's, in one numpy pass over the toolpath) against cutting each run
+    of working moves where its tool value changes or a wait stands inside it: random tool values
+    (off, partial, full), waits and other events anywhere (at 0, at the end, repeated, outside
+    runs), one-move runs and a toolpath of one move."""
+    from deltaslice.toolpath import WAIT_KINDS, EventKind, Toolpath, make_events
+
+    def by_run(tp):
+        waits = tp.events["index"][np.isin(tp.events["kind"], [int(k) for k in WAIT_KINDS])]
+        out = []
+        for i, j in tp.runs():
+            cuts = np.union1d(np.flatnonzero(np.diff(tp.tool[i:j]) != 0) + 1, waits[(waits > i) & (waits < j)] - i).astype(int)
+            edges = np.concatenate([[0], cuts, [j - i]]) + i
+            out.extend(zip(edges[:-1].tolist(), edges[1:].tolist()))
+        return out
+
+    rng = np.random.default_rng(8)
+    kinds = [int(k) for k in EventKind if k != EventKind.LASER_MODE]
+    for trial in range(400):
+        n = int(rng.integers(1, 60))
+        tool = rng.choice([0.0, 0.0, 0.4, 1.0, 1.0, 1.0], n)
+        rows = [(int(rng.integers(0, n + 1)), int(rng.choice(kinds)), 200.0) for _ in range(int(rng.integers(0, 8)))]
+        tp = Toolpath(start=np.zeros(3), xyz=rng.uniform(0, 10, (n, 3)), feed=np.full(n, 20.0), e=np.zeros(n), tool=tool,
+                      role=np.zeros(n, np.uint8), layer=np.zeros(n, np.int32), layer_z=np.array([0.3]), events=make_events(rows))
+        assert split_runs(tp) == by_run(tp), trial

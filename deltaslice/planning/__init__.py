@@ -104,13 +104,18 @@ def split_runs(toolpath: Toolpath, laser: bool | None = None):
             bounds = [i, *cuts.tolist(), j]
             out.extend(zip(bounds[:-1], bounds[1:]))
         return out
-    out = []
-    for i, j in toolpath.runs():
-        tool = toolpath.tool[i:j]
-        cuts = np.union1d(np.flatnonzero(np.diff(tool) != 0) + 1, waits[(waits > i) & (waits < j)] - i).astype(int)
-        edges = np.concatenate([[0], cuts, [j - i]]) + i
-        out.extend(zip(edges[:-1].tolist(), edges[1:].tolist()))
-    return out
+    # A working move starts a run where the move before is not working, the tool value changes
+    # or a wait stands before it; in one pass over the toolpath (run by run in numpy, each run's
+    # cuts cost more than its moves).
+    n = len(toolpath)
+    member = np.asarray(toolpath.working, bool)
+    cut = np.zeros(n, bool)
+    cut[1:] = np.diff(toolpath.tool) != 0
+    cut[waits[(waits > 0) & (waits < n)]] = True
+    cut &= member
+    starts = np.flatnonzero(member & ~np.concatenate([[False], member[:-1]]) | cut)
+    ends = np.flatnonzero(member & ~np.concatenate([member[1:] & ~cut[1:], [False]])) + 1
+    return list(zip(starts.tolist(), ends.tolist()))
 
 
 def _run_spec(toolpath: Toolpath, i: int, j: int, laser: bool) -> RunSpec:
