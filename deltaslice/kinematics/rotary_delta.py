@@ -187,8 +187,9 @@ class RotaryDelta(Kinematics):
         return out
 
     def condition_bound(self, q):
-        """The base's bound, its inverse Jacobian (:meth:`inverse_jacobian`: the closure at q's
-        forward solution) and cofactors in one compiled pass; the forward solution is numpy's."""
+        """q (N,3) rad -> (N,): the base's bound, its inverse Jacobian (:meth:`inverse_jacobian`:
+        the closure at q's forward solution) and cofactors in one compiled pass (the same to
+        rounding); the forward solution is numpy's."""
         q = _rows3(q, "q")
         out = np.empty(len(q))
         _condition_bound_kernel(q, np.ascontiguousarray(self.forward(q)), self._offsets, self.L1, out)

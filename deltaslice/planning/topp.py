@@ -341,7 +341,8 @@ class PathVelocityConstraint:
         """The bound on x_dot^2 at each grid point (n+1,)."""
         dq = np.abs(path(gridpoints, 1)) if self.speed_factor is None else self.speed_factor
         dq = np.ascontiguousarray(dq, dtype=float)
-        # the kernel reads a feed per grid point and a limit per channel unchecked: numpy's broadcast (and its refusals)
+        # the kernel reads a feed per grid point and a limit per channel unchecked: broadcast
+        # them as numpy's expression did (a scalar feed; a feed for another grid refused)
         vmax = np.ascontiguousarray(np.broadcast_to(self.vmax, dq.shape[1:]))
         feed = np.ascontiguousarray(np.broadcast_to(self.feed, dq.shape[:1]), dtype=float)
         out = np.empty(len(dq))
