@@ -183,7 +183,7 @@ def test_infill_anchored_along_the_outline(etitc):
     sl0 = tp0.layer_slices()[mid]
     w0 = tp0.working[sl0] & (tp0.role[sl0] == Role.INFILL)
     # 5 runs without anchors (6 before zig-zag links were measured as drawn, which joins one more)
-    assert int(np.sum(w0[1:] & ~w0[:-1]) + w0[0]) >= 3 * runs
+    assert int(np.sum(w0[1:] & ~w0[:-1]) + w0[0]) >= 5 * runs
 
 
 def test_vertical_shell_around_a_hole_starting_above(etitc):
