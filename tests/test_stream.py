@@ -345,6 +345,21 @@ def test_block_codec_keeps_the_last_partial_byte(rows):
         assert np.array_equal(back, x), width
 
 
+def test_block_codec_widest_residuals_at_every_bit_offset():
+    """Second differences of counts swinging between +-(COUNT_LIMIT - 1) take the widest
+    residual (32 bits), after a channel of every width from 0 to 29 bits: across the rows the
+    packer holds every number of bits when one is added, and the 64-bit accumulator must
+    not overflow at any."""
+    lim = stream.COUNT_LIMIT - 1
+    n = 70
+    swing = np.where(np.arange(n) % 2 == 0, lim, -lim)
+    for w in range(30):
+        small = np.where(np.arange(n) % 4 < 2, 0, (1 << w) // 2)
+        x = np.column_stack([small, swing]).astype(np.int64)
+        (rec,) = stream.encode_blocks(x, block_samples=n, max_record=0xFFFF, orders=(2,))
+        assert np.array_equal(stream.decode_block(rec, 2), x), w
+
+
 @given(st.lists(st.integers(-(2**62), 2**62), min_size=1, max_size=50))
 def test_zigzag_round_trip(values):
     v = np.array(values, dtype=np.int64)

@@ -224,7 +224,8 @@ def _unzz1(u: int) -> int:
 
 @njit
 def _zz(v):
-    return 2 * v if v >= 0 else -2 * v - 1
+    """Zig-zag of an int64 without a branch: 2v for v >= 0, -2v - 1 below."""
+    return (v << 1) ^ (v >> 63)
 
 
 @njit
@@ -256,20 +257,11 @@ def _put_varint(buf, pos, u):
 
 
 @njit
-def _residual(x, k, c, order):
-    """Channel c's residual at row k of x: its first difference (k >= 1 in the block), or for
-    order 2 the change of it (k >= 2; the block's first is the header's v0, its residual 0)."""
-    d = x[k, c] - x[k - 1, c]
-    if order == 2:
-        return d - (x[k - 1, c] - x[k - 2, c])
-    return d
-
-
-@njit
 def _plan(x, a, b, use1, use2, order, width, v0):
     """Per channel of rows a..b-1: first (order 1) or second (order 2) differences, whichever
     needs fewer bits of their zig-zag; v0 the first difference an order-2 channel starts from.
-    Returns the record's size in bytes."""
+    Returns the record's size in bytes. The bits a width needs are those of the largest zig-zag,
+    which are those of all of them or-ed together (a pass without a branch)."""
     n = b - a
     nch = x.shape[1]
     size = 1 + 2 + 2 + 4  # type, length, count, crc
@@ -277,10 +269,14 @@ def _plan(x, a, b, use1, use2, order, width, v0):
     for c in range(nch):
         m1 = 0
         m2 = 0
-        for k in range(a + 1, b):
-            m1 = max(m1, _zz(_residual(x, k, c, 1)))
-            if k > a + 1:
-                m2 = max(m2, _zz(_residual(x, k, c, 2)))
+        if n >= 2:
+            d_prev = x[a + 1, c] - x[a, c]
+            m1 = _zz(d_prev)
+            for k in range(a + 2, b):
+                d = x[k, c] - x[k - 1, c]
+                m1 |= _zz(d)
+                m2 |= _zz(d - d_prev)
+                d_prev = d
         w1 = _bits(m1) if (use1 or n < 3) else 99
         w2 = _bits(m2) if (n >= 3 and use2) else 99
         if w2 < w1:
@@ -296,43 +292,54 @@ def _plan(x, a, b, use1, use2, order, width, v0):
 
 @njit
 def _write_record(x, a, b, order, width, v0, size, buf, pos):
-    """The block record of rows a..b-1 at buf[pos:pos + size], its CRC left zero (the caller's)."""
+    """The block record of rows a..b-1 at buf[pos:pos + size] (every byte written), its CRC
+    left zero (the caller's)."""
     n = b - a
+    nch = x.shape[1]
     buf[pos] = REC_BLOCK
     buf[pos + 1] = size & 0xFF
     buf[pos + 2] = size >> 8
     buf[pos + 3] = n & 0xFF
     buf[pos + 4] = n >> 8
     q = pos + 5
-    for c in range(x.shape[1]):
+    for c in range(nch):
         buf[q] = (order[c] << 6) | width[c]
         q = _put_varint(buf, q + 1, _zz(x[a, c]))
         if order[c] == 2:
             q = _put_varint(buf, q, _zz(v0[c]))
-    # sample-major LSB-first bit packing of the residual rows, a byte written as soon as it is
-    # full (a width is at most 33 bits: counts within +-2^29, second differences within 2^31,
-    # so the accumulator never holds more than 40)
+    # sample-major LSB-first bit packing of the residual rows, four bytes written as soon as
+    # they are full. A width is at most 32 bits (counts within +-(2^29 - 1), as _encoded checks:
+    # second differences within +-(2^31 - 4)), and fewer than 32 are held when one is added, so
+    # the accumulator never holds more than 63.
     acc = 0
     held = 0
     for k in range(a + 1, b):
-        for c in range(x.shape[1]):
-            z = _zz(_residual(x, k, c, order[c])) if k > a + 1 or order[c] == 1 else 0
-            acc |= z << held
+        for c in range(nch):
+            d = x[k, c] - x[k - 1, c]
+            if order[c] == 2:
+                d = d - (x[k - 1, c] - x[k - 2, c]) if k > a + 1 else 0
+            acc |= _zz(d) << held
             held += width[c]
-            while held >= 8:
+            if held >= 32:
                 buf[q] = acc & 0xFF
-                acc >>= 8
-                held -= 8
-                q += 1
-    if held > 0:
+                buf[q + 1] = (acc >> 8) & 0xFF
+                buf[q + 2] = (acc >> 16) & 0xFF
+                buf[q + 3] = (acc >> 24) & 0xFF
+                acc >>= 32
+                held -= 32
+                q += 4
+    while held > 0:
         buf[q] = acc & 0xFF
+        acc >>= 8
+        held -= 8
+        q += 1
     for i in range(4):
         buf[pos + size - 4 + i] = 0
 
 
 @njit
 def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
-    """Block records of counts x (n, C) into buf (zeroed): nominal ``block_samples`` rows each,
+    """Block records of counts x (n, C) into buf: nominal ``block_samples`` rows each,
     halved until a record fits ``max_record`` bytes. rec_end[i]: where record i ends in buf.
     Returns the number of records, or -1 when one sample does not fit."""
     nch = x.shape[1]
@@ -382,7 +389,7 @@ def _encoded(counts: np.ndarray, block_samples: int, max_record: int, orders=(1,
         raise StreamError(f"an actuator count beyond +-2^29 ({int(np.abs(counts).max())}) cannot be stored")
     # at most one record per sample; each at most max_record bytes and its rows' bits
     cap = min(n * max_record, n * (9 + counts.shape[1] * 20) + 64)
-    buf = np.zeros(cap, dtype=np.uint8)
+    buf = np.empty(cap, dtype=np.uint8)  # every byte up to the last record's end is written
     rec_end = np.empty(n, dtype=np.int64)
     count = _encode_kernel(counts, int(block_samples), int(max_record), 1 in orders, 2 in orders, buf, rec_end)
     if count < 0:
