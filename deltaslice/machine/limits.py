@@ -358,6 +358,23 @@ def _counts_kernel(q, channel, cpu, zero, out):
 
 
 @njit
+def _row_ratios(q, i, half, rate2, vlim, alim):
+    """The largest velocity and acceleration ratio to vlim, alim (J,) among the joints at interior
+    sample i + 1 of q (n, J), by central differences (each NaN if any joint's is, as numpy's
+    max)."""
+    row_v = -np.inf
+    row_a = -np.inf
+    for j in range(q.shape[1]):
+        rv = abs((q[i + 2, j] - q[i, j]) * half) / vlim[j]
+        ra = abs(((q[i + 2, j] - 2 * q[i + 1, j]) + q[i, j]) * rate2) / alim[j]
+        if rv > row_v or rv != rv:
+            row_v = rv if row_v == row_v else row_v
+        if ra > row_a or ra != ra:
+            row_a = ra if row_a == row_a else row_a
+    return row_v, row_a
+
+
+@njit
 def _observe_kernel(q, c, tool, rate, vlim, alim, peak_v, peak_a, bad_before):
     """:meth:`LimitMonitor.observe` over one block in one pass (it was ten numpy passes over
     the block's arrays, the emit stage's second largest cost). q (n, J), c, tool (n,); peak_v,
@@ -365,35 +382,54 @@ def _observe_kernel(q, c, tool, rate, vlim, alim, peak_v, peak_a, bad_before):
     interior sample, as :func:`central_differences`: the joints' ratios to vlim, alim (J,); the
     tool channel's speed where the tool works. A sample is bad when the largest ratio of its row
     (NaN if any is NaN, as numpy's) exceeds 1. Returns (largest tool channel speed, bad samples,
-    bad stretches that start here, whether the last sample is bad)."""
+    bad stretches that start here, whether the last sample is bad).
+
+    Without a division a sample: a peak is the largest difference scaled once at the end (the
+    scaling, a product and a quotient by positive numbers, is monotonic in floating point too),
+    and a row's ratios are computed (:func:`_row_ratios`) only where a product by the reciprocal
+    limit, within a few ulps of the ratio, comes within 0.1 % of 1 (or is NaN)."""
     n, J = q.shape
     half = 0.5 * rate
     rate2 = rate * rate
+    cv = np.empty(J)
+    ca = np.empty(J)
+    dv_max = np.zeros(J)
+    da_max = np.zeros(J)
+    for j in range(J):
+        cv[j] = half / vlim[j]
+        ca[j] = rate2 / alim[j]
     tool_v = -np.inf
     bad_count = 0
     events = 0
     prev = bad_before
     for i in range(n - 2):
-        row_v = -np.inf
-        row_a = -np.inf
+        near = False
         for j in range(J):
-            rv = abs((q[i + 2, j] - q[i, j]) * half) / vlim[j]
-            ra = abs(((q[i + 2, j] - 2 * q[i + 1, j]) + q[i, j]) * rate2) / alim[j]
-            if rv > peak_v[j] or rv != rv:
-                peak_v[j] = rv if peak_v[j] == peak_v[j] else peak_v[j]
-            if ra > peak_a[j] or ra != ra:
-                peak_a[j] = ra if peak_a[j] == peak_a[j] else peak_a[j]
-            if rv > row_v or rv != rv:
-                row_v = rv if row_v == row_v else row_v
-            if ra > row_a or ra != ra:
-                row_a = ra if row_a == row_a else row_a
+            dv = abs(q[i + 2, j] - q[i, j])
+            da = abs((q[i + 2, j] - 2 * q[i + 1, j]) + q[i, j])
+            if dv > dv_max[j] or dv != dv:
+                dv_max[j] = dv if dv_max[j] == dv_max[j] else dv_max[j]
+            if da > da_max[j] or da != da:
+                da_max[j] = da if da_max[j] == da_max[j] else da_max[j]
+            near = near or not (dv * cv[j] <= 0.999 and da * ca[j] <= 0.999)
         tv = abs(c[i + 2] - c[i]) * half * (1.0 if tool[i + 1] > 0 else 0.0)
         if tv > tool_v or tv != tv:
             tool_v = tv if tool_v == tool_v else tool_v
-        bad = row_v > 1.0 or row_a > 1.0
+        bad = False
+        if near:
+            row_v, row_a = _row_ratios(q, i, half, rate2, vlim, alim)
+            bad = row_v > 1.0 or row_a > 1.0
         if bad:
             bad_count += 1
             if not prev:
                 events += 1
         prev = bad
+    if n > 2:
+        for j in range(J):
+            rv = (dv_max[j] * half) / vlim[j]
+            ra = (da_max[j] * rate2) / alim[j]
+            if rv > peak_v[j] or rv != rv:
+                peak_v[j] = rv if peak_v[j] == peak_v[j] else peak_v[j]
+            if ra > peak_a[j] or ra != ra:
+                peak_a[j] = ra if peak_a[j] == peak_a[j] else peak_a[j]
     return tool_v, bad_count, events, prev
