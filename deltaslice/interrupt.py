@@ -109,16 +109,28 @@ def writing():
 
 @contextlib.contextmanager
 def held():
-    """SIGINT held back (delivered when the block ends): around an output's rename and its record,
-    so that the interrupt line never says "no output written" about a file already replaced."""
-    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
-        yield
+    """SIGINT held back (acted on when the block ends): around an output's rename and its record,
+    so that the interrupt line never says "no output written" about a file already replaced.
+
+    The handler is swapped for one that only notes the signal. Blocking SIGINT in this thread
+    (``pthread_sigmask``) did not hold it: the kernel hands a signal sent to the process to any
+    thread that does not block it (numpy's BLAS threads, for one), and Python then runs the
+    handler in the main thread at once. Python-level handlers run in the main thread whichever
+    thread took the signal, so the swap holds it wherever it lands."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+        yield  # not ours to swap: a handler set outside Python could not be put back
         return
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            if callable(previous):
+                previous(signal.SIGINT, caught[-1])
+            elif previous == signal.SIG_DFL:
+                os.kill(os.getpid(), signal.SIGINT)  # the default action, now that it is back
 
 
 def wrote(path) -> None:
