@@ -271,7 +271,21 @@ def test_writer_refuses_bad_samples(etitc, tmp_path):
     far[[120, 130], 2] = 1e9
     with pytest.raises(StreamError, match=r"sample 120: actuator count \[.*\] beyond \+-2\^29"):
         write_samples([Samples(s.t, far, s.e, s.tool)], p, tmp_path / "a.dsl", fmt="stream", rate=1000.0)
+    # so large that its count is -2^63, which np.abs leaves negative
+    far[110, 0] = 1e30
+    with pytest.raises(StreamError, match=r"sample 110: actuator count \[-9223372036854775808, .*\] beyond \+-2\^29"):
+        write_samples([Samples(s.t, far, s.e, s.tool)], p, tmp_path / "a.dsl", fmt="stream", rate=1000.0)
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("count", [stream.COUNT_LIMIT, -stream.COUNT_LIMIT, -(2**63), 2**63 - 1])
+def test_block_codec_refuses_counts_beyond_the_limit(count):
+    """Counts at +-2^29 and beyond are refused before any is encoded, -2^63 too (its np.abs is
+    negative: it passed the check and made a record that decodes to zeros, or never ended)."""
+    x = np.array([[0, 5], [count, 5], [0, 5]], dtype=np.int64)
+    with pytest.raises(StreamError, match="beyond"):
+        stream.encode_blocks(x)
+    assert stream.encode_blocks(np.clip(x, -(stream.COUNT_LIMIT - 1), stream.COUNT_LIMIT - 1))
 
 
 def test_format_for():
@@ -347,9 +361,9 @@ def test_block_codec_keeps_the_last_partial_byte(rows):
 
 def test_block_codec_widest_residuals_at_every_bit_offset():
     """Second differences of counts swinging between +-(COUNT_LIMIT - 1) take the widest
-    residual (32 bits), after a channel of every width from 0 to 29 bits: across the rows the
-    packer holds every number of bits when one is added, and the 64-bit accumulator must
-    not overflow at any."""
+    residual (32 bits), after a channel of 0 or of 2 to 30 bits ((1 << w) // 2 zig-zags to w + 1
+    bits): across the rows the packer holds every number of bits from 0 to 31 when one is added,
+    and the 64-bit accumulator must not overflow at any."""
     lim = stream.COUNT_LIMIT - 1
     n = 70
     swing = np.where(np.arange(n) % 2 == 0, lim, -lim)

@@ -373,6 +373,12 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
     return count
 
 
+def _beyond_limit(counts: np.ndarray) -> np.ndarray:
+    """Where counts (int64) are not within +-(COUNT_LIMIT - 1): by comparison, since np.abs leaves
+    -2^63 negative (what a value of 1e30 or more turns into when cast)."""
+    return (counts >= COUNT_LIMIT) | (counts <= -COUNT_LIMIT)
+
+
 def _records(counts: np.ndarray, block_samples: int, max_record: int, orders=(1, 2)) -> list[bytes]:
     data, rec_end = _encoded(counts, block_samples, max_record, orders)
     return [data[a:b] for a, b in zip([0, *rec_end[:-1]], rec_end)]
@@ -385,8 +391,9 @@ def _encoded(counts: np.ndarray, block_samples: int, max_record: int, orders=(1,
     n = len(counts)
     if n == 0:
         return b"", []
-    if np.abs(counts).max() >= COUNT_LIMIT:
-        raise StreamError(f"an actuator count beyond +-2^29 ({int(np.abs(counts).max())}) cannot be stored")
+    beyond = _beyond_limit(counts)
+    if beyond.any():  # compared, not np.abs'd: |-2^63| is still negative in int64
+        raise StreamError(f"an actuator count beyond +-2^29 ({int(counts[beyond][0])}) cannot be stored")
     # at most one record per sample; each at most max_record bytes and its rows' bits
     cap = min(n * max_record, n * (9 + counts.shape[1] * 20) + 64)
     buf = np.empty(cap, dtype=np.uint8)  # every byte up to the last record's end is written
@@ -532,7 +539,7 @@ class StreamWriter:
                 f"samples uniformly spaced at {self.rate:g} Hz from t = 0"
             )
         counts = to_counts(self.printer, samples)
-        big = np.abs(counts) >= COUNT_LIMIT
+        big = _beyond_limit(counts)
         if big.any():
             i = int(np.flatnonzero(big.any(axis=1))[0])
             raise StreamError(f"sample {self.n_samples + i}: actuator count {counts[i].tolist()} beyond +-2^29")
