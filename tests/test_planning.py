@@ -359,6 +359,30 @@ def test_limit_monitor_in_one_pass_equals_brute_force_over_the_whole_signal(seed
     assert m.peak_tool_v == pytest.approx(tv.max() / printer.limits.velocity[-1], rel=1e-12)
 
 
+def test_limit_monitor_counts_a_ratio_one_ulp_above_the_limit():
+    """Where velocity / limit rounds to one ulp above 1 but the product by the reciprocal limit the
+    monitor screens with rounds to 1 or just below, the row is still beyond the limit: the screen
+    must leave a margin, not compare with 1."""
+    from deltaslice.machine.limits import _observe_kernel
+
+    rate = 1000.0
+    half = 0.5 * rate
+    rng = np.random.default_rng(0)
+    cases = []
+    for vlim in rng.uniform(0.5, 50.0, 2000):
+        dv = np.nextafter(vlim / half, np.inf)
+        if (dv * half) / vlim > 1.0 and dv * (half / vlim) <= 1.0:
+            cases.append((vlim, dv))
+    assert len(cases) > 10
+    for vlim, dv in cases[:50]:
+        q = np.array([[0.0], [0.0], [dv]])
+        peak_v, peak_a = np.zeros(1), np.zeros(1)
+        flat = np.zeros(3)
+        _tool_v, bad, events, last_bad = _observe_kernel(q, flat, flat, rate, np.array([vlim]), np.array([np.inf]),
+                                                          peak_v, peak_a, False)
+        assert (bad, events, last_bad) == (1, 1, True) and peak_v[0] > 1.0, (vlim, dv)
+
+
 def test_limit_monitor_over_blocks_equals_whole_array_differences():
     from deltaslice.machine import LimitMonitor
 
