@@ -313,6 +313,17 @@ def test_far_and_invalid_points(name):
     assert _quiet(kin.reachable, np.empty((0, 3))).shape == (0,)
 
 
+@pytest.mark.parametrize("name", [n for n in CASES if n != "cartesian" and printer(n).family in ("rotary_delta", "linear_delta")])
+def test_compiled_inverse_refuses_rows_not_of_three(name):
+    """The compiled families' kernels read three columns unchecked: rows of two (or a bare
+    list of four numbers) are refused, not read past their ends into garbage angles."""
+    kin = kin_of(name)
+    for bad in (np.zeros((4, 2)), np.zeros(4), np.zeros((2, 3, 1))):
+        with pytest.raises(ValueError, match="rows of 3"):
+            kin.inverse(bad)
+    assert kin.inverse(np.array([0.0, 0.0, 100.0])).shape == (1, 3)
+
+
 def test_rotary_forward_nan_where_forearms_cannot_meet():
     # Forearms (40 mm) shorter than the distance from the axis to the sphere centres (85 mm).
     g = RotaryDeltaGeometry(base_radius=60.0, platform_radius=35.0, upper_arm=60.0, forearm=40.0, shoulder_height=110.0)

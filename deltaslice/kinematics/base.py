@@ -29,6 +29,16 @@ REACH_BLOCK = 65536  # points per evaluation in Kinematics.reachable
 FD_STEP = 1e-3  # mm: step of the default path_derivatives' difference of the inverse Jacobian
 
 
+def rows3(v, name: str) -> np.ndarray:
+    """v as contiguous float64 rows of three (a single row becomes (1, 3)); ValueError otherwise:
+    the families' compiled kernels read three columns unchecked (a (N, 2) array would be read
+    past its rows)."""
+    v = np.ascontiguousarray(np.atleast_2d(np.asarray(v, dtype=float)))
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"{name}: expected rows of 3 values, got shape {v.shape}")
+    return v
+
+
 def solve_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Batched ``np.linalg.solve(a, b)`` that never raises: rows whose matrix is
     singular or holds NaN give NaN (a: (N,k,k), b: (N,k,m) -> (N,k,m))."""

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import Kinematics, lower_sphere_intersection, solve_rows
+from .base import Kinematics, lower_sphere_intersection, rows3, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
@@ -64,7 +64,7 @@ class LinearDelta(Kinematics):
 
     def inverse(self, points):
         """points: (N,3) mm -> q: (N,3) carriage heights, mm (NaN out of reach)."""
-        points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)))
+        points = rows3(points, "points")
         q = np.empty((len(points), 3))
         _inverse_kernel(points, self.towers, self.L, self.t, q)
         return q

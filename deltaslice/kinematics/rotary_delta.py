@@ -24,7 +24,7 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import Kinematics, lower_sphere_intersection, solve_rows
+from .base import Kinematics, lower_sphere_intersection, rows3, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
@@ -98,7 +98,7 @@ class RotaryDelta(Kinematics):
 
     def inverse(self, points):
         """points: (N,3) float, mm, bed frame -> q: (N,3) float, rad (NaN where out of reach)."""
-        points = np.ascontiguousarray(np.atleast_2d(np.asarray(points, dtype=float)))
+        points = rows3(points, "points")
         n = len(points)
         x, y, shift = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
         _inverse_kernel(points, self._offsets, self.L1, self.L2, x, y, shift)
@@ -179,7 +179,7 @@ class RotaryDelta(Kinematics):
         tilt_max = self.geometry.ball_joint_tilt_max
         if tilt_max is None:
             return np.ones(len(points), dtype=bool)
-        points, q = _rows3(points, "points"), _rows3(q, "q")
+        points, q = rows3(points, "points"), rows3(q, "q")
         if len(points) != len(q):
             raise ValueError(f"extra_ok: {len(points)} points for {len(q)} joint rows")
         out = np.empty(len(q), dtype=bool)
@@ -190,19 +190,10 @@ class RotaryDelta(Kinematics):
         """q (N,3) rad -> (N,): the base's bound, its inverse Jacobian (:meth:`inverse_jacobian`:
         the closure at q's forward solution) and cofactors in one compiled pass (the same to
         rounding); the forward solution is numpy's."""
-        q = _rows3(q, "q")
+        q = rows3(q, "q")
         out = np.empty(len(q))
         _condition_bound_kernel(q, np.ascontiguousarray(self.forward(q)), self._offsets, self.L1, out)
         return out
-
-
-def _rows3(v, name: str) -> np.ndarray:
-    """v as contiguous float64 rows of three (a single row becomes (1, 3)); ValueError otherwise
-    (the kernels read three columns unchecked)."""
-    v = np.ascontiguousarray(np.atleast_2d(np.asarray(v, dtype=float)))
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"{name}: expected rows of 3 values, got shape {v.shape}")
-    return v
 
 
 @njit
