@@ -188,24 +188,60 @@ class RotaryDelta(Kinematics):
 
     def condition_bound(self, q):
         """q (N,3) rad -> (N,): the base's bound, its inverse Jacobian (:meth:`inverse_jacobian`:
-        the closure at q's forward solution) and cofactors in one compiled pass (the same to
-        rounding); the forward solution is numpy's."""
+        the closure at q's forward solution) and cofactors in one compiled pass, the forward
+        solution too (the same to rounding: the bound only decides with a margin; :meth:`forward`,
+        whose points feed planned moves, stays numpy's)."""
         q = rows3(q, "q")
         out = np.empty(len(q))
-        _condition_bound_kernel(q, np.ascontiguousarray(self.forward(q)), self._offsets, self.L1, out)
+        _condition_bound_kernel(q, self._offsets, self.L1, self.L2, out)
         return out
 
 
 @njit
-def _condition_bound_kernel(q, p, offsets, L1, out):
-    """Kinematics.condition_bound at joints q (N,3) whose forward solutions are p (N,3): rows
+def _lower_meeting(c, L2):
+    """Where three spheres of radius L2 centred at the rows of c (3, 3) meet, the root below
+    their plane, as :func:`.base.lower_sphere_intersection` (NaN where they do not meet)."""
+    exx, exy, exz = c[1, 0] - c[0, 0], c[1, 1] - c[0, 1], c[1, 2] - c[0, 2]
+    d = math.sqrt(exx * exx + exy * exy + exz * exz)
+    exx, exy, exz = exx / d, exy / d, exz / d
+    wx, wy, wz = c[2, 0] - c[0, 0], c[2, 1] - c[0, 1], c[2, 2] - c[0, 2]
+    i = exx * wx + exy * wy + exz * wz
+    eyx, eyy, eyz = wx - i * exx, wy - i * exy, wz - i * exz
+    j = math.sqrt(eyx * eyx + eyy * eyy + eyz * eyz)
+    eyx, eyy, eyz = eyx / j, eyy / j, eyz / j
+    ezx, ezy, ezz = exy * eyz - exz * eyy, exz * eyx - exx * eyz, exx * eyy - exy * eyx
+    if ezz > 0:
+        ezx, ezy, ezz = -ezx, -ezy, -ezz
+    x = d / 2
+    y = (i * i + j * j) / (2 * j) - i * x / j
+    h2 = L2 * L2 - x * x - y * y
+    if not h2 >= 0:
+        return np.nan, np.nan, np.nan
+    h = math.sqrt(h2)
+    return (c[0, 0] + x * exx + y * eyx + h * ezx, c[0, 1] + x * exy + y * eyy + h * ezy,
+            c[0, 2] + x * exz + y * eyz + h * ezz)
+
+
+@njit
+def _condition_bound_kernel(q, offsets, L1, L2, out):
+    """Kinematics.condition_bound at joints q (N,3): the forward solution p (the spheres of radius
+    L2 about each elbow less the platform offset, :func:`_lower_meeting`), rows
     J^-1_i = -d_i / (-d_i . e'_i) (forearm d_i and elbow rate e'_i from :func:`_arm`), their
     cofactors, and |J^-1|_F |adj|_F / |det| (NaN where p is)."""
     ji = np.empty((3, 3))
+    c = np.empty((3, 3))
+    cs = np.empty((3, 2))
     for n in range(q.shape[0]):
+        # elbow_i - (r U_i + t Z) = L1 (cos q U_i - sin q Z) - offsets_i
         for i in range(3):
-            dx, dy, dz, ex, ey, ez = _arm(p[n, 0] + offsets[i, 0], p[n, 1] + offsets[i, 1], p[n, 2] + offsets[i, 2],
-                                          U[i, 0], U[i, 1], L1, math.cos(q[n, i]), math.sin(q[n, i]))
+            cs[i, 0], cs[i, 1] = math.cos(q[n, i]), math.sin(q[n, i])
+            c[i, 0] = L1 * cs[i, 0] * U[i, 0] - offsets[i, 0]
+            c[i, 1] = L1 * cs[i, 0] * U[i, 1] - offsets[i, 1]
+            c[i, 2] = -L1 * cs[i, 1] - offsets[i, 2]
+        px, py, pz = _lower_meeting(c, L2)
+        for i in range(3):
+            dx, dy, dz, ex, ey, ez = _arm(px + offsets[i, 0], py + offsets[i, 1], pz + offsets[i, 2],
+                                          U[i, 0], U[i, 1], L1, cs[i, 0], cs[i, 1])
             b = -(dx * ex + dy * ey + dz * ez)
             ji[i, 0], ji[i, 1], ji[i, 2] = -dx / b, -dy / b, -dz / b
         f2 = 0.0
