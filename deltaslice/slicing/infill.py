@@ -17,8 +17,6 @@ import numpy as np
 import shapely
 from manifold3d import CrossSection, JoinType, OpType
 
-from ..jit import njit
-
 
 def solid_masks(sections: list[CrossSection], layer: int, top: int, bottom: int,
                 covers: list[CrossSection] | None = None) -> tuple[CrossSection, CrossSection]:
@@ -93,91 +91,87 @@ def scanline_segments(region: CrossSection, angle: float, spacing: float, min_le
 def chain_segments(k: np.ndarray, xa: np.ndarray, xb: np.ndarray, spacing: float, max_link: float) -> list[np.ndarray]:
     """Link segments of consecutive scanlines into zig-zag chains.
 
+    k: (m,) int scanline of each segment, the segments grouped by scanline in increasing order;
+    xa, xb: (m,) float, mm, each segment's ends along its line (xa < xb).
     Segment j on line k joins segment i on line k-1 when they are each other's only
     overlapping neighbour and the link (end of one to start of the next) is
     shorter than ``max_link``. Returns a list of index arrays (chains, in order).
-    """
+
+    Vectorised (no compiled kernel: the slicing workers never load numba)."""
     m = len(k)
     if m == 0:
         return []
-    k = np.ascontiguousarray(k, dtype=np.int64)
-    xa, xb = np.ascontiguousarray(xa, dtype=float), np.ascontiguousarray(xb, dtype=float)
-    # boundaries of each scanline's run of segments
+    k = np.asarray(k, dtype=np.int64)
+    xa, xb = np.asarray(xa, dtype=float), np.asarray(xb, dtype=float)
+    nxt, prev = _sole_overlaps(k, xa, xb)
+    order, starts = _split_chains(nxt, prev, xa, xb, float(spacing), float(max_link))
+    return np.split(order, starts[1:])
+
+
+def _sole_overlaps(k, xa, xb):
+    """(nxt, prev) (m,) int64, -1 where none: nxt[i] = j and prev[j] = i for segment i of scanline
+    k and segment j of scanline k + 1 where each is the other's only overlapping segment (open
+    intervals). Every pair of segments of neighbouring lines is tested at once (a pass per pair
+    of lines with an overlap matrix each was the slicer's largest per-line cost)."""
+    m = len(k)
+    nxt, prev = np.full(m, -1, dtype=np.int64), np.full(m, -1, dtype=np.int64)
     line_start = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]]))
-    line_end = np.concatenate([line_start[1:], [m]])
-    nxt = np.full(m, -1)
-    prev = np.full(m, -1)
-    _sole_overlaps(k, xa, xb, line_start, line_end, nxt, prev)
-    order = np.empty(m, dtype=np.int64)
-    starts = np.empty(m, dtype=np.int64)
-    n = _split_chains(nxt, prev, xa, xb, float(spacing), float(max_link), order, starts)
-    return np.split(order, starts[1:n])
+    size = np.diff(np.append(line_start, m))
+    a = np.flatnonzero(k[line_start[1:]] == k[line_start[:-1]] + 1)  # lines followed by their next line
+    if a.size == 0:
+        return nxt, prev
+    pairs = size[a] * size[a + 1]
+    owner = np.repeat(a, pairs)
+    t = np.arange(int(pairs.sum())) - np.repeat(np.cumsum(pairs) - pairs, pairs)
+    width = size[owner + 1]
+    i = line_start[owner] + t // width
+    j = line_start[owner + 1] + t % width
+    hit = (xa[i] < xb[j]) & (xa[j] < xb[i])
+    i, j = i[hit], j[hit]
+    # a segment is an i only toward its next line and a j only toward its previous one
+    sole = (np.bincount(i, minlength=m)[i] == 1) & (np.bincount(j, minlength=m)[j] == 1)
+    nxt[i[sole]] = j[sole]
+    prev[j[sole]] = i[sole]
+    return nxt, prev
 
 
-@njit
-def _sole_overlaps(k, xa, xb, line_start, line_end, nxt, prev):
-    """nxt[i] = j and prev[j] = i for segment i of scanline k and segment j of scanline k + 1
-    (segments [xa, xb] of each line, its run line_start..line_end) where each is the other's only
-    overlapping segment (open intervals). One pass per pair of neighbouring lines, counting each
-    segment's overlaps (a Python loop over the lines with an overlap matrix each was the slicer's
-    largest per-line cost)."""
-    width = 0
-    for a in range(len(line_start)):
-        width = max(width, line_end[a] - line_start[a])
-    count_a = np.empty(width, dtype=np.int64)
-    count_b = np.empty(width, dtype=np.int64)
-    for a in range(len(line_start) - 1):
-        s0, e0, s1, e1 = line_start[a], line_end[a], line_start[a + 1], line_end[a + 1]
-        if k[s1] != k[s0] + 1:
-            continue
-        count_a[: e0 - s0] = 0
-        count_b[: e1 - s1] = 0
-        for i in range(s0, e0):
-            for j in range(s1, e1):
-                if xa[i] < xb[j] and xa[j] < xb[i]:
-                    count_a[i - s0] += 1
-                    count_b[j - s1] += 1
-        for i in range(s0, e0):
-            if count_a[i - s0] != 1:
-                continue
-            for j in range(s1, e1):
-                if xa[i] < xb[j] and xa[j] < xb[i] and count_b[j - s1] == 1:
-                    nxt[i] = j
-                    prev[j] = i
+def _split_chains(nxt, prev, xa, xb, spacing, max_link):
+    """(order, starts): the chains of ``nxt`` (from each segment with no ``prev``, in index order)
+    end to end in ``order`` (m,), each cut where its zig-zag link is longer than ``max_link``;
+    ``starts``: where each chain begins in ``order``. A chain runs its first segment forward (xa
+    to xb) and alternates, as :func:`chain_polylines` draws it, so a link is measured with the
+    directions its own chain gives after a cut: forward, it joins xb to the next segment's xb;
+    backward, xa to xa.
 
-
-@njit
-def _split_chains(nxt, prev, xa, xb, spacing, max_link, order, starts):
-    """The chains of ``nxt`` (from each segment with no ``prev``, in index order) end to end in
-    ``order``, each cut where its zig-zag link is longer than ``max_link``; ``starts``: where each
-    chain begins in ``order``. Returns the number of chains. A chain runs its first segment
-    forward (xa to xb) and alternates, as :func:`chain_polylines` draws it, so a link is measured
-    with the directions its own chain gives after a cut: forward, it joins xb to the next
-    segment's xb; backward, xa to xa."""
-    pos = 0
-    n = 0
-    for head in range(len(nxt)):
-        if prev[head] >= 0:
-            continue
-        starts[n] = pos
-        n += 1
-        i = head
-        order[pos] = i
-        pos += 1
-        forward = True
-        while nxt[i] >= 0:
-            j = nxt[i]
-            gap = xb[i] - xb[j] if forward else xa[i] - xa[j]
-            if math.hypot(gap, spacing) > max_link:
-                starts[n] = pos
-                n += 1
-                forward = True
-            else:
-                forward = not forward
-            order[pos] = j
-            pos += 1
-            i = j
-    return n
+    A segment's direction follows from the link into it alone: after a forward segment whose
+    xb-to-xb link is too long it starts a chain (forward); after a backward one it is forward
+    whether the chain is cut there or not. So directions alternate from the last head or such
+    link, and the chains' order and depths come from pointer jumping (log of the longest chain
+    passes over the segments)."""
+    m = len(nxt)
+    idx = np.arange(m)
+    head = prev < 0
+    up = np.where(head, idx, prev)
+    depth = (~head).astype(np.int64)
+    while True:
+        further = up[up]
+        if np.array_equal(further, up):
+            break
+        depth = depth + depth[up]
+        up = further
+    order = np.lexsort((depth, up))  # chains by head index, each from its head
+    src = prev[order]  # the segment before each one in its chain (-1 at heads)
+    link = src >= 0
+    s = np.where(link, src, order)
+    too_long_fwd = np.hypot(xb[s] - xb[order], spacing) > max_link
+    too_long_bwd = np.hypot(xa[s] - xa[order], spacing) > max_link
+    pos = np.arange(m)
+    reset = ~link | too_long_fwd
+    last = np.maximum.accumulate(np.where(reset, pos, 0))
+    forward = (pos - last) % 2 == 0
+    before = np.concatenate([[True], forward[:-1]])  # the direction of the link's source
+    cut = link & np.where(before, too_long_fwd, too_long_bwd)
+    return order, np.flatnonzero(~link | cut)
 
 
 def chain_polylines(k, xa, xb, chains, spacing: float, angle: float) -> list[np.ndarray]:
