@@ -224,10 +224,10 @@ bound_options = _options(
 )
 
 
-def _printer(printer_path, overrides):
+def _printer(printer_path, overrides, reach_checks: bool = True):
     from .machine import load_printer
 
-    return _run(load_printer, printer_path, overrides=overrides or None)
+    return _run(load_printer, printer_path, overrides=overrides or None, reach_checks=reach_checks)
 
 
 def _placement(scale, rotate, keep_position) -> dict:
@@ -277,7 +277,7 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
     result = _run(
         compile_part,
         part,
-        _printer(printer_path, overrides),
+        _printer(printer_path, overrides, reach_checks=False),  # compile_part checks it while slicing starts
         output=output,
         fmt=fmt,
         speed_limit=speed_limit,

@@ -23,16 +23,19 @@ import numpy as np
 from . import interrupt
 from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError
 from .formats import format_for, holds_samples, part_kind
-from .machine import LimitMonitor, Printer, load_printer
+from .machine import LimitMonitor, Printer, check_reach, load_printer
 from .machine.limits import TOLERANCE
 from .pool import check_workers, resolve_workers
 from .progress import stderr_progress
 from .report import CompileResult, slice_summary
 
 
-def _printer(printer) -> Printer:
-    """A Printer as given, or loaded from a path or a shipped printer's name."""
-    return printer if isinstance(printer, Printer) else load_printer(printer)
+def _printer(printer, reach_checks: bool = True) -> Printer:
+    """A Printer as given, or loaded from a path or a shipped printer's name; with its reach
+    checks done (:func:`~deltaslice.machine.check_reach`) unless ``reach_checks`` is False."""
+    if not isinstance(printer, Printer):
+        printer = load_printer(printer, reach_checks=reach_checks)
+    return check_reach(printer) if reach_checks else printer
 
 
 # G-code files larger than this are read a stretch at a time and planned as they are read
@@ -197,7 +200,7 @@ def check_job(duration_s: float, n_samples_per_s: float, bytes_per_sample: float
 
 
 def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None,
-                  center=False, workers=1):
+                  center=False, workers=1, while_slicing=None):
     """A Toolpath from a mesh (sliced here), a G-code file (read) or, for a laser, an
     image or SVG (engraved: :mod:`deltaslice.engrave`), in the bed frame.
 
@@ -206,9 +209,15 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     progress: callable(done, total) or None; echo: callable(str) for notes (repairs, skipped commands).
     center: move a G-code part's footprint to the bed centre (meshes are centred unless keep_position).
     workers: processes slicing a mesh's layers (the toolpath is the same for any number).
+    while_slicing: a callable run in this process while the workers slice a mesh's first layers
+    (:func:`~deltaslice.slicing.slice_mesh`'s ``started``), or first thing for other parts. A mesh
+    is checked to fit the printer's reach at the same point, so a printer read with
+    ``reach_checks=False`` is not checked here for it: the process loads numba only there.
     """
-    printer = _printer(printer)
     kind = part_kind(part)
+    printer = _printer(printer, reach_checks=kind != "mesh")
+    if kind != "mesh" and while_slicing is not None:
+        while_slicing()
     if kind == "gcode":
         from .gcode import read_gcode
 
@@ -224,12 +233,18 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     if echo is not None:
         for note in mesh.repairs:
             echo(f"mesh: {note}")
-    check_fits(mesh, printer)  # a refusal names the placement itself
-    if echo is not None and mesh.placement:  # where the part went, in its own units (inches, off-centre)
-        echo(f"mesh: {mesh.placement}")
+
+    def started():
+        if while_slicing is not None:
+            while_slicing()
+        check_fits(mesh, printer)  # a refusal names the placement itself (and stops the workers)
+        if echo is not None and mesh.placement:  # where the part went, in its own units (inches, off-centre)
+            echo(f"mesh: {mesh.placement}")
+
     with warnings.catch_warnings(record=True) as caught:  # the slicer's MeshWarnings become notes
         warnings.simplefilter("always", MeshWarning)
-        toolpath = slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name, workers=workers)
+        toolpath = slice_mesh(mesh, printer.slicing, printer.tool, progress=progress, name=printer.name, workers=workers,
+                              started=started)
     for w in caught:
         if not issubclass(w.category, MeshWarning):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -412,9 +427,16 @@ def compile_part(
     fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
     check_output(output, inputs=[part, getattr(printer, "path", printer)])
     workers = resolve_workers(workers, "compile_part")
-    printer = _printer(printer)
+    kind = part_kind(part)
+    # A mesh's printer is checked (check_reach: numba's first load) while the slicing workers start
+    printer = _printer(printer, reach_checks=kind != "mesh")
+    checked = [printer]
+
+    def while_slicing():
+        checked[0] = check_reach(printer)
+
     t0 = time.perf_counter()
-    stage = ("reading G-code", "lines") if part_kind(part) == "gcode" else ("slicing layers", "it")
+    stage = ("reading G-code", "lines") if kind == "gcode" else ("slicing layers", "it")
     reading = stderr_progress(progress, stage[0], unit=stage[1])
     planning = stderr_progress(progress, "planning", unit="moves")
     stream = _gcode_stream(part, printer, fmt, planner, mesh_options, reading, echo)
@@ -431,7 +453,9 @@ def compile_part(
             with stream:
                 toolpath = stream.whole()
         else:
-            toolpath = load_toolpath(part, printer, progress=reading, echo=echo, workers=workers, **mesh_options)
+            toolpath = load_toolpath(part, printer, progress=reading, echo=echo, workers=workers,
+                                     while_slicing=while_slicing, **mesh_options)
+            printer = checked[0]
         interrupt.check()
         t_slice = time.perf_counter() - t0
         s = toolpath.summary()

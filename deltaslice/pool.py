@@ -63,11 +63,13 @@ def inherited(name: str):
     return _INHERITED[name]
 
 
-def forked_map(fn, tasks, workers: int, **inherit):
+def forked_map(fn, tasks, workers: int, *, started=None, in_flight: int = 2, **inherit):
     """``fn(*task)`` for every task (an iterable of argument tuples) in ``workers`` forked
-    processes, the results yielded in task order, at most two tasks per worker in flight (memory
-    bounded by what is in flight). ``inherit``: objects the workers read with :func:`inherited`,
-    passed by forking (shared, never pickled); the parent keeps no reference to them after."""
+    processes, the results yielded in task order, at most ``in_flight`` tasks per worker in flight
+    (memory bounded by what is in flight). started: a callable run here once the first tasks are
+    submitted (what it raises stops the map). ``inherit``: objects the workers read with
+    :func:`inherited`, passed by forking (shared, never pickled); the parent keeps no reference to
+    them after."""
     tasks = iter(tasks)
     queue = deque()
     _INHERITED.update(inherit)
@@ -82,8 +84,10 @@ def forked_map(fn, tasks, workers: int, **inherit):
             queue.append(pool.submit(fn, *task))
 
     try:
-        for _ in range(2 * workers):
+        for _ in range(in_flight * workers):
             submit()
+        if started is not None:
+            started()
         while queue:
             result = queue.popleft().result()
             submit()

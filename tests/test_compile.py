@@ -92,3 +92,64 @@ def test_an_output_beyond_a_limit_fails_the_compile_and_writes_nothing(tmp_path,
     assert "beyond the limits" in r.output and "acc" in r.output and "Traceback" not in r.output
     assert out.read_bytes() == b"previous output"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cube.dsl"]
+
+
+def test_compile_checks_the_printer_while_the_slicing_workers_run(tmp_path):
+    """A compile of a mesh from a printer path (or an unchecked Printer, as the CLI gives it) forks
+    its slicing workers before this process loads a compiled kernel, checks the printer's reach
+    (numba's first load) while they slice, and writes the bytes a compile from a checked printer
+    writes."""
+    import json
+    import subprocess
+    import sys
+
+    marks, fast, checked = tmp_path / "marks.jsonl", tmp_path / "fast.dsl", tmp_path / "checked.dsl"
+    printer = ROOT / "printers" / "delta_etitc.toml"
+    code = f"""
+import json, os, sys
+import deltaslice.slicing.slicer as S
+from deltaslice.machine import load_printer
+from deltaslice.pipeline import compile_part
+
+def loaded():
+    return [k for m, mod in list(sys.modules.items()) if m.startswith('deltaslice') and mod
+            for k, v in vars(mod).items() if hasattr(v, 'py_func') and getattr(v, 'signatures', None)]
+
+plan_range = S._plan_range
+def recorded(a, b):
+    out = plan_range(a, b)
+    with open({str(marks)!r}, 'a') as f:
+        f.write(json.dumps([os.getpid(), loaded()]) + chr(10))
+    return out
+S._plan_range = recorded
+compile_part({str(CUBE)!r}, {str(printer)!r}, output={str(fast)!r}, workers=2, scale=0.5)
+assert loaded()  # the main process loaded them, for planning
+S._plan_range = plan_range
+compile_part({str(CUBE)!r}, load_printer({str(printer)!r}), output={str(checked)!r}, workers=2, scale=0.5)
+print(os.getpid())
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-3000:]
+    main_pid = int(out.stdout.split()[-1])
+    rows = [json.loads(line) for line in marks.read_text().splitlines()]
+    assert len(rows) >= 4 and all(pid != main_pid for pid, _ in rows)  # ranges planned by forked workers
+    assert all(kernels == [] for _, kernels in rows), rows
+    assert fast.read_bytes() == checked.read_bytes()
+
+
+def test_a_printer_that_reaches_nothing_stops_a_compile_while_it_slices(tmp_path):
+    """The reach check done while the workers slice still refuses the printer, with the
+    printer file's message, and nothing is written."""
+    from deltaslice.errors import PrinterFileError
+    from deltaslice.pipeline import compile_part
+
+    text = (ROOT / "printers" / "delta_etitc.toml").read_text().replace("shoulder_height = 527.0", "shoulder_height = 5000.0")
+    bad = tmp_path / "far.toml"
+    bad.write_text(text)
+    out = tmp_path / "cube.dsl"
+    with pytest.raises(PrinterFileError, match=r"far\.toml: \[kinematics\] geometry reaches no point"):
+        compile_part(str(CUBE), str(bad), output=str(out), workers=2, scale=0.5)
+    assert not out.exists()
+    r = CliRunner().invoke(main, [str(CUBE), "--printer", str(bad), "-o", str(out), "--scale", "0.5", "--quiet"])
+    assert r.exit_code == 1 and r.output.startswith("error:") and "geometry reaches no point" in r.output
+    assert not out.exists()

@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import math
 import re
+import subprocess
+import sys
 import tomllib
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -194,3 +197,84 @@ def test_cli_missing_printer_file(tmp_path):
     result = CliRunner().invoke(main, ["workspace", "--printer", str(tmp_path / "none.toml")])
     assert result.exit_code == 1
     assert result.stderr.startswith("error: ") and "no such printer file" in result.stderr
+
+
+# --------------------------------------------------------------------------- reach checks after loading
+
+
+@pytest.mark.parametrize("name", PRINTER_NAMES)
+def test_reach_checks_done_after_loading_give_the_same_printer(name):
+    """load_printer(reach_checks=False) then check_reach is load_printer: the same rest pose (bit
+    for bit), fingerprint and fields; check_reach of a checked printer is that printer."""
+    from deltaslice.machine import check_reach
+
+    full = printer(name)
+    later = load_printer(PRINTER_DIR / f"{name}.toml", reach_checks=False)
+    assert full.reach_checked and not later.reach_checked
+    checked = check_reach(later)
+    assert checked.reach_checked and not later.reach_checked  # a new printer; the unchecked one stays so
+    assert checked.rest_pose.tobytes() == full.rest_pose.tobytes()
+    assert checked == full and checked.fingerprint() == full.fingerprint()
+    assert check_reach(checked) is checked and check_reach(full) is full
+
+
+def test_check_reach_sets_the_default_rest_pose(tmp_path):
+    """A file without [joints] rest: the unchecked printer has no rest pose; check_reach gives the
+    one load_printer gives (the highest reachable point above the bed centre)."""
+    from deltaslice.machine import check_reach
+
+    path = _bad_file(tmp_path, _sub("rest = 22.5\n", ""))
+    full = load_printer(path)
+    later = load_printer(path, reach_checks=False)
+    assert later.rest_pose is None
+    assert check_reach(later).rest_pose.tobytes() == full.rest_pose.tobytes()
+    assert np.isfinite(full.rest_pose).all() and not np.allclose(full.rest_pose, math.radians(22.5))
+
+
+def test_check_reach_refuses_a_geometry_that_reaches_nothing(tmp_path):
+    """The check left out of an unchecked load is check_reach's, with load_printer's message."""
+    from deltaslice.machine import check_reach
+
+    path = _bad_file(tmp_path, BAD["geometry reaches nothing"][0])
+    with pytest.raises(PrinterFileError) as full:
+        load_printer(path)
+    later = load_printer(path, reach_checks=False)
+    with pytest.raises(PrinterFileError) as err:
+        check_reach(later)
+    assert str(err.value) == str(full.value) and "max_height = 120" in str(err.value)
+
+
+def test_planning_refuses_a_printer_without_its_reach_checks():
+    """Nothing plans with an unchecked printer (its rest pose may be unset): plan says what to do."""
+    from deltaslice.errors import DeltasliceError
+    from deltaslice.planning import plan
+    from deltaslice.toolpath import Role, ToolpathBuilder
+
+    later = load_printer(GOOD, reach_checks=False)
+    b = ToolpathBuilder(start=(0.0, 0.0, 1.0))
+    b.add((5.0, 0.0, 1.0), 20.0, 0.2, 1.0, Role.PERIMETER)
+    tp = b.build()
+    for planner in ("toppra", "trapezoid"):
+        with pytest.raises(DeltasliceError, match=r"reach_checks=False.*check_reach"):
+            plan(tp, later, planner=planner, workers=1)
+
+
+def test_a_load_without_reach_checks_runs_no_compiled_kernel():
+    """What reach_checks=False is for: the printer is read without numba compiling or loading a
+    single kernel (a compile's slicing workers fork before this process loads them), and
+    check_reach is what loads them."""
+    code = (
+        "import sys\n"
+        "from deltaslice.machine import check_reach, load_printer\n"
+        "def loaded():\n"
+        "    return [k for m, mod in list(sys.modules.items()) if m.startswith('deltaslice') and mod\n"
+        "            for k, v in vars(mod).items() if hasattr(v, 'py_func') and getattr(v, 'signatures', None)]\n"
+        "for name in ('delta_etitc', 'linear_kossel', 'fivebar_atlas', 'delta_espe_laser'):\n"
+        "    p = load_printer(name, reach_checks=False)\n"
+        "assert not loaded(), loaded()\n"
+        "check_reach(load_printer('delta_etitc', reach_checks=False))\n"
+        "assert loaded()\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-2000:]

@@ -270,6 +270,35 @@ def test_layers_sliced_in_workers_are_the_layers_sliced_here(etitc, make, monkey
     assert not pool._INHERITED  # the parent keeps no reference
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_slice_mesh_runs_started_once_while_its_workers_slice(etitc, workers):
+    """``started`` runs here once, after the workers have their first ranges (before the first
+    layer with one process), and changes nothing sliced; what it raises stops the slicing and
+    its workers."""
+    import multiprocessing
+    import os
+
+    mesh = meshes.box(30, 30, 8)
+    calls = []
+
+    def started():
+        calls.append((os.getpid(), len(multiprocessing.active_children())))
+
+    got = slice_mesh(mesh, etitc.slicing, etitc.tool, workers=workers, started=started)
+    assert calls == [(os.getpid(), workers if workers > 1 else 0)]
+    _same_toolpath(slice_mesh(mesh, etitc.slicing, etitc.tool), got)
+
+    class Refused(Exception):
+        pass
+
+    def refuse():
+        raise Refused()
+
+    with pytest.raises(Refused):
+        slice_mesh(mesh, etitc.slicing, etitc.tool, workers=workers, started=refuse)
+    assert not multiprocessing.active_children()
+
+
 def test_a_real_part_sliced_in_workers_is_the_part_sliced_here(etitc):
     """featuretype at 5x: 68 layers of islands, gap fill, bridges and solid/sparse switches."""
     from pathlib import Path

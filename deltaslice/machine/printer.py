@@ -38,6 +38,9 @@ class Printer:
     rest_pose: np.ndarray = field(repr=False, compare=False, default=None)
     sensor_table: tuple = ()
     sources: dict = field(default_factory=dict, compare=False, hash=False)
+    # False for a printer read with load_printer(reach_checks=False) and not yet through
+    # machine.check_reach: its rest pose may be unset and nothing plans with it
+    reach_checked: bool = field(default=True, repr=False, compare=False)
 
     @property
     def n_joints(self) -> int:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -249,12 +250,15 @@ def apply_overrides(data: dict, overrides, path: str) -> dict:
     return out
 
 
-def load_printer(path: str | Path, overrides: dict | None = None) -> Printer:
+def load_printer(path: str | Path, overrides: dict | None = None, *, reach_checks: bool = True) -> Printer:
     """Read and validate a printer file.
 
     path: a ``.toml`` printer file or the name of a shipped printer. overrides:
     ``{"section.key": value}`` applied before validation. Returns a frozen :class:`Printer`.
     Raises :class:`PrinterFileError` naming the file, key, value and bound of every problem.
+    reach_checks: False leaves out what needs the compiled kinematics (the default rest pose and
+    the check that the geometry reaches the bed): :func:`check_reach` does it later, so that a
+    compile can start its slicing workers before this process loads numba.
     """
     path = resolve_printer(path)
     shown = str(path)
@@ -270,15 +274,16 @@ def load_printer(path: str | Path, overrides: dict | None = None) -> Printer:
         raise PrinterFileError(f"{shown}: not valid TOML: {exc}") from None
     if overrides:
         data = apply_overrides(data, overrides, shown)
-    return printer_from_dict(data, shown, overridden=[str(k).split(".", 1) for k in dict(overrides or {})])
+    return printer_from_dict(data, shown, overridden=[str(k).split(".", 1) for k in dict(overrides or {})],
+                             reach_checks=reach_checks)
 
 
-def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=()) -> Printer:
+def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), reach_checks: bool = True) -> Printer:
     """Validate an already-parsed printer description (same rules as :func:`load_printer`).
 
     Every section is read even after a problem, and one PrinterFileError lists them all.
     overridden: ``(section, key)`` pairs set by ``--set``, whose problems are reported as the
-    ``--set``'s rather than the file's."""
+    ``--set``'s rather than the file's. reach_checks: as :func:`load_printer`'s."""
     if not isinstance(data, dict):
         raise PrinterFileError(f"{path}: expected a table of sections, got {type(data).__name__}")
     problems = Problems(str(path), overridden)
@@ -338,7 +343,8 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=()) -> 
     limits = _limits(joints, tool)
     J = limits.n_joints
     kinematics = make_kinematics(geometry, limits.position_min[:J], limits.position_max[:J], planning.singularity_limit)
-    rest = _rest_pose(path, np.array(joints["rest"]), kinematics, bed)
+    rest = np.array(joints["rest"])
+    rest = _given_rest_pose(path, rest, kinematics) if not np.all(np.isnan(rest)) else None
     printer = Printer(
         name=name,
         path=path,
@@ -355,23 +361,40 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=()) -> 
         rest_pose=rest,
         sensor_table=tuple(joints["sensor_table"]),
         sources=dict(sources),
+        reach_checked=False,
     )
-    _check_reaches_something(printer)
-    return printer
+    return check_reach(printer) if reach_checks else printer
 
 
-def _rest_pose(path: str, rest: np.ndarray, kin, bed) -> np.ndarray:
+def check_reach(printer: Printer) -> Printer:
+    """The printer as :func:`load_printer` gives it: with its default rest pose where the file
+    gives none, and PrinterFileError where its geometry reaches nothing above the bed. Returns
+    ``printer`` itself where that is done already (these use the compiled kinematics)."""
+    if printer.reach_checked:
+        return printer
+    rest = printer.rest_pose
+    if rest is None:
+        rest = _default_rest_pose(printer.kinematics(), printer.bed)
+    checked = replace(printer, rest_pose=rest, reach_checked=True)
+    _check_reaches_something(checked)
+    return checked
+
+
+def _default_rest_pose(kin, bed) -> np.ndarray:
     """The joint positions the machine rests at (where it is when the player starts and where it
-    parks): ``[joints] rest`` (file units), or by default the highest reachable point above the
-    bed centre up to ``max_height``. A given pose must be within the joint limits and hold the
-    tool above the bed."""
-    if np.all(np.isnan(rest)):
-        z = np.linspace(bed.max_height, 0.0, 81)
-        pts = np.column_stack([np.zeros((len(z), 2)), z])
-        ok = kin.reachable(pts)
-        if not ok.any():
-            return np.full(kin.n_joints, np.nan)  # reported by _check_reaches_something
-        return kin.inverse(pts[np.flatnonzero(ok)[0]][None])[0]
+    parks) when ``[joints] rest`` gives none: the highest reachable point above the bed centre up
+    to ``max_height``."""
+    z = np.linspace(bed.max_height, 0.0, 81)
+    pts = np.column_stack([np.zeros((len(z), 2)), z])
+    ok = kin.reachable(pts)
+    if not ok.any():
+        return np.full(kin.n_joints, np.nan)  # reported by _check_reaches_something
+    return kin.inverse(pts[np.flatnonzero(ok)[0]][None])[0]
+
+
+def _given_rest_pose(path: str, rest: np.ndarray, kin) -> np.ndarray:
+    """``[joints] rest`` (file units): it must be within the joint limits and hold the tool above
+    the bed."""
     p = kin.forward(rest[None])[0]
     if not kin.within_joint_limits(rest[None])[0] or not np.all(np.isfinite(p)) or p[2] < 0:
         where = "outside the joint limits" if not kin.within_joint_limits(rest[None])[0] else (

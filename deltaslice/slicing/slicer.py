@@ -26,15 +26,20 @@ from .skirt import skirt_loops
 INFILL_ANCHOR_MAX = 50.0  # mm: infill lines are joined along the outline up to this far apart (PrusaSlicer's infill_anchor_max)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
 LAYERS_PER_TASK = 4  # layers a slicing worker plans at a time (each range recomputes one sparse region)
+STARTED_TASKS = 4  # ranges in flight per worker while slice_mesh's ``started`` runs (about half a second)
 
 
-def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer", workers: int = 1) -> Toolpath:
+def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer", workers: int = 1,
+               started=None) -> Toolpath:
     """Slice ``mesh`` (a placed :class:`~deltaslice.mesh.Mesh`) with ``settings``
     (:class:`~deltaslice.machine.SlicingSettings`) for ``tool`` (an
     :class:`~deltaslice.machine.Extruder`); name: the printer's, for messages;
     progress: ``callable(done, total)`` called once per layer; workers: processes computing
     the layers' regions and paths (forked: they share the sections) while this process orders
-    them and writes the moves; the toolpath is the same for any number.
+    them and writes the moves; the toolpath is the same for any number. started: a callable
+    run here once the workers have their first layers (before the first layer where the layers
+    are planned here): work this process does meanwhile, such as loading numba, which the
+    workers do not need; what it raises stops the slicing.
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
     the skirt (first layer), then island by island perimeters (innermost first,
     external last, overhang segments flagged), gap fill, then bridges, solid
@@ -61,7 +66,7 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     start_heating(builder, tool)
     writer = MoveWriter(builder, s, tool, tool.filament_area)
     layers = _Layers(sections, thick, s, tool)
-    for li, plan in enumerate(_layer_plans(layers, workers)):
+    for li, plan in enumerate(_layer_plans(layers, workers, started)):
         first = li == 0
         writer.new_layer(float(top[li]), first)
         _order_layer(writer, plan, float(thick[li]), s)
@@ -297,18 +302,23 @@ def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
     writer.inside = None
 
 
-def _layer_plans(layers: _Layers, workers: int):
+def _layer_plans(layers: _Layers, workers: int, started=None):
     """Every layer's plan, in order: computed here, or by forked workers a range of layers at a
-    time (each range starts from its first layer's :meth:`_Layers.sparse` of the layer below)."""
+    time (each range starts from its first layer's :meth:`_Layers.sparse` of the layer below).
+    started: see :func:`slice_mesh`."""
     n = len(layers.sections)
     if workers <= 1 or n < 2 * LAYERS_PER_TASK or not can_fork():
+        if started is not None:
+            started()
         prev_sparse = CrossSection()
         for li in range(n):
             plan, prev_sparse = layers.plan(li, prev_sparse)
             yield plan
         return
     tasks = ((a, min(a + LAYERS_PER_TASK, n)) for a in range(0, n, LAYERS_PER_TASK))
-    for plans in forked_map(_plan_range, tasks, workers, layers=layers):
+    # while ``started`` runs nothing is taken from the workers: more ranges queued keep them busy
+    in_flight = STARTED_TASKS if started is not None else 2
+    for plans in forked_map(_plan_range, tasks, workers, started=started, in_flight=in_flight, layers=layers):
         yield from plans
 
 
