@@ -167,3 +167,42 @@ def test_one_table_of_file_suffixes():
             continue
         hit = table.search(path.read_text())
         assert not hit, f"{m}: a suffix table ({hit.group(0)!r}): use deltaslice/formats.py"
+
+
+def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispatcher():
+    """deltaslice.jit: importing the package's modules imports no numba; the first kernel call
+    does, and then every module holds numba's dispatcher where it held a stand-in (imported names
+    too: topp's run_cumsum, pieces' sample_kernel), so kernels calling kernels compile and Python
+    calls go straight to numba. A kernel defined after that is a dispatcher at once."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, pkgutil, importlib\n"
+        "import deltaslice\n"
+        "from deltaslice import jit\n"
+        "names = [m.name for m in pkgutil.walk_packages(deltaslice.__path__, 'deltaslice.')\n"
+        "         if not m.name.endswith('__main__')]\n"
+        "mods = [importlib.import_module(n) for n in names]\n"
+        "assert 'numba' not in sys.modules, 'imported numba'\n"
+        "stand_ins = [(m, k) for m in mods for k, v in vars(m).items() if type(v) is jit.Deferred]\n"
+        "assert len(stand_ins) > 40, len(stand_ins)\n"
+        "from deltaslice.planning.blend import run_cumsum\n"
+        "import numpy as np\n"
+        "out = np.empty(4)\n"
+        "run_cumsum(np.ones(3), np.array([0, 3]), out)\n"
+        "assert out.tolist() == [0.0, 1.0, 2.0, 3.0], out\n"
+        "assert 'numba' in sys.modules and jit.loaded()\n"
+        "from numba.core.registry import CPUDispatcher\n"
+        "left = [(m.__name__, k) for m, k in stand_ins if not isinstance(vars(m)[k], CPUDispatcher)]\n"
+        "assert not left, left\n"
+        "from deltaslice.planning import topp, pieces, blend\n"
+        "assert topp.run_cumsum is blend.run_cumsum and pieces.sample_kernel is blend.sample_kernel\n"
+        "@jit.njit(cache=False)\n"
+        "def twice(x):\n"
+        "    return 2 * x\n"
+        "assert isinstance(twice, CPUDispatcher) and twice(2.0) == 4.0\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
