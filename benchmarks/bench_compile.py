@@ -7,7 +7,8 @@ planner (``--planner trapezoid``), on delta_etitc.
 Each compile is a whole process (``python -m deltaslice PART --printer ... -o out.dsl --quiet``),
 the variants alternating run by run so drift hits them alike; medians. Its summary gives the
 slice / plan / total wall time measured inside the process (emit = total - slice - plan; start-up
-and imports are the process wall time minus total) and the planned print time; peak RSS is the
+and imports are the process wall time minus total; a mesh's slice holds numba's import and first
+load, which run while the slicing workers slice) and the planned print time; peak RSS is the
 largest of the process and its planning workers (``wait4``). PrusaSlicer gets the equivalent ini
 of ``bench_slicing.py`` and the same scale. The tube is the ~4,000-triangle part of
 ``bench_planning.py``; the others come from ../shared/parts (skipped when absent).
