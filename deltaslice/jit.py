@@ -43,11 +43,25 @@ class Deferred:
         return self.dispatcher(*args, **kwargs)
 
     def __getattr__(self, name):
+        # only attributes not set in __init__ get here: numba's (signatures, ...) load it; dunder
+        # lookups (copy, pickle, inspect) and a half-made instance's own fields must not
+        if name.startswith("__") or name in ("py_func", "options", "dispatcher"):
+            raise AttributeError(name)
         load()
         return getattr(self.dispatcher, name)
 
+    def __reduce__(self):  # by reference, as numba pickles its dispatchers' functions
+        return _kernel, (self.__module__, self.__qualname__)
+
     def __repr__(self):
         return f"<deferred kernel {self.__module__}.{self.__qualname__}>"
+
+
+def _kernel(module: str, qualname: str):
+    """The kernel ``module.qualname`` (a stand-in or numba's dispatcher), for unpickling."""
+    import importlib
+
+    return getattr(importlib.import_module(module), qualname)
 
 
 def loaded() -> bool:

@@ -173,7 +173,8 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
     """deltaslice.jit: importing the package's modules imports no numba; the first kernel call
     does, and then every module holds numba's dispatcher where it held a stand-in (imported names
     too: topp's run_cumsum, pieces' sample_kernel), so kernels calling kernels compile and Python
-    calls go straight to numba. A kernel defined after that is a dispatcher at once."""
+    calls go straight to numba. A kernel defined after that is a dispatcher at once. Copying,
+    pickling or inspecting a stand-in does not load numba."""
     import subprocess
     import sys
 
@@ -187,6 +188,12 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
         "assert 'numba' not in sys.modules, 'imported numba'\n"
         "stand_ins = [(m, k) for m in mods for k, v in vars(m).items() if type(v) is jit.Deferred]\n"
         "assert len(stand_ins) > 40, len(stand_ins)\n"
+        "import copy, pickle, inspect\n"
+        "from deltaslice.planning import blend\n"
+        "k = blend.run_cumsum\n"
+        "assert pickle.loads(pickle.dumps(k)) is k and type(copy.copy(k)) is jit.Deferred\n"
+        "assert not hasattr(k, '__wrapped__') and inspect.getdoc(k) and k.py_func.__name__ == 'run_cumsum'\n"
+        "assert 'numba' not in sys.modules, 'inspecting a stand-in imported numba'\n"
         "from deltaslice.planning.blend import run_cumsum\n"
         "import numpy as np\n"
         "out = np.empty(4)\n"
