@@ -108,6 +108,17 @@ def writing():
 
 
 @contextlib.contextmanager
+def beside_workers():
+    """Around work done here while forked workers run (a compile loads numba while its slicing
+    workers slice): a Ctrl-C inside an import is recorded, and raised as KeyboardInterrupt when
+    the block ends, so the pool is shut down; leaving at once would leave the workers behind,
+    waiting on the pool's pipes."""
+    with writing():
+        yield
+    check()
+
+
+@contextlib.contextmanager
 def held():
     """SIGINT held back (acted on when the block ends): around an output's rename and its record,
     so that the interrupt line never says "no output written" about a file already replaced.

@@ -15,6 +15,7 @@ import os
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 
+from . import interrupt
 from .errors import DeltasliceError
 
 
@@ -87,7 +88,8 @@ def forked_map(fn, tasks, workers: int, *, started=None, in_flight: int = 2, **i
         for _ in range(in_flight * workers):
             submit()
         if started is not None:
-            started()
+            with interrupt.beside_workers():
+                started()
         while queue:
             result = queue.popleft().result()
             submit()

@@ -550,3 +550,48 @@ def test_ctrl_c_while_the_cli_imports_is_one_line_and_130(entry, target):
     assert r.returncode == 130 and r.stderr.strip() == "interrupted: no output written (any previous output is unchanged)", (
         r.returncode, r.stderr)
     assert r.stdout == ""
+
+
+_SIGINT_IN_AN_IMPORT_BESIDE_THE_SLICERS = """
+import multiprocessing, os, signal, sys
+sys.path.insert(0, {tmp!r})
+from deltaslice import interrupt
+interrupt.install(at_once=True)
+from deltaslice.cli import run
+import deltaslice.pipeline as pl
+check_reach = pl.check_reach
+def interrupted_check_reach(printer):
+    with open({children!r}, "w") as f:
+        f.write(" ".join(str(c.pid) for c in multiprocessing.active_children()))
+    import sigint_on_import  # noqa: F401  (SIGINT to this process while it imports)
+    return check_reach(printer)
+pl.check_reach = interrupted_check_reach
+sys.argv = ["deltaslice", {part!r}, "--printer", "delta_etitc", "-o", {out!r}, "--workers", "2", "--quiet"]
+run()
+"""
+
+
+def test_ctrl_c_while_numba_loads_beside_the_slicing_workers_stops_them(tmp_path):
+    """A compile loads numba (the printer's reach check) while its slicing workers slice. A Ctrl-C
+    inside that import is recorded and stops the compile once the import is done, so the pool
+    is shut down: the one line, 130, no output, and no worker left behind (leaving at once from
+    inside the import orphaned both, blocked on the pool's pipes)."""
+    (tmp_path / "sigint_on_import.py").write_text("import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n")
+    children, out = tmp_path / "children.txt", tmp_path / "cube.dsl"
+    code = _SIGINT_IN_AN_IMPORT_BESIDE_THE_SLICERS.format(
+        tmp=str(tmp_path), children=str(children), part=str(ROOT / "examples" / "parts" / "calibration_cube.stl"),
+        out=str(out))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    workers = [int(p) for p in children.read_text().split()] if children.exists() else []
+    deadline = time.time() + 30
+    while time.time() < deadline and any(os.path.exists(f"/proc/{p}") for p in workers):
+        time.sleep(0.2)
+    alive = [p for p in workers if os.path.exists(f"/proc/{p}")]
+    for p in alive:  # not left running whatever fails below
+        os.kill(p, signal.SIGKILL)
+    assert len(workers) == 2  # the check ran beside the two slicing workers
+    assert not alive, f"workers left behind: {alive}"
+    assert r.returncode == 130 and r.stderr.strip().endswith("interrupted: no output written (any previous output is unchanged)"), (
+        r.returncode, r.stderr[-2000:])
+    assert "Traceback" not in r.stderr and not out.exists()
