@@ -555,6 +555,24 @@ def test_rotary_compiled_reach_tests_are_the_numpy_forms(name):
             kin.extra_ok(pts[:3], q[:4])
 
 
+def test_rotary_condition_bound_leaves_a_level_pair_of_roots_to_the_exact_test():
+    """Where the elbows' plane is vertical the forward solution's two roots are level, and which
+    one a form takes is rounding: the compiled forward took the other root from numpy's here (a
+    helper review's case, delta_ucb with its joints free to +-179 degrees), its bound came out
+    10.6 for a pose whose condition is 3224, and the pose was taken as reachable. The bound is NaN
+    there, so the exact test decides."""
+    from deltaslice.machine import load_printer
+
+    kin = load_printer("delta_ucb", overrides={"joints.position_min": -179.0, "joints.position_max": 179.0}).kinematics()
+    p = np.array([[8.972135848523633, 60.60792034664124, 101.81792749111217]])
+    q = kin.inverse(p)
+    cond = kin.condition(q)[0]
+    assert np.isfinite(q).all() and cond > kin.singularity_limit
+    bound = kin.condition_bound(q)[0]
+    assert not bound < cond * (1 - 1e-9)  # never a bound below the condition it bounds (NaN: ask the SVD)
+    assert not kin.well_conditioned(p, q)[0] and not kin.reachable(p)[0]
+
+
 def test_well_conditioned_judges_the_pose_the_joints_hold():
     """A rotary delta whose joints may pass -90 degrees reaches, by its inverse kinematics, a point
     above the arms whose joint angles the machine holds at the lower root (forward(q)): the

@@ -200,7 +200,9 @@ class RotaryDelta(Kinematics):
 @njit
 def _lower_meeting(c, L2):
     """Where three spheres of radius L2 centred at the rows of c (3, 3) meet, the root below
-    their plane, as :func:`.base.lower_sphere_intersection` (NaN where they do not meet)."""
+    their plane, as :func:`.base.lower_sphere_intersection` (NaN where they do not meet). NaN too
+    where the centres' plane is within 1e-9 of vertical: the two roots are then nearly level, and
+    which one numpy's form takes is a matter of rounding (the caller's exact test decides)."""
     exx, exy, exz = c[1, 0] - c[0, 0], c[1, 1] - c[0, 1], c[1, 2] - c[0, 2]
     d = math.sqrt(exx * exx + exy * exy + exz * exz)
     exx, exy, exz = exx / d, exy / d, exz / d
@@ -210,6 +212,8 @@ def _lower_meeting(c, L2):
     j = math.sqrt(eyx * eyx + eyy * eyy + eyz * eyz)
     eyx, eyy, eyz = eyx / j, eyy / j, eyz / j
     ezx, ezy, ezz = exy * eyz - exz * eyy, exz * eyx - exx * eyz, exx * eyy - exy * eyx
+    if not abs(ezz) > 1e-9:
+        return np.nan, np.nan, np.nan
     if ezz > 0:
         ezx, ezy, ezz = -ezx, -ezy, -ezz
     x = d / 2
@@ -225,7 +229,8 @@ def _lower_meeting(c, L2):
 @njit
 def _condition_bound_kernel(q, offsets, L1, L2, out):
     """Kinematics.condition_bound at joints q (N,3): the forward solution p (the spheres of radius
-    L2 about each elbow less the platform offset, :func:`_lower_meeting`), rows
+    L2 about each elbow less the platform offset, :func:`_lower_meeting`; NaN, so the SVD decides,
+    where its root is ambiguous), rows
     J^-1_i = -d_i / (-d_i . e'_i) (forearm d_i and elbow rate e'_i from :func:`_arm`), their
     cofactors, and |J^-1|_F |adj|_F / |det| (NaN where p is)."""
     ji = np.empty((3, 3))
