@@ -383,6 +383,22 @@ def test_infill_zigzag_links_as_drawn_are_no_longer_than_the_limit(seed, max_lin
             assert np.hypot(gap, spacing) > max_link
 
 
+def test_infill_chains_refuse_segments_not_as_scanlines_give_them():
+    """chain_segments finds each segment's overlaps by binary search, which needs a line's
+    segments disjoint and in order and the lines in increasing order: other input is refused,
+    not chained wrongly."""
+    from deltaslice.slicing.infill import chain_segments
+
+    ok = chain_segments(np.array([0, 0, 1]), np.array([0.0, 2.0, 1.0]), np.array([2.0, 3.0, 2.5]), 0.5, np.inf)
+    assert [c.tolist() for c in ok] == [[0], [1], [2]]  # touching ends: 2 overlaps, no link
+    for k, xa, xb in (([0, 0], [0.0, 1.0], [2.0, 3.0]),  # overlapping on one line
+                      ([0, 0], [2.0, 0.0], [3.0, 1.0]),  # out of order on one line
+                      ([1, 0], [0.0, 0.0], [1.0, 1.0]),  # lines out of order
+                      ([0], [1.0], [1.0])):  # empty segment
+        with pytest.raises(ValueError, match="scanline_segments"):
+            chain_segments(np.array(k), np.array(xa), np.array(xb), 0.5, np.inf)
+
+
 def test_infill_chain_cut_restarts_the_zigzag_directions():
     """A chain cut after its first segment starts again forward: the link after the cut is
     measured the way the new chain draws it (xb to xb), not the way the uncut chain would have
