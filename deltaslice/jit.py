@@ -34,6 +34,7 @@ class Deferred:
 
     def __init__(self, fn, options: dict):
         self.py_func, self.options, self.dispatcher = fn, options, None
+        self.__wrapped__ = fn  # inspect.signature and friends read the Python function
         self.__name__, self.__qualname__, self.__module__, self.__doc__ = (
             fn.__name__, fn.__qualname__, fn.__module__, fn.__doc__)
 

@@ -211,11 +211,12 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     workers: processes slicing a mesh's layers (the toolpath is the same for any number).
     while_slicing: a callable run in this process while the workers slice a mesh's first layers
     (:func:`~deltaslice.slicing.slice_mesh`'s ``started``), or first thing for other parts. A mesh
-    is checked to fit the printer's reach at the same point, so a printer read with
-    ``reach_checks=False`` is not checked here for it: the process loads numba only there.
+    is checked to fit the printer's reach at the same point, so a Printer read with
+    ``reach_checks=False`` is not checked here for it (the process loads numba only there; the
+    caller checks it, as compile_part does in ``while_slicing``); a path is read with its checks.
     """
     kind = part_kind(part)
-    printer = _printer(printer, reach_checks=kind != "mesh")
+    printer = _printer(printer, reach_checks=kind != "mesh" or not isinstance(printer, Printer))
     if kind != "mesh" and while_slicing is not None:
         while_slicing()
     if kind == "gcode":

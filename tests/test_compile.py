@@ -138,7 +138,7 @@ def test_a_printer_that_reaches_nothing_stops_a_compile_while_it_slices(tmp_path
     """The reach check done while the workers slice still refuses the printer, with the
     printer file's message, and nothing is written."""
     from deltaslice.errors import PrinterFileError
-    from deltaslice.pipeline import compile_part
+    from deltaslice.pipeline import compile_part, load_toolpath
 
     text = (ROOT / "printers" / "delta_etitc.toml").read_text().replace("shoulder_height = 527.0", "shoulder_height = 5000.0")
     bad = tmp_path / "far.toml"
@@ -147,6 +147,8 @@ def test_a_printer_that_reaches_nothing_stops_a_compile_while_it_slices(tmp_path
     with pytest.raises(PrinterFileError, match=r"far\.toml: \[kinematics\] geometry reaches no point"):
         compile_part(str(CUBE), str(bad), output=str(out), workers=2, scale=0.5)
     assert not out.exists()
+    with pytest.raises(PrinterFileError, match=r"far\.toml: \[kinematics\] geometry reaches no point"):
+        load_toolpath(str(CUBE), str(bad), workers=2, scale=0.5)  # a path: read with its checks
     r = CliRunner().invoke(main, [str(CUBE), "--printer", str(bad), "-o", str(out), "--scale", "0.5", "--quiet"])
     assert r.exit_code == 1 and r.output.startswith("error:") and "geometry reaches no point" in r.output
     assert not out.exists()
