@@ -128,14 +128,16 @@ def _sole_overlaps(k, xa, xb):
                          "xa < xb, and a line's segments disjoint and in order (as scanline_segments gives them)")
     line = k.astype(float)
     starts, ends = line + 1j * xa, line + 1j * xb
-    # overlaps on the line after (i's) and before (j's)
-    lo_next = np.searchsorted(ends, (line + 1) + 1j * xa, side="right")
-    hi_next = np.searchsorted(starts, (line + 1) + 1j * xb, side="left")
-    lo_prev = np.searchsorted(ends, (line - 1) + 1j * xa, side="right")
-    hi_prev = np.searchsorted(starts, (line - 1) + 1j * xb, side="left")
-    i = np.flatnonzero(hi_next - lo_next == 1)
-    j = lo_next[i]
-    sole = hi_prev[j] - lo_prev[j] == 1
+
+    def overlaps(seg, other_line):
+        """(first, count) of the segments of line ``other_line`` overlapping segments ``seg``."""
+        first = np.searchsorted(ends, other_line + 1j * xa[seg], side="right")
+        return first, np.searchsorted(starts, other_line + 1j * xb[seg], side="left") - first
+
+    first, count = overlaps(slice(None), line + 1)
+    i = np.flatnonzero(count == 1)
+    j = first[i]
+    sole = overlaps(j, line[j] - 1)[1] == 1  # j's overlaps on i's line: i's alone?
     nxt[i[sole]] = j[sole]
     prev[j[sole]] = i[sole]
     return nxt, prev
