@@ -72,12 +72,14 @@ class Samples:
         )
 
 
-def to_counts(printer, samples: Samples) -> np.ndarray:
+def to_counts(printer, samples: Samples, with_peak: bool = False):
     """Integer actuator counts, (n, J + 1) int64: one column per joint and one for the tool
     channel (extruder microsteps from the filament position, or laser PWM counts from the
-    power fraction), ``count = zero_count + counts_per_unit * value`` (see ``printer.limits``)."""
+    power fraction), ``count = zero_count + counts_per_unit * value`` (see ``printer.limits``).
+    with_peak: (counts, the largest |zero_count + counts_per_unit * value| before rounding,
+    NaN if any is not finite)."""
     channel = np.asarray(printer.tool.channel_values(samples.e, samples.tool), dtype=float)
-    return printer.limits.joint_and_channel_counts(np.asarray(samples.q, dtype=float), channel)
+    return printer.limits.joint_and_channel_counts(np.asarray(samples.q, dtype=float), channel, with_peak)
 
 
 def from_counts(printer, counts: np.ndarray, rate: float, t0: float = 0.0) -> Samples:

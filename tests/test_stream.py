@@ -278,6 +278,54 @@ def test_writer_refuses_bad_samples(etitc, tmp_path):
     assert os.listdir(tmp_path) == []
 
 
+@pytest.mark.parametrize("sign", [1, -1])
+def test_writer_takes_counts_up_to_the_limit_and_refuses_one_more(etitc, tmp_path, sign):
+    """The writer's check is the counts pass's largest magnitude (below COUNT_LIMIT - 1/2): a
+    count of +-(COUNT_LIMIT - 1) is written and read back, +-COUNT_LIMIT is refused, whichever
+    channel (a joint or the tool channel) holds it."""
+    p, s = etitc
+    cpu, zero = p.limits.counts_per_unit, p.limits.zero_count
+    J = p.n_joints
+    for c in (1, J):
+        for offset, ok in ((-1.2, True), (-0.8, True), (-0.3, False), (0.4, False)):
+            target = sign * (stream.COUNT_LIMIT + offset)  # offset -0.8 rounds to COUNT_LIMIT - 1
+            q, e = s.q.copy(), s.e.copy()
+            value = (target - zero[c]) / cpu[c]
+            if c < J:
+                q[40, c] = value
+            else:
+                e[40:] = value  # the filament position, held
+            block = Samples(s.t, q, e, s.tool)
+            out = tmp_path / f"a{c}{offset}.dsl"
+            if ok:
+                write_samples([block], p, out, fmt="stream", rate=1000.0)
+                assert np.array_equal(read_counts(out)[1], to_counts(p, block))
+                assert abs(to_counts(p, block)[40, c]) == stream.COUNT_LIMIT - 1
+            else:
+                with pytest.raises(StreamError, match=r"sample 40: actuator count \[.*\] beyond \+-2\^29"):
+                    write_samples([block], p, out, fmt="stream", rate=1000.0)
+
+
+@given(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=4, max_size=40))
+@settings(max_examples=200, deadline=None)
+def test_counts_peak_against_numpy(values):
+    """joint_and_channel_counts' peak: the largest |zero + cpu * value|, NaN when any is not finite;
+    its counts numpy's rint where every value is finite."""
+    p = printer("delta_etitc")
+    lim = p.limits
+    n = len(values) // 4
+    v = np.array(values[: 4 * n], dtype=float).reshape(n, 4)
+    with np.errstate(all="ignore"):
+        scaled = lim.counts_per_unit[None] * v + lim.zero_count[None]
+        counts, peak = lim.joint_and_channel_counts(v[:, :3], v[:, 3], with_peak=True)
+    if np.isfinite(scaled).all():
+        assert peak == np.abs(scaled).max()
+        small = np.abs(scaled) < 2.0**62
+        assert np.array_equal(counts[small], np.rint(scaled[small]).astype(np.int64))
+    else:
+        assert np.isnan(peak)
+
+
 @pytest.mark.parametrize("count", [stream.COUNT_LIMIT, -stream.COUNT_LIMIT, -(2**63), 2**63 - 1])
 def test_block_codec_refuses_counts_beyond_the_limit(count):
     """Counts at +-2^29 and beyond are refused before any is encoded, -2^63 too (its np.abs is

@@ -384,16 +384,19 @@ def _records(counts: np.ndarray, block_samples: int, max_record: int, orders=(1,
     return [data[a:b] for a, b in zip([0, *rec_end[:-1]], rec_end)]
 
 
-def _encoded(counts: np.ndarray, block_samples: int, max_record: int, orders=(1, 2)) -> tuple[bytes, list[int]]:
+def _encoded(counts: np.ndarray, block_samples: int, max_record: int, orders=(1, 2), *,
+             checked: bool = False) -> tuple[bytes, list[int]]:
     """The block records of ``counts`` end to end, CRCs in place, and where each ends: what a
-    writer puts in one write instead of a write per record."""
+    writer puts in one write instead of a write per record. checked: the counts are known to be
+    within +-(COUNT_LIMIT - 1) (the writer checked them as it made them)."""
     counts = np.ascontiguousarray(counts, dtype=np.int64)
     n = len(counts)
     if n == 0:
         return b"", []
-    beyond = _beyond_limit(counts)
-    if beyond.any():  # compared, not np.abs'd: |-2^63| is still negative in int64
-        raise StreamError(f"an actuator count beyond +-2^29 ({int(counts[beyond][0])}) cannot be stored")
+    if not checked:
+        beyond = _beyond_limit(counts)
+        if beyond.any():  # compared, not np.abs'd: |-2^63| is still negative in int64
+            raise StreamError(f"an actuator count beyond +-2^29 ({int(counts[beyond][0])}) cannot be stored")
     # at most one record per sample; each at most max_record bytes and its rows' bits
     cap = min(n * max_record, n * (9 + counts.shape[1] * 20) + 64)
     buf = np.empty(cap, dtype=np.uint8)  # every byte up to the last record's end is written
@@ -529,20 +532,25 @@ class StreamWriter:
             raise StreamError(f"samples have {samples.n_joints} joints, printer {self.printer.name} has {self.printer.n_joints}")
         if len(samples) == 0:
             return
-        csvfmt.check_finite(samples, self.n_samples)
         expect = (self.n_samples + np.arange(len(samples))) / self.rate
         off = np.abs(samples.t - expect)
-        if off.max() > 1e-3 / self.rate:
+        if not off.max() <= 1e-3 / self.rate:  # NaN fails too
+            csvfmt.check_finite(samples, self.n_samples)  # a non-finite value is named as such
             i = int(np.argmax(off > 1e-3 / self.rate))
             raise StreamError(
                 f"sample {self.n_samples + i}: t = {samples.t[i]:.9f} s, expected {expect[i]:.9f} s: a stream holds "
                 f"samples uniformly spaced at {self.rate:g} Hz from t = 0"
             )
-        counts = to_counts(self.printer, samples)
-        big = _beyond_limit(counts)
-        if big.any():
-            i = int(np.flatnonzero(big.any(axis=1))[0])
-            raise StreamError(f"sample {self.n_samples + i}: actuator count {counts[i].tolist()} beyond +-2^29")
+        # The counts' pass gives their largest magnitude: values all finite and every count within
+        # +-(COUNT_LIMIT - 1) exactly when it is below COUNT_LIMIT - 1/2 (rint rounds half to even,
+        # COUNT_LIMIT is even). Only otherwise are the arrays searched for the sample to name.
+        counts, peak = to_counts(self.printer, samples, with_peak=True)
+        if not (peak < COUNT_LIMIT - 0.5 and np.isfinite(samples.e).all() and np.isfinite(samples.tool).all()):
+            csvfmt.check_finite(samples, self.n_samples)
+            big = _beyond_limit(counts)
+            if big.any():
+                i = int(np.flatnonzero(big.any(axis=1))[0])
+                raise StreamError(f"sample {self.n_samples + i}: actuator count {counts[i].tolist()} beyond +-2^29")
         self.n_samples += len(samples)
         pending = np.concatenate([self.pending, counts]) if len(self.pending) else counts
         pending = self._emit_events(pending)
@@ -565,7 +573,7 @@ class StreamWriter:
 
     def _emit(self, counts):
         if len(counts):
-            self._put(_encoded(counts, self.block_samples, MAX_RECORD)[0])
+            self._put(_encoded(counts, self.block_samples, MAX_RECORD, checked=True)[0])
             self.n_written += len(counts)
 
     def close(self) -> int:

@@ -171,18 +171,20 @@ class Limits:
         values = np.atleast_2d(np.asarray(values, dtype=float))
         return self.joint_and_channel_counts(values[:, :-1], values[:, -1])
 
-    def joint_and_channel_counts(self, q: np.ndarray, channel: np.ndarray) -> np.ndarray:
+    def joint_and_channel_counts(self, q: np.ndarray, channel: np.ndarray, with_peak: bool = False):
         """:meth:`to_counts` of the joints q (n, J) and the tool channel (n,) given apart (a
         sample block's arrays, not copied into one): (n, J + 1) int64, zero + cpu * value rounded
-        half to even, in one compiled pass (the stream writer's per-block call)."""
+        half to even, in one compiled pass (the stream writer's per-block call). with_peak: also
+        the largest magnitude of zero + cpu * value before rounding (NaN if any is not finite),
+        from the same pass: returns (counts, peak)."""
         q, channel = np.asarray(q, dtype=float), np.asarray(channel, dtype=float)
         C = len(self.counts_per_unit)
         if q.ndim != 2 or q.shape[1] != C - 1 or channel.shape != (len(q),):
             raise ValueError(f"Limits counts: joints {q.shape} and tool channel {channel.shape}: expected "
                              f"(n, {C - 1}) and (n,) for {C} channels")
         out = np.empty((len(q), C), dtype=np.int64)
-        _counts_kernel(q, channel, self.counts_per_unit, self.zero_count, out)
-        return out
+        peak = _counts_kernel(q, channel, self.counts_per_unit, self.zero_count, out)
+        return (out, float(peak)) if with_peak else out
 
     def from_counts(self, counts: np.ndarray) -> np.ndarray:
         """counts: (n, C) -> (n, C) float, channel units."""
@@ -303,13 +305,22 @@ class LimitMonitor:
     def observe(self, block) -> None:
         q, c, tool = block.q, self.tool.channel_values(block.e, block.tool), block.tool
         if self._tail is not None:
-            q = np.concatenate([self._tail[0], q])
-            c = np.concatenate([self._tail[1], c])
-            tool = np.concatenate([self._tail[2], tool])
-        self._tail = (q[-2:], c[-2:], tool[-2:])
-        if len(q) < 3:
-            return
-        # Interior samples only: each is judged once, with both neighbours known.
+            if len(q) < 3:
+                q, c, tool = (np.concatenate([a, b]) for a, b in zip(self._tail, (q, c, tool)))
+            else:
+                # the interior samples at the seam (the tail's last and the block's first), then
+                # the block's own: the same samples in the same order as the two joined, without
+                # copying the block
+                seam = [np.concatenate([a, b[:2]]) for a, b in zip(self._tail, (q, c, tool))]
+                if len(seam[0]) >= 3:
+                    self._observe(*seam)
+        self._tail = (q[-2:].copy(), c[-2:].copy(), tool[-2:].copy())
+        if len(q) >= 3:
+            self._observe(q, c, tool)
+
+    def _observe(self, q, c, tool) -> None:
+        """Judge the interior samples of q (n >= 3, J), c, tool (n,): each once, with both
+        neighbours known."""
         J = self.limits.n_joints
         tool_v, bad, events, last_bad = _observe_kernel(
             np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(c, dtype=float),
@@ -349,12 +360,23 @@ class LimitMonitor:
 @njit
 def _counts_kernel(q, channel, cpu, zero, out):
     """out[k, c] = rint(cpu[c] * value + zero[c]) for the joints' values q[k, c] and, in the last
-    column, channel[k]: numpy's ``np.rint(cpu * values + zero)`` (half to even), to int64."""
+    column, channel[k]: numpy's ``np.rint(cpu * values + zero)`` (half to even), to int64.
+    Returns the largest |cpu[c] * value + zero[c]|, NaN if any is not finite (v - v is 0 for a
+    finite v, NaN otherwise: summed, no branch in the loop)."""
     J = q.shape[1]
+    peak = 0.0
+    finite = 0.0
     for k in range(q.shape[0]):
         for c in range(J):
-            out[k, c] = np.int64(np.rint(cpu[c] * q[k, c] + zero[c]))
-        out[k, J] = np.int64(np.rint(cpu[J] * channel[k] + zero[J]))
+            v = cpu[c] * q[k, c] + zero[c]
+            out[k, c] = np.int64(np.rint(v))
+            finite += v - v
+            peak = max(peak, abs(v))
+        v = cpu[J] * channel[k] + zero[J]
+        out[k, J] = np.int64(np.rint(v))
+        finite += v - v
+        peak = max(peak, abs(v))
+    return peak + finite
 
 
 @njit
