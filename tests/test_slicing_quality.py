@@ -5,6 +5,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from deltaslice.machine import load_printer
 from deltaslice.slicing import slice_mesh
@@ -280,3 +282,32 @@ def test_gap_line_down_a_straight_slot_is_straight():
     np.testing.assert_allclose(p[:, 1], 0.15, atol=1e-9)
     assert abs(p[:, 0].max() - p[:, 0].min()) > 19.6
     np.testing.assert_allclose(w, 0.3, atol=1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@example([(0, 0, 10, 10, True), (2, 2, 3, 3, False)])  # a hole
+@example([(0, 0, 10, 10, True), (2, 2, 6, 6, False), (4, 4, 2, 2, True), (-5, 12, 3, 3, True)])  # an island in a hole
+@example([(0, 0, 10, 10, True), (1, 1, 2, 2, False), (5, 5, 2, 3, False), (3, 3, 2, 2, False)])  # holes touching
+@given(st.lists(st.tuples(st.integers(-20, 20), st.integers(-20, 20), st.integers(1, 15), st.integers(1, 15),
+                          st.booleans()), min_size=1, max_size=12))
+def test_to_shapely_is_the_cross_section(boxes):
+    """to_shapely (each part of manifold3d's decompose, its outline first, then its holes) against
+    the even-odd overlay of all the contours it replaced: the same region, valid, of the same
+    area, for rectangles added and cut in turn (holes, islands in holes, touching corners)."""
+    import shapely
+    from manifold3d import CrossSection, OpType
+
+    from deltaslice.slicing.gapfill import to_shapely
+
+    region = CrossSection()
+    for x, y, w, h, add in boxes:
+        box = CrossSection.square([w, h]).translate([x, y])
+        region = region + box if add else region - box
+    ours = to_shapely(region)
+    overlay = shapely.Polygon()
+    for p in region.to_polygons():
+        overlay = shapely.symmetric_difference(overlay, shapely.make_valid(shapely.Polygon(np.asarray(p, float))))
+    assert ours.is_valid
+    assert ours.area == pytest.approx(region.area(), rel=1e-12, abs=1e-12)
+    assert shapely.equals(ours, overlay) or (ours.is_empty and overlay.is_empty)
+    assert len(shapely.get_parts(ours)) == len(region.decompose())

@@ -19,15 +19,18 @@ from scipy.spatial import Delaunay, QhullError
 
 
 def to_shapely(region: CrossSection):
-    """CrossSection -> shapely (Multi)Polygon (even-odd of all contours, as manifold3d stores them)."""
-    polys = region.to_polygons()
-    if not polys:
+    """CrossSection -> shapely (Multi)Polygon, one polygon per connected part: manifold3d's
+    decompose gives each part's contours, its outline first (Clipper2's tree: an outer node, then
+    its holes), which make the polygon as they are (it was an overlay of all the contours, 4x the
+    cost)."""
+    parts = []
+    for part in region.decompose():
+        rings = [np.asarray(p, float) for p in part.to_polygons()]
+        if rings:  # an empty region decomposes into one empty part
+            parts.append(shapely.Polygon(rings[0], rings[1:]))
+    if not parts:
         return shapely.Polygon()
-    rings = [shapely.Polygon(np.asarray(p, float)) for p in polys if len(p) >= 3]
-    out = shapely.Polygon()
-    for r in rings:
-        out = shapely.symmetric_difference(out, shapely.make_valid(r))
-    return out
+    return parts[0] if len(parts) == 1 else shapely.MultiPolygon(parts)
 
 
 def medial_lines(region, min_width: float, max_width: float, step: float, tolerance: float = 0.0125,
