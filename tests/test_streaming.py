@@ -140,14 +140,16 @@ def test_a_file_without_layer_comments_gets_its_layers_from_two_passes(tmp_path,
 
 
 @pytest.fixture
-def batches_of_64(monkeypatch):
-    """A stream's jobs go to the workers 64 at a time, as those of a print of more than 512 jobs
-    do; a smaller print planned whole is made to do the same (its travels are solved a batch at a
-    time, and other batches would change their last bits)."""
+def full_batches(monkeypatch):
+    """A stream's jobs go to the workers CHUNK_MAX at a time, as those of a print of more than
+    8 * CHUNK_MAX jobs do; a smaller print planned whole is made to do the same (its travels are
+    solved a batch at a time, and other batches would change their last bits), in chunks of 8 so
+    that these small prints make several (a stream chunked otherwise than a print fails)."""
     monkeypatch.setattr(planning, "CHUNKS_PER_PRINT", 1e-9)
+    monkeypatch.setattr(planning, "CHUNK_MAX", 8)  # several chunks even in these small prints
 
 
-def test_a_stream_is_planned_as_the_whole_toolpath(tmp_path, kossel, batches_of_64):
+def test_a_stream_is_planned_as_the_whole_toolpath(tmp_path, kossel, full_batches):
     """Runs and travels going on past a chunk are planned with the next chunk's moves: the same
     jobs, the same pieces, the same events as the whole toolpath planned at once."""
     path = tmp_path / "p.gcode"
@@ -165,7 +167,7 @@ def test_a_stream_is_planned_as_the_whole_toolpath(tmp_path, kossel, batches_of_
         assert done[-1] == (stream.moves, stream.moves)
 
 
-def test_compiling_a_large_gcode_streams_it_to_the_same_bytes(tmp_path, kossel, monkeypatch, batches_of_64):
+def test_compiling_a_large_gcode_streams_it_to_the_same_bytes(tmp_path, kossel, monkeypatch, full_batches):
     path = tmp_path / "p.gcode"
     path.write_text(prusa_like(layers=4))
     pipeline.compile_part(path, kossel, output=tmp_path / "whole.dsl", workers=1)
@@ -320,7 +322,7 @@ def _laser_text(typed_from: int, moves: int = 60) -> str:
 
 
 @pytest.mark.parametrize("stream_run", [20, 10**9])
-def test_a_lasers_runs_are_its_tool_channels_not_its_moves_roles(tmp_path, monkeypatch, batches_of_64, stream_run):
+def test_a_lasers_runs_are_its_tool_channels_not_its_moves_roles(tmp_path, monkeypatch, full_batches, stream_run):
     """On a laser a run goes on through power changes (its power per move), whether its moves have
     a laser role or a slicer's ;TYPE: role: a chunk holding only ;TYPE: moves is split, and planned,
     as the whole file is (it was cut at every power change, and a run in parts that crossed the
