@@ -219,8 +219,8 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
     Each chunk's last run or travel is planned with the next chunk's moves (it may go on there),
     so the jobs are those of the chunks joined, and a run of at most STREAM_RUN moves is planned
     exactly as :func:`plan` plans it (the jobs go to the workers CHUNK_MAX at a time, as those of a
-    print of more than 8 * CHUNK_MAX jobs do: a smaller print planned whole batches its travels otherwise, which
-    moves their last bits). A run longer than that which goes on past a chunk is planned
+    print of more than 8 * CHUNK_MAX jobs do: a smaller print planned whole batches its travels
+    otherwise, which moves their last bits). A run longer than that which goes on past a chunk is planned
     window by window as its stretches come (:func:`.topp.iter_run_parts`): its merging and
     blending differ from the whole run's at the stretches' ends only (its duration within 0.1 %).
     A point out of reach is found when its chunk comes, after what is before it is planned."""
@@ -257,8 +257,8 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
     pieces = PieceSpool()
     pieces.extend(from_rest(kin, printer, first.start, speed_limit))
     laser = printer.tool.channel_kind == "laser"
-    job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream), laser), pieces, CHUNK_MAX, moves, False,
-                                      printer, speed_limit, workers, progress, solver)
+    job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream), laser), pieces, CHUNK_MAX, moves,
+                                      False, printer, speed_limit, workers, progress, solver)
     if not seen["motion"]:
         raise DeltasliceError(f"the toolpath's {seen['moves']} move(s) have zero length and no extrusion: nothing to plan")
     tail = to_rest(kin, printer, seen["last"], speed_limit)
