@@ -326,8 +326,9 @@ def _check_options(caller, printer, speed_limit, planner, solver, workers, progr
         raise DeltasliceError(
             f"{caller}: printer: expected a loaded Printer (deltaslice.load_printer(path)), got {type(printer).__name__} {printer!r:.60}")
     if not printer.reach_checked:
-        raise DeltasliceError(f"{caller}: printer {printer.name} was loaded with reach_checks=False: pass "
-                              "deltaslice.machine.check_reach(printer), which sets its rest pose")
+        raise DeltasliceError(f"{caller}: printer {printer.name} was loaded with reach_checks=False: plan with "
+                              "deltaslice.machine.check_reach(printer) instead (the printer it returns has its rest "
+                              "pose set and its reach checked)")
     if speed_limit not in ("feed", "machine"):
         raise DeltasliceError(f"speed_limit must be 'feed' or 'machine', not {speed_limit!r}")
     if planner not in ("toppra", "trapezoid"):
