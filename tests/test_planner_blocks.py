@@ -181,6 +181,23 @@ def test_nearest_order_visits_every_path_once_from_the_nearest():
         pos = pts[-1]
 
 
+def test_nearest_order_breaks_ties_towards_a_head_and_the_first_path():
+    """A path entered from its tail only when that tail is strictly nearer than every head;
+    among equally near ends, the first path's (the toolpath must not depend on how the
+    distances are searched)."""
+    a = Path(np.array([[0.0, 5.0], [0.0, 9.0]]), 3, 0.45)  # head 5 mm from the origin
+    b = Path(np.array([[9.0, 0.0], [5.0, 0.0]]), 3, 0.45)  # tail 5 mm from it
+    c = Path(np.array([[-5.0, 0.0], [-9.0, 0.0]]), 3, 0.45)  # head 5 mm from it
+    origin = np.zeros(2)
+    first = nearest_order([b, a, c], origin)[0][0]
+    assert np.array_equal(first, a.points)  # a head before the tail as near, the first head of two
+    first = nearest_order([b, c, a], origin)[0][0]
+    assert np.array_equal(first, c.points)
+    nearer = Path(np.array([[9.0, 0.0], [4.0, 0.0]]), 3, 0.45)
+    first = nearest_order([a, nearer, c], origin)[0][0]
+    assert np.array_equal(first, nearer.points[::-1])  # a strictly nearer tail: entered reversed
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_frame_equals_evaluate_and_check_derivatives_hold_the_constraint_ones(seed):
     """The planner computes a grid's derivatives once, at the check's fractions, and hands the

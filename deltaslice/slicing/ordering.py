@@ -11,6 +11,7 @@ ones just move.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,26 +69,23 @@ def nearest_order(paths: list[Path], position: np.ndarray, seam: str = "aligned"
                 c = p.points.mean(axis=0)
                 heads[i] = tails[i] = c
     out = []
-    alive = np.ones(len(paths), bool)
-    closed = np.array([p.closed for p in paths])
-    for _ in range(len(paths)):
-        # the dead (and a loop's tail) at infinity: argmin takes the first alive minimum, as
-        # over the alive ones in order
-        dh = np.sum((heads - pos) ** 2, axis=1)
-        dt = np.sum((tails - pos) ** 2, axis=1)
-        dh[~alive] = np.inf
-        dt[~alive | closed] = np.inf
-        best_h, best_t = int(np.argmin(dh)), int(np.argmin(dt))
-        if dt[best_t] < dh[best_h]:
-            i = best_t
-            pts = paths[i].points[::-1]
-            alive[i] = False
-            out.append((pts, paths[i].oriented(pts, reverse=True)))
-            pos = pts[-1]
-            continue
+    # heads, then tails, in one array: argmin's first minimum takes a head before any tail as
+    # close, as the comparison of the two minima did; the dead (and a loop's tail) at infinity
+    n = len(paths)
+    ends = np.concatenate([heads, tails])
+    dead = np.zeros(2 * n, bool)
+    dead[n:] = [p.closed for p in paths]
+    for _ in range(n):
+        d = np.sum((ends - pos) ** 2, axis=1)
+        d[dead] = np.inf
+        k = int(np.argmin(d))
+        i = k % n
+        dead[i] = dead[i + n] = True
+        p = paths[i]
+        if k >= n:
+            pts = p.points[::-1]
+            out.append((pts, p.oriented(pts, reverse=True)))
         else:
-            i = best_h
-            p = paths[i]
             if p.closed:
                 j = loop_seams[i]
                 if j is None:
@@ -95,8 +93,7 @@ def nearest_order(paths: list[Path], position: np.ndarray, seam: str = "aligned"
                 pts = loop_path(p.points, j)
             else:
                 pts, j = p.points, 0
-        alive[i] = False
-        out.append((pts, paths[i].oriented(pts, start=j)))
+            out.append((pts, p.oriented(pts, start=j)))
         pos = pts[-1]
     return out
 
@@ -149,7 +146,7 @@ class MoveWriter:
     def _stays_inside(self, a: np.ndarray, b: np.ndarray) -> bool:
         if self.inside is None:
             return False
-        return bool(self.inside.contains(shapely.LineString([a[:2], b[:2]])))
+        return bool(shapely.contains(self.inside, shapely.linestrings([a[:2], b[:2]])))
 
     def new_layer(self, z: float, first: bool) -> None:
         self._flush()
@@ -168,7 +165,7 @@ class MoveWriter:
     def travel(self, xy: np.ndarray) -> None:
         s, t = self.s, self.tool
         target = np.array([xy[0], xy[1], self.z])
-        dist = float(np.linalg.norm(target - self.pos))
+        dist = math.dist(target, self.pos)
         if dist < 1e-9:
             return
         long = dist > t.retract_min_travel and not self._stays_inside(self.pos, target)
@@ -191,7 +188,8 @@ class MoveWriter:
         if self.retracted:
             self._add(self.pos[None], self.tool.retract_speed, self.tool.retract_length, 0.0, Role.RETRACT)
             self.retracted = False
-        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        d = pts[1:] - pts[:-1]
+        seg = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])  # np.linalg.norm's sum, without its overhead
         keep = seg > 1e-6
         every = bool(keep.all())
         if not every and not keep.any():
