@@ -17,6 +17,7 @@ import pytest
 from deltaslice import load_printer
 from deltaslice.planning import plan, topp
 from deltaslice.planning.spool import PieceSpool
+from deltaslice.samples import Samples
 from deltaslice.planning.topp import RunSpec, plan_run, run_stage_maxima
 from deltaslice.toolpath import Role, ToolpathBuilder
 
@@ -240,10 +241,15 @@ def test_samples_from_forked_workers_are_the_blocks_sampled_here(spool, small_wi
     assert isinstance(traj.pieces, PieceSpool) == spool
     here = list(traj.iter_samples(block=64))
     forked = list(traj.iter_samples(block=64, workers=3))
-    assert len(here) == len(forked) > 6 * 3  # more tasks than the workers hold ahead
-    for a, b in zip(here, forked):
+    # transient blocks are views of buffers the workers write again: right as each one is taken
+    # (as the writers use them) they are the same blocks
+    transient = [Samples(*(np.copy(getattr(b, name)) for name in ("t", "q", "e", "tool")))
+                 for b in traj.iter_samples(block=64, workers=3, transient=True)]
+    assert len(here) == len(forked) == len(transient) > 6 * 3  # more tasks than the workers hold ahead
+    for a, b, c in zip(here, forked, transient):
         for name in ("t", "q", "e", "tool"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+            np.testing.assert_array_equal(getattr(a, name), getattr(c, name))
     assert not pool._INHERITED  # the parent keeps no reference for the next pool
 
 

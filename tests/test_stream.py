@@ -241,6 +241,20 @@ def test_atomic_write_leaves_nothing_on_failure(etitc, tmp_path):
     assert keep.read_bytes() == b"old" and os.listdir(tmp_path) == ["keep.dsl"]
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 300), st.integers(0, 10**7), st.sampled_from([1000.0, 250.0, 3.0e4]),
+       st.lists(st.tuples(st.integers(0, 299), st.sampled_from([1e-9, -3e-6, 0.5, np.nan, np.inf])), max_size=3))
+def test_time_base_offset_is_numpys(n, n0, rate, errors):
+    """The writer's one-pass time-base check gives numpy's max |t - (n0 + k) / rate|, NaN where
+    numpy's is (a NaN anywhere), exactly."""
+    t = (n0 + np.arange(n)) / rate
+    for i, err in errors:
+        t[i % n] += err
+    expect = np.abs(t - (n0 + np.arange(n)) / rate).max()
+    got = stream._time_base_offset(t, n0, rate)
+    assert (np.isnan(got) and np.isnan(expect)) or got == expect
+
+
 def test_writer_refuses_bad_samples(etitc, tmp_path):
     p, s = etitc
     squeezed = Samples(s.t * 0.999, s.q, s.e, s.tool)

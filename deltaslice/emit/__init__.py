@@ -88,7 +88,9 @@ def write_trajectory(trajectory, f, fmt: str, watch=None, workers: int = 1) -> i
     file object.
 
     watch: optional callable wrapping the block iterator (e.g. ``LimitMonitor.watch``), so
-    the samples are examined as they are written instead of being computed twice.
+    the samples are examined as they are written instead of being computed twice; with workers,
+    a block's arrays are written again once the next block is taken (``iter_samples``'
+    ``transient``), so ``watch`` must copy what it keeps of a block.
     workers: processes sampling ahead of the writer (``Trajectory.iter_samples(rate, workers=)``;
     1: ``iter_samples(rate)``, in this process); the bytes are the same for any number."""
     if not _is_trajectory(trajectory):
@@ -99,7 +101,8 @@ def write_trajectory(trajectory, f, fmt: str, watch=None, workers: int = 1) -> i
     metadata = dict(trajectory.metadata())
     metadata.setdefault("duration_s", f"{trajectory.duration:.6f}")
     # a trajectory of another planner need only take the rate when sampled in this process
-    blocks = trajectory.iter_samples(rate, workers=workers) if workers > 1 else trajectory.iter_samples(rate)
+    # the writer and ``watch`` are done with each block before they take the next
+    blocks = trajectory.iter_samples(rate, workers=workers, transient=True) if workers > 1 else trajectory.iter_samples(rate)
     if watch is not None:
         blocks = watch(blocks)
     return write_samples(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata,

@@ -89,17 +89,20 @@ class Trajectory:
             k = kk[lo]
         return [(int(i), int(a), int(b)) for i, a, b in zip(k, lo, hi) if b > a]
 
-    def iter_samples(self, rate: float | None = None, block: int = BLOCK, workers: int = 1):
+    def iter_samples(self, rate: float | None = None, block: int = BLOCK, workers: int = 1, transient: bool = False):
         """Blocks of Samples at ``rate`` Hz (default: the printer's output rate), from t = 0
         through the end (the last sample is at or after the end, holding the final pose).
 
         workers: processes sampling blocks ahead while the caller consumes them (forked, so they
         share the planned pieces without copying them; where the platform cannot fork, and for
-        short trajectories, the blocks are sampled here). The blocks are the same either way."""
+        short trajectories, the blocks are sampled here). The blocks are the same either way.
+        transient: the workers' blocks may be views of buffers they write again once the next
+        block is asked for (for a consumer done with each block before it takes the next, such
+        as the writers: it saves copying every sample out)."""
         rate = rate or self.printer.planning.output_rate
         n_total = int(np.ceil(self.duration * rate - 1e-9)) + 1
         if workers > 1 and n_total > PARALLEL_BLOCKS * block and can_fork():
-            yield from self._forked_blocks(rate, block, n_total, workers)
+            yield from self._forked_blocks(rate, block, n_total, workers, transient)
             return
         for i0 in range(0, n_total, block):
             yield self._block(i0, min(i0 + block, n_total), rate)
@@ -107,14 +110,16 @@ class Trajectory:
     def _block(self, i0: int, i1: int, rate: float) -> Samples:
         return self.sample_at(_times(i0, i1, rate))
 
-    def _forked_blocks(self, rate: float, block: int, n_total: int, workers: int):
+    def _forked_blocks(self, rate: float, block: int, n_total: int, workers: int, transient: bool = False):
         """iter_samples' blocks sampled by ``workers`` forked processes, TASK_BLOCKS blocks a task.
 
         The workers write their samples into slots of anonymous shared mappings and hand back
         only the slot: pickled through a pipe, 40 bytes a sample cost the reader more than the
         sampling saved. forked_map keeps 2 * workers tasks in flight and submits the next one
-        before yielding a result, so 2 * workers + 1 slots never hand a task a slot still read here;
-        each block is copied out of its slot (the blocks are the very arrays _block gives)."""
+        before yielding a result, so 2 * workers + 1 slots never hand a task a slot still read here:
+        a task's slot is handed on only once the block after its last is asked for. Each block is
+        copied out of its slot (the blocks are the very arrays _block gives), or with
+        ``transient`` is a view of it; the times are computed here, a task's at once."""
         if isinstance(self.pieces, PieceSpool):
             self.pieces.sync()  # the workers read the spool file as it is now
         span = block * TASK_BLOCKS
@@ -124,10 +129,13 @@ class Trajectory:
         tasks = ((i0, min(i0 + span, n_total), block, rate, k % n_slots)
                  for k, i0 in enumerate(range(0, n_total, span)))
         for i0, i1, k in forked_map(_sample_task, tasks, workers, trajectory=self, slots=(q, e, tool)):
+            t = _times(i0, i1, rate)  # each block's times, as _block's, in one call a task
             for a in range(i0, i1, block):
                 rows = slice(a - i0, min(a + block, i1) - i0)
-                yield Samples(_times(a, a + rows.stop - rows.start, rate), q[k, rows].copy(), e[k, rows, 0].copy(),
-                              tool[k, rows, 0].copy())
+                if transient:
+                    yield Samples(t[rows], q[k, rows], e[k, rows, 0], tool[k, rows, 0])
+                else:
+                    yield Samples(t[rows], q[k, rows].copy(), e[k, rows, 0].copy(), tool[k, rows, 0].copy())
 
     def samples(self, rate: float | None = None) -> Samples:
         """All samples at once (tests and small parts; long prints should use iter_samples)."""
