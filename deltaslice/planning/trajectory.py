@@ -22,7 +22,8 @@ BLOCK = 8192  # samples per block handed to emitters
 # Sampling in worker processes pays for itself from this many blocks (about 2 minutes at 1 kHz):
 # a forked pool costs some tens of milliseconds to start.
 PARALLEL_BLOCKS = 16
-TASK_BLOCKS = 4  # blocks per task handed to a sampling worker
+TASK_BLOCKS = 8  # blocks per task handed to a sampling worker
+SAMPLE_AHEAD = 3  # tasks in flight per sampling worker (two left it waiting for the writer)
 
 
 @dataclass
@@ -115,27 +116,26 @@ class Trajectory:
 
         The workers write their samples into slots of anonymous shared mappings and hand back
         only the slot: pickled through a pipe, 40 bytes a sample cost the reader more than the
-        sampling saved. forked_map keeps 2 * workers tasks in flight and submits the next one
-        before yielding a result, so 2 * workers + 1 slots never hand a task a slot still read here:
-        a task's slot is handed on only once the block after its last is asked for. Each block is
+        sampling saved. forked_map keeps SAMPLE_AHEAD * workers tasks in flight and submits the next
+        one before yielding a result, so one slot more never hands a task a slot still read here:
+        a task's slot is handed on only once the block after its last is asked for. The workers
+        write the times too, so this process allocates nothing a block. Each block is
         copied out of its slot (the blocks are the very arrays _block gives), or with
-        ``transient`` is a view of it; the times are computed here, a task's at once."""
+        ``transient`` is a view of it."""
         if isinstance(self.pieces, PieceSpool):
             self.pieces.sync()  # the workers read the spool file as it is now
         span = block * TASK_BLOCKS
-        n_slots = 2 * workers + 1
-        q, e, tool = (np.frombuffer(mmap.mmap(-1, n_slots * span * w * 8), dtype=np.float64).reshape(n_slots, span, w)
-                      for w in (self.kin.n_joints, 1, 1))
+        n_slots = SAMPLE_AHEAD * workers + 1
+        t, q, e, tool = (np.frombuffer(mmap.mmap(-1, n_slots * span * w * 8), dtype=np.float64).reshape(n_slots, span, w)
+                         for w in (1, self.kin.n_joints, 1, 1))
         tasks = ((i0, min(i0 + span, n_total), block, rate, k % n_slots)
                  for k, i0 in enumerate(range(0, n_total, span)))
-        for i0, i1, k in forked_map(_sample_task, tasks, workers, trajectory=self, slots=(q, e, tool)):
-            t = _times(i0, i1, rate)  # each block's times, as _block's, in one call a task
+        for i0, i1, k in forked_map(_sample_task, tasks, workers, in_flight=SAMPLE_AHEAD, trajectory=self,
+                                    slots=(t, q, e, tool)):
             for a in range(i0, i1, block):
                 rows = slice(a - i0, min(a + block, i1) - i0)
-                if transient:
-                    yield Samples(t[rows], q[k, rows], e[k, rows, 0], tool[k, rows, 0])
-                else:
-                    yield Samples(t[rows], q[k, rows].copy(), e[k, rows, 0].copy(), tool[k, rows, 0].copy())
+                block_slots = (t[k, rows, 0], q[k, rows], e[k, rows, 0], tool[k, rows, 0])
+                yield Samples(*(block_slots if transient else (v.copy() for v in block_slots)))
 
     def samples(self, rate: float | None = None) -> Samples:
         """All samples at once (tests and small parts; long prints should use iter_samples)."""
@@ -186,11 +186,11 @@ def _times(i0: int, i1: int, rate: float) -> np.ndarray:
 
 def _sample_task(i0: int, i1: int, block: int, rate: float, k: int) -> tuple[int, int, int]:
     """In a forked sampling worker: samples i0..i1 of the inherited trajectory, block by block,
-    written into slot k of the inherited shared ``slots`` (q (slots, span, J), e and tool
-    (slots, span, 1)). Returns (i0, i1, k)."""
-    traj, (q, e, tool) = inherited("trajectory"), inherited("slots")
+    written into slot k of the inherited shared ``slots`` (t (slots, span, 1), q (slots, span, J),
+    e and tool (slots, span, 1)). Returns (i0, i1, k)."""
+    traj, (t, q, e, tool) = inherited("trajectory"), inherited("slots")
     for a in range(i0, i1, block):
         b = traj._block(a, min(a + block, i1), rate)
         rows = slice(a - i0, a - i0 + len(b))
-        q[k, rows], e[k, rows, 0], tool[k, rows, 0] = b.q, b.e, b.tool
+        t[k, rows, 0], q[k, rows], e[k, rows, 0], tool[k, rows, 0] = b.t, b.q, b.e, b.tool
     return i0, i1, k
