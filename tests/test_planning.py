@@ -227,7 +227,8 @@ def test_unreachable_point_is_named_before_any_output(tmp_path):
 def test_the_reach_check_speaks_first_while_workers_plan(workers):
     """The reach check runs while the workers start on the first runs (plan's rest links): a
     point out of reach in the first run is reported by the check (layer, point, why, whether it
-    would fit centred), not by the worker that met it first."""
+    would fit centred), not by the chunk that met it first (the first is planned in this process
+    before the workers fork)."""
     printer = load_printer("printers/delta_ucb.toml")
     good = layered_part(0.25, 0.2, 8, 30)
     b = ToolpathBuilder((0, 0, 1))

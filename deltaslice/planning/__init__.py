@@ -13,6 +13,7 @@ from __future__ import annotations
 import itertools
 from array import array
 from collections import deque
+from concurrent.futures import Future
 
 import numpy as np
 
@@ -421,8 +422,9 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     """Plan ``jobs`` (see :func:`_jobs`) into ``pieces`` (a list or a PieceSpool), returning per job
     its first move and the index of its first piece (arrays of int64).
 
-    Runs and travels are planned in the worker processes in print order, at most a few chunks
-    ahead of what has been put away (memory bounded by what is in flight, not by the print); a
+    Runs and travels are planned in the worker processes in print order (the first chunk here,
+    before they fork, so they inherit its loaded kernels), at most a few chunks ahead of what has
+    been put away (memory bounded by what is in flight, not by the print); a
     long run (:func:`.topp.is_long`) is planned here, window by window, while the workers go on
     with what follows it, so its pieces can be put away one by one. A run handed over in parts
     (plan_stream) is planned here once everything before it is put away: what follows it is
@@ -480,6 +482,22 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     else:
         ahead = 4 * workers  # chunks in flight; slots queued at most twice that
         queue, in_flight = deque(), 0
+        # The first chunk is planned here before the workers fork: the compiled kernels load in
+        # this process once and the workers inherit them (each loading them at its first chunk
+        # cost it a tenth of a second and held the first results back)
+        head = next(slots, None)
+        if head is not None and head[0] == "pool":
+            _init_worker(printer)
+            try:
+                done_here = Future()
+                done_here.set_result(_plan_chunk(as_chunk(head[1])))
+            except DeltasliceError:
+                if first is not None:
+                    first()  # the reach check speaks first, as when the workers plan the chunk
+                raise
+            queue.append((head[1], done_here))
+        elif head is not None:
+            slots = itertools.chain([head], slots)
         with start_pool(workers, initializer=_init_worker, initargs=(printer,)) as pool:
 
             def run_first():
