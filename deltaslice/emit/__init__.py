@@ -100,9 +100,12 @@ def write_trajectory(trajectory, f, fmt: str, watch=None, workers: int = 1) -> i
     rate = printer.planning.output_rate
     metadata = dict(trajectory.metadata())
     metadata.setdefault("duration_s", f"{trajectory.duration:.6f}")
-    # a trajectory of another planner need only take the rate when sampled in this process
-    # the writer and ``watch`` are done with each block before they take the next
-    blocks = trajectory.iter_samples(rate, workers=workers, transient=True) if workers > 1 else trajectory.iter_samples(rate)
+    # transient blocks: the writer and ``watch`` are done with each before they take the next (a
+    # trajectory of another planner need only take the rate when sampled in this process)
+    if workers > 1:
+        blocks = trajectory.iter_samples(rate, workers=workers, transient=True)
+    else:
+        blocks = trajectory.iter_samples(rate)
     if watch is not None:
         blocks = watch(blocks)
     return write_samples(blocks, printer, f, fmt=fmt, rate=rate, metadata=metadata,

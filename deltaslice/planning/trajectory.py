@@ -119,15 +119,16 @@ class Trajectory:
         sampling saved. forked_map keeps SAMPLE_AHEAD * workers tasks in flight and submits the next
         one before yielding a result, so one slot more never hands a task a slot still read here:
         a task's slot is handed on only once the block after its last is asked for. The workers
-        write the times too, so this process allocates nothing a block. Each block is
-        copied out of its slot (the blocks are the very arrays _block gives), or with
-        ``transient`` is a view of it."""
+        write the times too, so this process allocates nothing a block. Each block is copied out
+        of its slot (the blocks are the very arrays _block gives), or with ``transient`` is a view
+        of it."""
         if isinstance(self.pieces, PieceSpool):
             self.pieces.sync()  # the workers read the spool file as it is now
         span = block * TASK_BLOCKS
         n_slots = SAMPLE_AHEAD * workers + 1
-        t, q, e, tool = (np.frombuffer(mmap.mmap(-1, n_slots * span * w * 8), dtype=np.float64).reshape(n_slots, span, w)
-                         for w in (1, self.kin.n_joints, 1, 1))
+        t, q, e, tool = (
+            np.frombuffer(mmap.mmap(-1, n_slots * span * w * 8), dtype=np.float64).reshape(n_slots, span, w)
+            for w in (1, self.kin.n_joints, 1, 1))
         tasks = ((i0, min(i0 + span, n_total), block, rate, k % n_slots)
                  for k, i0 in enumerate(range(0, n_total, span)))
         for i0, i1, k in forked_map(_sample_task, tasks, workers, in_flight=SAMPLE_AHEAD, trajectory=self,
