@@ -241,6 +241,46 @@ def test_the_reach_check_speaks_first_while_workers_plan(workers):
         plan(bad, printer, workers=workers)
 
 
+def test_the_workers_hold_at_most_four_chunks_each(monkeypatch):
+    """Memory is bounded by the chunks in flight: four per worker handed out and not yet put away
+    (one more once the next is handed out, before the oldest is), the first chunk (planned here
+    before the workers fork) counted as one of them."""
+    import deltaslice.planning as planning
+
+    monkeypatch.setattr(planning, "CHUNK_MAX", 2)  # many chunks from a small part
+    pool_futures, state = set(), {"out": 0, "peak": 0}
+    real_start, real_drain = planning.start_pool, planning._drain_one
+
+    def counting_pool(*args, **kwargs):
+        pool = real_start(*args, **kwargs)
+        real_submit = pool.submit
+
+        def submit(*a, **k):
+            future = real_submit(*a, **k)
+            pool_futures.add(future)
+            state["out"] += 1
+            state["peak"] = max(state["peak"], state["out"])
+            return future
+
+        pool.submit = submit
+        return pool
+
+    def counting_drain(queue, *args):
+        from_pool = queue[0][1] in pool_futures
+        done = real_drain(queue, *args)
+        state["out"] -= from_pool
+        return done
+
+    monkeypatch.setattr(planning, "start_pool", counting_pool)
+    monkeypatch.setattr(planning, "_drain_one", counting_drain)
+    printer = load_printer("printers/delta_etitc.toml")
+    part = layered_part(0.5, 0.4, 16, 20)
+    assert len(split_runs(part)) >= 30  # 2 jobs a chunk: 30 chunks and more, against 8 in flight
+    trajectory = plan(part, printer, workers=2)
+    assert state["peak"] == 4 * 2 + 1 and state["out"] == 0
+    assert trajectory.duration == plan(part, printer, workers=1).duration
+
+
 def test_firmware_baseline_violates_where_corners_are_sharp():
     # A weak machine: the UCB geometry with slow joints; firmware's instantaneous corner
     # velocity changes exceed its joint acceleration at the output rate.

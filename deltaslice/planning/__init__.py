@@ -496,6 +496,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                     first()  # the reach check speaks first, as when the workers plan the chunk
                 raise
             queue.append((head[1], done_here))
+            in_flight = 1  # it is drained as the workers' chunks are, which counts it
         elif head is not None:
             slots = itertools.chain([head], slots)
         with start_pool(workers, initializer=_init_worker, initargs=(printer,)) as pool:
