@@ -241,7 +241,7 @@ def test_the_reach_check_speaks_first_while_workers_plan(workers):
         plan(bad, printer, workers=workers)
 
 
-def test_the_workers_hold_at_most_four_chunks_each(monkeypatch):
+def test_the_chunks_in_flight_are_four_a_worker_and_the_next(monkeypatch):
     """Memory is bounded by the chunks in flight: four per worker handed out and not yet put away
     (one more once the next is handed out, before the oldest is), the first chunk (planned here
     before the workers fork) counted as one of them."""
