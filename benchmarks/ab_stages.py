@@ -13,7 +13,9 @@ Stages (each from inputs captured once by this checkout into ``--cache``, defaul
 - ``emit``: the stream written from the captured pieces with two sampling workers and the limit
   monitor (wall, the main process's CPU, the workers' CPU; a digest of the bytes);
 - ``plan``: the captured toolpath planned with two workers (wall, main CPU, workers' CPU; the
-  planned duration).
+  planned duration). ``ab_plan.py`` compares planning too, each process slicing the part first,
+  by CPU with one worker or by wall with several; this stage splits the parent's CPU from the
+  workers' and slices nothing.
 Prints every process's figures and the medians per tree. Compile both trees' bytecode first
 (``python -m compileall -q deltaslice``); on this shared machine compare medians of many rounds.
 """
