@@ -393,7 +393,7 @@ def test_rotary_kernels_equal_point_by_point_across_their_blocks(name):
 
 @pytest.mark.parametrize("name", [n for n in CASES if n != "cartesian" and printer(n).family == "rotary_delta"])
 def test_rotary_inverse_is_the_knee_outward_root_in_its_range(name):
-    """The compiled inverse (its atan2 taken by numpy afterwards, then moved into (-2 pi, pi]) against
+    """The compiled inverse (its own atan2, then moved into (-2 pi, pi]) against
     the module's formula per arm in numpy, theta = atan2(b, a) - acos(c / hypot(a, b)), over a box
     wider than the reach: the same angles, the same NaN rows, and angles below -pi among them on
     the printers whose joints go there (a wrong range would be off by 2 pi)."""
@@ -414,6 +414,51 @@ def test_rotary_inverse_is_the_knee_outward_root_in_its_range(name):
     assert got[np.isfinite(got)].min() > -2 * np.pi and got[np.isfinite(got)].max() <= np.pi
     if name != "delta_etitc":  # its arms never reach past -pi in this box
         assert (got < -np.pi).sum() > 100
+
+
+_ATAN2_SPECIAL = [0.0, -0.0, 1.0, -1.0, 3.5, -2.25, 1e-310, -1e-310, 1e300, -1e300, np.inf, -np.inf, np.nan]
+
+
+def _atan2_kernel_values(y, x):
+    """The rotary delta's compiled atan2 (numba's inlined kernel, as the inverse calls it) over arrays."""
+    from deltaslice.jit import njit
+    from deltaslice.kinematics.rotary_delta import atan2
+
+    @njit(cache=False)
+    def values(y, x, out):
+        for k in range(len(y)):
+            out[k] = atan2(y[k], x[k])
+
+    out = np.empty(len(y))
+    values(np.asarray(y, dtype=float), np.asarray(x, dtype=float), out)
+    return out
+
+
+def _ulps_from_libm(got, y, x):
+    want = np.array([math.atan2(b, a) for b, a in zip(y, x)])
+    same_bits = (got == want) & (np.signbit(got) == np.signbit(want))
+    both_nan = np.isnan(got) & np.isnan(want)
+    return np.where(same_bits | both_nan, 0.0, np.abs(got - want) / np.spacing(np.abs(want)))
+
+
+def test_rotary_atan2_is_libm_within_two_ulp_on_its_special_values():
+    """Signed zeros (atan2(+-0, -0) is +-pi), infinities, subnormals and NaN as math.atan2 gives them,
+    bit for bit where libm's answer is exact (all of these but the quarter turns)."""
+    y, x = (np.array(v, dtype=float).ravel() for v in np.meshgrid(_ATAN2_SPECIAL, _ATAN2_SPECIAL))
+    assert _ulps_from_libm(_atan2_kernel_values(y, x), y, x).max() <= 2.0
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(-300, 300))
+def test_rotary_atan2_is_libm_within_two_ulp(seed, log_scale):
+    """Angles all round the circle (both octant reductions, every quadrant) at scales from 1e-300 to
+    1e300: within 2 ulp of libm's atan2, and mostly the same bits."""
+    rng = np.random.default_rng(seed)
+    theta = rng.uniform(-np.pi, np.pi, 4000)
+    r = 10.0**log_scale * rng.uniform(0.5, 1.0, 4000)
+    y, x = r * np.sin(theta), r * np.cos(theta)
+    ulps = _ulps_from_libm(_atan2_kernel_values(y, x), y, x)
+    assert ulps.max() <= 2.0 and np.mean(ulps == 0) > 0.8
 
 
 # --------------------------------------------------------------------------- source numbers and regressions
