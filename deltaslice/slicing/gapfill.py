@@ -86,11 +86,18 @@ def voronoi_edges(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     The dual of qhull's triangulation, not GEOS's ``voronoi_polygons``: GEOS clips the
     diagram to its envelope with a full overlay, 20x the cost of the triangulation.
     """
-    empty = np.empty((0, 2))
+    centre, i, j = voronoi_graph(pts)
+    return centre[i], centre[j]
+
+
+def voronoi_graph(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`voronoi_edges` as a graph: the Delaunay triangles' circumcentres ``centre``
+    ((t, 2) float, mm; a flat triangle's not finite) and the finite edges as pairs of their
+    indices ``i, j`` ((m,) int), each vertex of the diagram once however many edges meet there."""
     try:
         tri = Delaunay(pts)
     except QhullError:  # all points on one line: no triangle, no edge
-        return empty, empty
+        return np.empty((0, 2)), np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
     origin = pts.mean(axis=0)  # circumcentres relative to the cloud, against cancellation
     p = tri.points[tri.simplices] - origin  # (t, 3, 2)
     bv, cv = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
@@ -103,9 +110,10 @@ def voronoi_edges(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     i = np.repeat(np.arange(len(p)), 3)
     j = tri.neighbors.ravel()
     pair = j > i  # each shared side once; -1 (no neighbour) is a ray
-    a, b = centre[i[pair]], centre[j[pair]]
-    ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-    return a[ok], b[ok]
+    i, j = i[pair], j[pair]
+    finite = np.isfinite(centre).all(axis=1)
+    ok = finite[i] & finite[j]
+    return centre, i[ok], j[ok]
 
 
 def _skeleton(region, min_width, max_width, step, tolerance, min_length):
@@ -117,17 +125,25 @@ def _skeleton(region, min_width, max_width, step, tolerance, min_length):
         pts = np.vstack([pts] + holes)
     if len(pts) < 3:
         return []
-    a, b = voronoi_edges(pts)
-    if len(a) == 0:
+    centre, i, j = voronoi_graph(pts)
+    if len(i) == 0:
         return []
+    # each vertex of the diagram tested and measured once, not once per edge that ends there
+    used = np.zeros(len(centre), dtype=bool)
+    used[i] = used[j] = True
     shapely.prepare(region)
-    inside = shapely.contains_xy(region, a[:, 0], a[:, 1]) & shapely.contains_xy(region, b[:, 0], b[:, 1])
-    a, b = a[inside], b[inside]
-    if len(a) == 0:
+    inside = np.zeros(len(centre), dtype=bool)
+    inside[used] = shapely.contains_xy(region, centre[used, 0], centre[used, 1])
+    keep = inside[i] & inside[j]
+    i, j = i[keep], j[keep]
+    if len(i) == 0:
         return []
     boundary = region.boundary
-    da = shapely.distance(boundary, shapely.points(a))
-    db = shapely.distance(boundary, shapely.points(b))
+    used[:] = False
+    used[i] = used[j] = True
+    dist = np.zeros(len(centre))
+    dist[used] = shapely.distance(boundary, shapely.points(centre[used]))
+    a, b, da, db = centre[i], centre[j], dist[i], dist[j]
     lo, hi = np.minimum(da, db), np.maximum(da, db)
     # skeleton edges keep their distance to the outline; spokes run out to it
     keep = (lo > 0.6 * hi) & (lo > 0.5 * min_width / 2) & (hi > step * 0.3)
