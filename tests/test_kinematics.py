@@ -19,13 +19,12 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
+from deltaslice.jit import njit
 from deltaslice.kinematics import make_kinematics
 from deltaslice.kinematics.cartesian import Cartesian, CartesianGeometry
 from deltaslice.kinematics.five_bar import FiveBar
 from deltaslice.kinematics.linear_delta import LinearDelta
-from deltaslice.kinematics.rotary_delta import RotaryDelta
-from deltaslice.jit import njit
-from deltaslice.kinematics.rotary_delta import RotaryDeltaGeometry
+from deltaslice.kinematics.rotary_delta import RotaryDelta, RotaryDeltaGeometry
 from deltaslice.kinematics.rotary_delta import atan2 as rotary_atan2
 
 from conftest import PRINTER_NAMES, printer

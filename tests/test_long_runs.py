@@ -17,8 +17,8 @@ import pytest
 from deltaslice import load_printer
 from deltaslice.planning import plan, topp
 from deltaslice.planning.spool import PieceSpool
-from deltaslice.samples import Samples
 from deltaslice.planning.topp import RunSpec, plan_run, run_stage_maxima
+from deltaslice.samples import Samples
 from deltaslice.toolpath import Role, ToolpathBuilder
 
 
