@@ -70,9 +70,9 @@ def main() -> None:
                 setattr(topp, name, float(value))
         stages = 0
 
-        def counting(path):
+        def counting(path, rest=None):
             nonlocal stages
-            g = grid(path)
+            g = grid(path, rest)
             stages += len(g) - 1
             return g
 

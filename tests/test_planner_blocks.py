@@ -435,7 +435,8 @@ def test_a_refined_run_in_a_batch_refines_only_itself(monkeypatch):
     monkeypatch.setattr(topp, "stage_maxima", failing_at_start)
     alone = [topp.plan_run(kin, p, s, "feed") for s in specs]
     batch = topp.plan_runs(kin, p, specs, "feed")
-    unrefined = [len(topp.grid(topp._path_inputs(*topp._prepare(p, s, None), "feed").path)) for s in specs]
+    inputs = [topp._path_inputs(*topp._prepare(p, s, None), "feed") for s in specs]
+    unrefined = [len(topp.grid(inp.path, inp.stop_at)) for inp in inputs]
     assert len(alone[1][0].x) == unrefined[1] + 6  # the first stage and the one after it, split in four
     assert [len(x[0].x) for x in alone] == [unrefined[0], unrefined[1] + 6, unrefined[2]]
     for got, want in zip(batch, alone):
