@@ -77,6 +77,53 @@ def test_grid_has_both_sides_of_every_join_and_bounded_steps():
         assert np.diff(inside).max(initial=0) <= topp.ARC_STEP * path.radius[k] * (1 + 1e-9) + 1e-12
 
 
+
+def _interior(g, path, k):
+    """Grid points strictly inside piece k."""
+    a, b = path.piece_start[k], path.piece_start[k + 1]
+    return int(((g > a + 1e-12) & (g < b - 1e-12)).sum())
+
+
+def test_grid_gives_a_short_piece_interior_points_only_between_rests():
+    """A piece shorter than the geometric steps gets points at its quarters where it starts and
+    stops at rest (a stage from rest to rest cannot move); elsewhere its joins are its grid.
+    rest=None: rest may be anywhere (every short piece gets them)."""
+    lengths = np.array([1.0, 0.03, 1.0, 0.03, 1.0])
+    start = np.concatenate([[0.0], np.cumsum(lengths)])
+    k = len(lengths)
+    path = BlendedPath(start, np.zeros(k, dtype=np.int8), np.column_stack([start[:-1], np.zeros(k), np.ones(k)]),
+                       np.tile([1.0, 0.0, 0.0], (k, 1)), np.zeros((k, 3)), np.full(k, np.inf), np.arange(k))
+    for rest, want in [(None, [3, 3]), (start[[1, 2]], [3, 0]), (start[[1, 4]], [0, 0]), (np.zeros(0), [0, 0]),
+                       (start[[3, 4]], [0, 3])]:
+        g = topp.grid(path, rest)
+        assert [_interior(g, path, 1), _interior(g, path, 3)] == want, rest
+        assert all(_interior(g, path, i) > 0 for i in (0, 2, 4))  # long pieces keep their geometric steps
+    # the path's ends are at rest: a short first or last piece between a stop and an end
+    first = BlendedPath(start[1:4] - start[1], *(v[1:3] for v in (path.kind, path.p0, path.d0, path.normal,
+                                                                   path.radius, path.segment)))
+    assert _interior(topp.grid(first, first.piece_start[1:2]), first, 0) == 3
+    assert _interior(topp.grid(first, np.zeros(0)), first, 0) == 0
+
+
+def test_a_short_move_between_stops_is_planned_with_the_others(monkeypatch):
+    """plan_lines lays moves end to end with a stop at every join: a 0.03 mm move between two
+    others needs interior points there too, or the joint solve fails and every move is planned
+    alone (the fallback, refused here)."""
+    p = printer("delta_etitc")
+    kin = p.kinematics()
+    z = 0.5 * p.bed.max_height
+    a = np.array([[0.0, 0.0, z], [5.0, 0.0, z], [5.03, 0.0, z]])
+    b = np.array([[5.0, 0.0, z], [5.03, 0.0, z], [5.03, 5.0, z]])
+
+    def alone(*args, **kwargs):
+        raise AssertionError("a move was planned alone")
+
+    monkeypatch.setattr(topp, "plan_run", alone)
+    out = topp.plan_lines(kin, p, a, b, np.full(3, 100.0), np.zeros(3, dtype=int), "feed")
+    assert [len(o) for o in out] == [1, 1, 1]
+    assert len(out[1][0].x) == 5  # its ends and its quarters
+    assert all(o[0].duration > 0 and np.isfinite(o[0].duration) for o in out)
+
 def _inside_pieces(path):
     """Points at the middle of every path piece and a central-difference step (mm) small
     against the piece: blend arcs can be shorter than a micron."""
