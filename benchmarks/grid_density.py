@@ -4,9 +4,11 @@ time it gives, for the present grid constants and for others, on real parts.
     python benchmarks/grid_density.py                                  # featuretype at 20, delta_etitc
     python benchmarks/grid_density.py --part extruder_idler.obj --scale 1 ARC_STEP=0.3 MAX_STEP=8
     python benchmarks/grid_density.py --printer printers/linear_kossel.toml --part tube ARC_STEP=0.3,MAX_STEP=8
+    python benchmarks/grid_density.py --part tube --printer printers/linear_kossel.toml REFINE=10 GROWTH=4 GROWTH=4,REFINE=10
 
 Each variant sets constants of ``deltaslice.planning.topp`` (``ARC_STEP``, ``MAX_STEP``, ``GROWTH``,
-``MIN_STEP``: comma-separated NAME=VALUE) and plans the same toolpath in one process, one worker,
+``MIN_STEP``, and ``REFINE``, every stage split in that many: the dense-grid reference;
+comma-separated NAME=VALUE) and plans the same toolpath in one process, one worker,
 counting the stages of every initial grid (``topp.grid``). Prints stages and print time against
 the present constants ("base", always first) and the planning CPU time (noisy on a shared machine:
 the stages are what to compare). The stage-wise check keeps every variant within the limits.
@@ -32,7 +34,7 @@ from deltaslice.planning import plan  # noqa: E402
 from deltaslice.planning import topp  # noqa: E402
 
 PARTS = ROOT.parent / "shared" / "parts"
-CONSTANTS = ("ARC_STEP", "MAX_STEP", "GROWTH", "MIN_STEP")
+CONSTANTS = ("ARC_STEP", "MAX_STEP", "GROWTH", "MIN_STEP", "REFINE")
 
 
 def main() -> None:
@@ -67,7 +69,7 @@ def main() -> None:
                 name, value = item.split("=")
                 if name not in CONSTANTS:
                     sys.exit(f"{name}: expected one of {', '.join(CONSTANTS)}")
-                setattr(topp, name, float(value))
+                setattr(topp, name, int(value) if name == "REFINE" else float(value))
         stages = 0
 
         def counting(path, rest=None):
