@@ -77,7 +77,6 @@ def test_grid_has_both_sides_of_every_join_and_bounded_steps():
         assert np.diff(inside).max(initial=0) <= topp.ARC_STEP * path.radius[k] * (1 + 1e-9) + 1e-12
 
 
-
 def _interior(g, path, k):
     """Grid points strictly inside piece k."""
     a, b = path.piece_start[k], path.piece_start[k + 1]
@@ -123,6 +122,7 @@ def test_a_short_move_between_stops_is_planned_with_the_others(monkeypatch):
     assert [len(o) for o in out] == [1, 1, 1]
     assert len(out[1][0].x) == 5  # its ends and its quarters
     assert all(o[0].duration > 0 and np.isfinite(o[0].duration) for o in out)
+
 
 def _inside_pieces(path):
     """Points at the middle of every path piece and a central-difference step (mm) small
