@@ -241,20 +241,6 @@ def test_the_reach_check_speaks_first_while_workers_plan(workers):
         plan(bad, printer, workers=workers)
 
 
-def test_the_first_chunk_is_a_quarter_of_the_others():
-    """The main process plans the first chunk alone before the workers fork (it loads the kernels
-    they inherit), so that chunk is a quarter of the others; a job planned here ends a chunk, and
-    the chunks after it are whole."""
-    import deltaslice.planning as planning
-
-    travels = [(i, i + 1, "travel", None) for i in range(300)]
-    got = [(where, len(item) if where == "pool" else item[2]) for where, item in planning._slots(iter(travels), 128)]
-    assert got == [("pool", 32), ("pool", 128), ("pool", 128), ("pool", 12)]
-    assert [len(g) for _w, g in planning._slots(iter(travels[:5]), 2)] == [1, 2, 2]  # never empty
-    jobs = travels[:10] + [(10, 20, "parts", None)] + travels[20:]
-    got = [(where, len(item) if where == "pool" else item[2]) for where, item in planning._slots(iter(jobs), 128)]
-    assert got == [("pool", 10), ("here", "parts"), ("pool", 128), ("pool", 128), ("pool", 24)]
-
 def test_the_chunks_in_flight_are_four_a_worker_and_the_next(monkeypatch):
     """Memory is bounded by the chunks in flight: four per worker handed out and not yet put away
     (one more once the next is handed out, before the oldest is), the first chunk (planned here

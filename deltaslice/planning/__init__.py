@@ -34,10 +34,6 @@ _WORKER = {}
 # milliseconds, and 128 rather than 64 took featuretype's planning 4 % less CPU (the same bytes).
 CHUNKS_PER_PRINT = 8
 CHUNK_MAX = 128
-# The first chunk is this many times smaller: the main process plans it alone before the workers
-# fork (they inherit the kernels it loads) while the other core waits, so it should load the
-# kernels and little more (featuretype: 0.09-0.12 s in the parent against 0.18-0.34 s for 128 jobs).
-FIRST_CHUNK_DIVISOR = 4
 # Moves a run handed over in chunks (plan_stream) gathers before it is planned as its parts come.
 STREAM_RUN = 50_000
 
@@ -223,9 +219,8 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
 
     Each chunk's last run or travel is planned with the next chunk's moves (it may go on there),
     so the jobs are those of the chunks joined, and a run of at most STREAM_RUN moves is planned
-    exactly as :func:`plan` plans it (the jobs go to the workers CHUNK_MAX at a time after a first
-    chunk of a quarter of that, as those of a print of more than 8 * CHUNK_MAX jobs do: a smaller
-    print planned whole batches its travels
+    exactly as :func:`plan` plans it (the jobs go to the workers CHUNK_MAX at a time, as those of a
+    print of more than 8 * CHUNK_MAX jobs do: a smaller print planned whole batches its travels
     otherwise, which moves their last bits). A run longer than that which goes on past a chunk is planned
     window by window as its stretches come (:func:`.topp.iter_run_parts`): its merging and
     blending differ from the whole run's at the stretches' ends only (its duration within 0.1 %).
@@ -382,22 +377,20 @@ def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, printed_top:
 
 def _slots(jobs, chunk: int):
     """Consecutive jobs grouped for the workers: ("pool", [(start, end, kind, job), ...]) of at most
-    ``chunk`` jobs (the first group of at most chunk / FIRST_CHUNK_DIVISOR), or ("here", (start, end,
-    kind, job)) for a long run the main process plans (a run handed over in parts too: "parts", see
-    :func:`plan_stream`)."""
+    ``chunk`` jobs, or ("here", (start, end, kind, job)) for a long run the main process plans (a
+    run handed over in parts too: "parts", see :func:`plan_stream`)."""
     group = []
-    size = max(1, chunk // FIRST_CHUNK_DIVISOR)
     for item in jobs:
         if item[2] == "parts" or (item[2] == "run" and is_long(item[3])):
             if group:
                 yield "pool", group
-                group, size = [], chunk
+                group = []
             yield "here", item
         else:
             group.append(item)
-            if len(group) == size:
+            if len(group) == chunk:
                 yield "pool", group
-                group, size = [], chunk
+                group = []
     if group:
         yield "pool", group
 
