@@ -266,6 +266,26 @@ def test_voronoi_edges_of_points_on_a_line_are_none():
     assert a.shape == b.shape == (0, 2)
 
 
+@pytest.mark.parametrize("angle", [0, 13, 37, 71, 90, 133])
+@pytest.mark.parametrize("mirror", [False, True])
+def test_gap_lines_of_a_t_slot_are_straight_every_way_round(angle, mirror):
+    """A T of 0.3 mm slots, turned and mirrored: straight lines (at most three points each,
+    eight in all) whichever way the skeleton's lines run. GEOS's topology-preserving
+    simplifier kept 5-20 points of an arm in one direction."""
+    import shapely
+    from shapely import affinity
+
+    from deltaslice.slicing.gapfill import medial_lines
+
+    t = shapely.union(shapely.box(0, 0, 20, 0.3), shapely.box(9.85, 0, 10.15, 5))
+    t = affinity.rotate(t, angle, origin=(0, 0))
+    if mirror:
+        t = affinity.scale(t, -1, 1, origin=(0, 0))
+    lines = medial_lines(t, 0.09, 0.9, 0.045, 0.0125, 0.45)
+    sizes = [len(p) for p, _ in lines]
+    assert len(lines) == 3 and max(sizes) <= 3 and sum(sizes) <= 8, sizes
+
+
 def test_gap_line_down_a_straight_slot_is_straight():
     """A 20 x 0.3 mm slot: one line down its middle, two points after simplification
     (the Voronoi of the densified outline must not leave a zig-zag of the dense points),

@@ -154,7 +154,9 @@ def _skeleton(region, min_width, max_width, step, tolerance, min_length):
         return []
     merged = shapely.line_merge(shapely.multilinestrings(shapely.linestrings(np.stack([a, b], axis=1))))
     out = []
-    for line in shapely.get_parts(shapely.simplify(merged, tolerance)):
+    # Douglas-Peucker line by line: GEOS's topology-preserving simplifier depends on a line's
+    # direction (it kept 13-20 points of a slanted T-slot's straight arms one way, 2 the other)
+    for line in shapely.get_parts(shapely.simplify(merged, tolerance, preserve_topology=False)):
         p = shapely.get_coordinates(line)
         if len(p) < 2 or line.length < min_length:
             continue
