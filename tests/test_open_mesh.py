@@ -82,6 +82,32 @@ def test_chaining_recovers_shuffled_cycles(sizes, seed):
     assert np.array_equal(e[:-1][same], s[1:][same])
 
 
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 60), st.lists(st.integers(1, 60), max_size=8), st.integers(0, 2**31 - 1))
+def test_chain_labels_are_connected_components(n, cuts, seed):
+    """Chains and cycles of links labelled as scipy's connected_components labels them (the
+    same numbering), by pointer jumping."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from deltaslice.slicing.sections import _chain_labels
+
+    rng = np.random.default_rng(seed)
+    perm = rng.permutation(n)
+    nxt = np.full(n, -1)
+    bounds = sorted({0, n, *[c for c in cuts if c < n]})
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        group = perm[a:b]
+        nxt[group[:-1]] = group[1:]
+        if len(group) > 1 and rng.random() < 0.5:
+            nxt[group[-1]] = group[0]  # a cycle
+    linked = nxt >= 0
+    graph = coo_matrix((np.ones(int(linked.sum())), (np.flatnonzero(linked), nxt[linked])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    ours_count, ours = _chain_labels(nxt)
+    assert ours_count == count and np.array_equal(ours, label)
+
+
 def test_close_open_joins_pieces_and_reversed_pieces():
     square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
     pieces = [square[:2], square[2:][::-1]]  # the second piece runs backwards

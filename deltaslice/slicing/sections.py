@@ -16,8 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from manifold3d import CrossSection, FillRule
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..errors import MeshError, MeshWarning
 
@@ -128,6 +126,31 @@ def cut_segments(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray):
     t = (hz - va[:, 2]) / (vb[:, 2] - va[:, 2])
     points = va[:, :2] + (vb[:, :2] - va[:, :2]) * t[:, None]
     return li, start, end, points
+
+
+def _chain_labels(nxt: np.ndarray) -> tuple[int, np.ndarray]:
+    """The chains and cycles that links ``nxt`` ((S,) int, the next element or -1; each element
+    the next of at most one) make: their number and each element's label ((S,) int64), labels
+    numbered in the order of each chain's lowest element (scipy's ``connected_components``
+    numbering, without importing scipy.sparse into every compile). By pointer jumping: an
+    element of an open chain reaches its end; one of a cycle, after enough doublings, the cycle's
+    lowest element."""
+    S = len(nxt)
+    index = np.arange(S)
+    rounds = S.bit_length() + 1  # 2^rounds > 2S: every jump has run past any chain's length
+    end = np.where(nxt >= 0, nxt, index)
+    low, jump = index.copy(), nxt.copy()
+    for _ in range(rounds):
+        end = end[end]
+        on = jump >= 0
+        if on.any():
+            low[on] = np.minimum(low[on], low[jump[on]])
+            jump[on] = jump[jump[on]]
+    root = np.where(nxt[end] < 0, end, low)  # one element per chain or cycle
+    first = np.full(S, S, dtype=np.int64)
+    np.minimum.at(first, root, index)
+    _, label = np.unique(first[root], return_inverse=True)
+    return (int(label.max()) + 1 if S else 0), label.astype(np.int64)
 
 
 def _list_rank(nxt: np.ndarray) -> np.ndarray:
@@ -298,8 +321,7 @@ def _chain_segments(start: np.ndarray, end: np.ndarray):
     nxt[nxt == np.arange(S)] = -1  # a one-segment loop (degenerate) is left open
 
     linked = nxt >= 0
-    g = coo_matrix((np.ones(int(linked.sum())), (np.flatnonzero(linked), nxt[linked])), shape=(S, S))
-    n_chain, label = connected_components(g, directed=False)
+    n_chain, label = _chain_labels(nxt)
     has_pred = np.zeros(S, bool)
     has_pred[nxt[linked]] = True
     is_cycle = np.ones(n_chain, bool)
