@@ -127,6 +127,24 @@ def test_garbage_and_missing(tmp_path):
         load_mesh(tmp_path / "g.stl", scale=-1)
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_fit_outline_is_the_convex_hull(seed):
+    """check_fits' outline: the corners of the convex hull (scipy's qhull, as before it was
+    GEOS's), its sides cut to 2 mm at most; points on a line give their extremes."""
+    from scipy.spatial import ConvexHull
+
+    from deltaslice.mesh import _hull_xy
+
+    xy = np.random.default_rng(seed).normal(size=(300, 2)) * 40
+    outline = _hull_xy(xy)
+    corners = {tuple(p) for p in xy[ConvexHull(xy).vertices]}
+    assert corners <= {tuple(p) for p in outline}
+    side = np.linalg.norm(np.diff(np.vstack([outline, outline[:1]]), axis=0), axis=1)
+    assert side.max() <= 2.0 + 1e-9
+    line = _hull_xy(np.c_[np.linspace(0, 10, 7), np.zeros(7)])
+    assert line[:, 0].min() == 0.0 and line[:, 0].max() == 10.0 and not line[:, 1].any()
+
+
 def test_check_fits(tmp_path, etitc):
     check_fits(meshes.box(40, 40, 40), etitc)
     with pytest.raises(UnreachableError, match=r"mm of radius too large"):
