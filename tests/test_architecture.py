@@ -214,3 +214,38 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
+
+
+def test_slicing_a_mesh_imports_neither_scipy_spatial_nor_sparse(tmp_path):
+    """Slicing a thin wall (its gap fill takes the Voronoi path, the fit check the hull) imports no
+    scipy.spatial or scipy.sparse: importing them cost every compile 0.3-0.5 s before the slicing
+    workers could fork (numba's own scipy.linalg comes after, while they slice)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from deltaslice import load_printer\n"
+        "from deltaslice.pipeline import load_toolpath\n"
+        "from deltaslice.toolpath import Role\n"
+        "v = np.array([[i * 20, j * 1.3, k * 2.0] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) - [10, 0.65, 0]\n"
+        "f = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1), (2, 3, 7), (2, 7, 6), (0, 2, 6),\n"
+        "     (0, 6, 4), (1, 5, 7), (1, 7, 3)]\n"
+        "path = sys.argv[1]\n"
+        "with open(path, 'w') as out:\n"
+        "    out.write('solid wall\\n')\n"
+        "    for t in f:\n"
+        "        out.write('facet normal 0 0 0\\nouter loop\\n')\n"
+        "        out.write(''.join(f'vertex {x} {y} {z}\\n' for x, y, z in v[list(t)]))\n"
+        "        out.write('endloop\\nendfacet\\n')\n"
+        "    out.write('endsolid wall\\n')\n"
+        "tp = load_toolpath(path, load_printer('delta_etitc'), workers=1)\n"
+        "assert (tp.role == Role.GAP_FILL).sum() > 0, 'no gap fill'\n"
+        "bad = sorted(m for m in sys.modules if m.startswith(('scipy.spatial', 'scipy.sparse')))\n"
+        "assert not bad, bad\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "wall.stl")], capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]

@@ -266,6 +266,48 @@ def test_voronoi_edges_of_points_on_a_line_are_none():
     assert a.shape == b.shape == (0, 2)
 
 
+def test_voronoi_graph_where_geos_gives_up_is_qhulls():
+    """Four nearly collinear points and one apart (from seam_test_object.3mf's gap fill): GEOS's
+    incremental triangulation raises LocateFailureException on them; the graph is then qhull's,
+    each centre as far from its triangle's three corners."""
+    from deltaslice.slicing.gapfill import _delaunay, voronoi_graph
+
+    pts = np.array([[10.882982593244659, -1.743052532490439], [10.882924394896971, 4.738074309288118],
+                    [10.882918575062202, 5.386186993465973], [10.882901115557896, 7.33052504599954],
+                    [5.283212535563977, 8.26500117778778]])
+    corner, vertex = _delaunay(pts)
+    assert corner.shape == (3, 3, 2) and np.array_equal(pts[vertex], corner)  # 2n - 2 - 5 on the hull
+    centre, i, j = voronoi_graph(pts)
+    assert len(i) == 2  # the two inner sides
+    r = np.linalg.norm(corner - centre[:, None], axis=2)
+    np.testing.assert_allclose(r, np.repeat(r[:, :1], 3, axis=1), rtol=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_voronoi_graph_from_qhull_is_geos(seed, monkeypatch):
+    """The fallback triangulation (qhull) gives the graph GEOS's does: the same centres joined
+    by the same edges, on random points (GEOS made to give up)."""
+    import shapely
+
+    from deltaslice.slicing import gapfill
+
+    pts = np.random.default_rng(seed).uniform(-10, 10, (200, 2))
+
+    def edges(graph):
+        centre, i, j = graph
+        ends = np.sort(np.round(np.stack([centre[i], centre[j]], axis=1), 9).view(complex)[..., 0], axis=1)
+        return sorted(map(tuple, ends))
+
+    theirs = edges(gapfill.voronoi_graph(pts))
+
+    def gives_up(*args, **kwargs):
+        raise shapely.errors.GEOSException("LocateFailureException: Could not locate vertex.")
+
+    monkeypatch.setattr(gapfill.shapely, "delaunay_triangles", gives_up)
+    ours = edges(gapfill.voronoi_graph(pts))
+    assert len(ours) > 300 and ours == theirs
+
+
 @pytest.mark.parametrize("angle", [0, 13, 37, 71, 90, 133])
 @pytest.mark.parametrize("mirror", [False, True])
 def test_gap_lines_of_a_t_slot_are_straight_every_way_round(angle, mirror):

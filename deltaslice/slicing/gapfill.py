@@ -3,11 +3,12 @@
 A region too narrow for another perimeter loop (a 2-2.7 mm wall after its loops,
 a thin fin, a tiny island thinner than a bead) is filled by one line down its
 middle whose width follows the local thickness. The medial axis is taken from
-the Voronoi diagram of the densified outline (the dual of qhull's Delaunay
+the Voronoi diagram of the densified outline (the dual of GEOS's Delaunay
 triangulation): edges of the diagram that lie inside the region and stay away
 from the outline at both ends are the skeleton (edges between neighbouring points
 of one side run out to the outline and are dropped). manifold3d has offsets and
-booleans but no Voronoi, hence scipy and shapely here.
+booleans but no Voronoi, hence shapely here (GEOS, which shapely loads anyway: scipy's
+qhull cost every compile 0.3-0.5 s of start-up importing scipy.spatial).
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 import shapely
 from manifold3d import CrossSection
-from scipy.spatial import Delaunay, QhullError
 
 
 def to_shapely(region: CrossSection):
@@ -83,7 +83,7 @@ def voronoi_edges(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     outside any region the points outline). Cocircular points give edges of (nearly)
     zero length, which the caller's chaining absorbs.
 
-    The dual of qhull's triangulation, not GEOS's ``voronoi_polygons``: GEOS clips the
+    The dual of the Delaunay triangulation, not GEOS's ``voronoi_polygons``: that clips the
     diagram to its envelope with a full overlay, 20x the cost of the triangulation.
     """
     centre, i, j = voronoi_graph(pts)
@@ -94,12 +94,11 @@ def voronoi_graph(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`voronoi_edges` as a graph: the Delaunay triangles' circumcentres ``centre``
     ((t, 2) float, mm; a flat triangle's not finite) and the finite edges as pairs of their
     indices ``i, j`` ((m,) int), each vertex of the diagram once however many edges meet there."""
-    try:
-        tri = Delaunay(pts)
-    except QhullError:  # all points on one line: no triangle, no edge
+    corner, vertex = _delaunay(pts)
+    if len(corner) == 0:  # all points on one line: no triangle, no edge
         return np.empty((0, 2)), np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp)
     origin = pts.mean(axis=0)  # circumcentres relative to the cloud, against cancellation
-    p = tri.points[tri.simplices] - origin  # (t, 3, 2)
+    p = corner - origin  # (t, 3, 2)
     bv, cv = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
     d = 2.0 * (bv[:, 0] * cv[:, 1] - bv[:, 1] * cv[:, 0])
     b2, c2 = np.sum(bv**2, axis=1), np.sum(cv**2, axis=1)
@@ -107,13 +106,41 @@ def voronoi_graph(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ux = (cv[:, 1] * b2 - bv[:, 1] * c2) / d
         uy = (bv[:, 0] * c2 - cv[:, 0] * b2) / d
     centre = p[:, 0] + np.c_[ux, uy] + origin
-    i = np.repeat(np.arange(len(p)), 3)
-    j = tri.neighbors.ravel()
-    pair = j > i  # each shared side once; -1 (no neighbour) is a ray
-    i, j = i[pair], j[pair]
+    # neighbours share a side: each side's key (its two corners) sorted, equal keys side by side
+    a, b = vertex, np.roll(vertex, -1, axis=1)
+    key = (np.minimum(a, b) * (int(vertex.max()) + 1) + np.maximum(a, b)).ravel()
+    order = np.argsort(key, kind="stable")
+    key, owner = key[order], np.repeat(np.arange(len(p)), 3)[order]
+    shared = key[1:] == key[:-1]  # a side on the hull is in one triangle: a ray, left out
+    i, j = owner[:-1][shared], owner[1:][shared]
     finite = np.isfinite(centre).all(axis=1)
     ok = finite[i] & finite[j]
     return centre, i[ok], j[ok]
+
+
+def _delaunay(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Delaunay triangles of ``pts`` ((n, 2) float, mm): their corners ((t, 3, 2) float, mm)
+    and the corners' vertex numbers ((t, 3) int: the same point, the same number); none where
+    the points are all on one line. GEOS's triangulation; qhull's (scipy imported only then)
+    where GEOS's incremental insertion gives up (``LocateFailureException``, seen on four
+    nearly collinear points and one apart)."""
+    none = np.empty((0, 3, 2)), np.empty((0, 3), dtype=np.intp)
+    try:
+        tris = shapely.get_parts(shapely.delaunay_triangles(shapely.multipoints(pts)))
+    except shapely.errors.GEOSException:
+        from scipy.spatial import Delaunay, QhullError
+
+        try:
+            tri = Delaunay(pts)
+        except QhullError:
+            return none
+        return tri.points[tri.simplices], tri.simplices
+    if len(tris) == 0:
+        return none
+    corner = shapely.get_coordinates(tris).reshape(len(tris), 4, 2)[:, :3]  # closed rings
+    # GEOS gives the corners, not their indices: number them by value
+    _, vertex = np.unique((corner[..., 0] + 1j * corner[..., 1]).ravel(), return_inverse=True)
+    return corner, vertex.reshape(-1, 3)
 
 
 def _skeleton(region, min_width, max_width, step, tolerance, min_length):
