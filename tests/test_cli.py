@@ -32,6 +32,22 @@ def _run(*args):
     return CliRunner().invoke(main, [str(a) for a in args])
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads in /proc")
+def test_the_command_runs_blas_on_one_thread_unless_told_otherwise():
+    """The command line's process (and the workers it forks) keeps OpenBLAS to one thread: its
+    per-core threads only spun on the workers' cores. A user's OPENBLAS_NUM_THREADS stands."""
+    code = ("import os, sys\n"
+            "import deltaslice.cli\n"
+            "import numpy, scipy.linalg\n"
+            "print(os.environ['OPENBLAS_NUM_THREADS'], len(os.listdir('/proc/self/task')))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.stdout.split() == ["1", "1"], out.stderr[-2000:]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={**env, "OPENBLAS_NUM_THREADS": "2"}, timeout=120)
+    assert out.stdout.split()[0] == "2", out.stderr[-2000:]
+
+
 def test_printers_lists_the_shipped_printers_and_they_are_package_data():
     assert shipped_names() == PRINTER_NAMES and len(PRINTER_NAMES) == 6
     assert all(shipped_path(n).is_file() for n in PRINTER_NAMES)
