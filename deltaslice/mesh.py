@@ -792,9 +792,9 @@ def _hull_xy(xy: np.ndarray) -> np.ndarray:
     is loaded for slicing anyway; scipy.spatial would cost the compile's main process 0.15 s)."""
     import shapely
 
-    hull = shapely.convex_hull(shapely.multipoints(xy))
-    if isinstance(hull, shapely.Polygon) and not hull.is_empty:
-        hull = shapely.get_coordinates(hull.exterior)[:-1]
+    outline = shapely.convex_hull(shapely.multipoints(xy))
+    if isinstance(outline, shapely.Polygon) and not outline.is_empty:
+        hull = shapely.get_coordinates(outline.exterior)[:-1]
     else:  # the points on one line (or one point): their extremes
         hull = xy[[np.argmin(xy[:, 0]), np.argmax(xy[:, 0]), np.argmin(xy[:, 1]), np.argmax(xy[:, 1])]]
     nxt = np.roll(hull, -1, axis=0)
