@@ -270,7 +270,7 @@ def main():
 @click.option("--center", is_flag=True, help="G-code: move the part's footprint to the bed centre (a file sliced for another machine; "
               "a large file is then held in memory whole).")
 @_engrave_options
-@click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes slicing, planning and sampling (default: all cores); the output is the same for any number.")
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Processes slicing, planning and sampling (default: all cores; each runs OpenBLAS on one thread unless OPENBLAS_NUM_THREADS is set); the output is the same for any number.")
 @bound_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
 @json_option
