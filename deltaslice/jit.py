@@ -15,6 +15,7 @@ calls from Python go straight to them."""
 
 from __future__ import annotations
 
+import contextlib
 import sys
 
 _PENDING: list = []  # the stand-ins made before numba was imported, in definition order
@@ -78,7 +79,11 @@ def load() -> None:
     if _NJIT is not None:
         return
     try:  # numba is a declared dependency
-        from numba import njit as numba_njit
+        with _cython_blas_alone():
+            from numba import njit as numba_njit
+            from numba.core.registry import cpu_target
+
+            cpu_target.target_context.refresh()  # numba's BLAS check: see _cython_blas_alone
     except ImportError:  # pragma: no cover
         numba_njit = _pass_through
     for stand_in in _PENDING:
@@ -92,6 +97,44 @@ def load() -> None:
             if type(value) is Deferred:
                 space[key] = value.dispatcher
     _PENDING.clear()
+
+
+@contextlib.contextmanager
+def _cython_blas_alone():
+    """While numba's compiler loads, ``scipy.linalg.cython_blas`` loaded alone, not through its package.
+
+    numba checks for a BLAS as its compiler loads by importing that module, which imports all of
+    scipy.linalg first: 0.3-0.4 s of a compile's busiest stretch, most of it scipy's array-API
+    layer cloning numpy (numpy.f2py, numpy.testing, ...). The kernels here use no BLAS. The module
+    is put in ``sys.modules`` for the check and taken out after: a later import goes through its
+    package as usual and gets the same module (an extension module is initialised once a
+    process), so numba's BLAS calls, were a kernel to make any, still work. Where scipy is laid out
+    otherwise, numba imports the package itself, as before."""
+    name = "scipy.linalg.cython_blas"
+    module = None
+    if "scipy.linalg" not in sys.modules and name not in sys.modules:
+        try:
+            import importlib.machinery
+            import importlib.util
+            import os
+
+            import scipy
+
+            finder = importlib.machinery.FileFinder(
+                os.path.join(os.path.dirname(scipy.__file__), "linalg"),
+                (importlib.machinery.ExtensionFileLoader, importlib.machinery.EXTENSION_SUFFIXES))
+            spec = finder.find_spec(name)
+            if spec is not None:
+                loaded = importlib.util.module_from_spec(spec)
+                spec.loader.exec_module(loaded)
+                sys.modules[name] = module = loaded
+        except Exception:  # numba imports scipy.linalg itself, as it would without this
+            module = None
+    try:
+        yield
+    finally:
+        if module is not None and sys.modules.get(name) is module and "scipy.linalg" not in sys.modules:
+            del sys.modules[name]
 
 
 def njit(*args, **kwargs):

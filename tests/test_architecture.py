@@ -216,6 +216,42 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
     assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
 
 
+def test_loading_the_kernels_imports_no_scipy_linalg_and_numba_still_finds_blas():
+    """numba's BLAS check, as its compiler loads, imported all of scipy.linalg (0.3-0.4 s of every
+    compile, while the slicing workers wait on this process); deltaslice.jit gives it
+    scipy.linalg.cython_blas alone. numba still finds a BLAS, a kernel that calls one still
+    computes, and a later ``import scipy.linalg`` is the usual package, its cython_blas the
+    module numba saw."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from deltaslice import jit\n"
+        "from deltaslice.planning.blend import run_cumsum\n"
+        "out = np.empty(4)\n"
+        "run_cumsum(np.ones(3), np.array([0, 3]), out)\n"
+        "assert out.tolist() == [0.0, 1.0, 2.0, 3.0], out\n"
+        "assert 'scipy.linalg' not in sys.modules, 'loading the kernels imported scipy.linalg'\n"
+        "assert 'scipy.linalg.cython_blas' not in sys.modules\n"
+        "import numba.np.arraymath\n"
+        "assert numba.np.arraymath._HAVE_BLAS\n"
+        "@jit.njit(cache=False)\n"
+        "def product(a, b):\n"
+        "    return np.dot(a, b)\n"
+        "a, b = np.arange(6.0).reshape(2, 3), np.arange(6.0).reshape(3, 2)\n"
+        "assert product(a, b).tolist() == (a @ b).tolist()\n"
+        "import scipy.linalg\n"
+        "assert scipy.linalg.cython_blas is sys.modules['scipy.linalg.cython_blas']\n"
+        "assert 'dgemm' in scipy.linalg.cython_blas.__pyx_capi__\n"
+        "assert np.allclose(scipy.linalg.solve(np.eye(2) * 2, np.ones(2)), 0.5)\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
+
+
 def test_slicing_a_mesh_imports_neither_scipy_spatial_nor_sparse(tmp_path):
     """Slicing a thin wall (its gap fill takes the Voronoi path, the fit check the hull) imports no
     scipy.spatial or scipy.sparse: importing them cost every compile 0.3-0.5 s before the slicing
