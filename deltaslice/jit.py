@@ -104,7 +104,7 @@ def _cython_blas_alone():
     """While numba's compiler loads, ``scipy.linalg.cython_blas`` loaded alone, not through its package.
 
     numba checks for a BLAS as its compiler loads by importing that module, which imports all of
-    scipy.linalg first: 0.3-0.4 s of a compile's busiest stretch, most of it scipy's array-API
+    scipy.linalg first: 0.2-0.4 s of a compile's busiest stretch, most of it scipy's array-API
     layer cloning numpy (numpy.f2py, numpy.testing, ...). The kernels here use no BLAS. The module
     is put in ``sys.modules`` for the check and taken out after: a later import goes through its
     package as usual and gets the same module (an extension module is initialised once a

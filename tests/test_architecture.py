@@ -217,7 +217,7 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
 
 
 def test_loading_the_kernels_imports_no_scipy_linalg_and_numba_still_finds_blas():
-    """numba's BLAS check, as its compiler loads, imported all of scipy.linalg (0.3-0.4 s of every
+    """numba's BLAS check, as its compiler loads, imported all of scipy.linalg (0.2-0.4 s of every
     compile, while the slicing workers wait on this process); deltaslice.jit gives it
     scipy.linalg.cython_blas alone. numba still finds a BLAS, a kernel that calls one still
     computes, and a later ``import scipy.linalg`` is the usual package, cython_blas in its place."""
