@@ -596,12 +596,13 @@ def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():
     numpy and reduced by numpy (max, argmax: first of ties, first NaN; per stage max over the
     channels), bit for bit, with NaN derivatives and ties among them."""
     rng = np.random.default_rng(1)
+    f = len(topp.CHECK)
     for trial in range(200):
         n, dof = int(rng.integers(1, 50)), int(rng.integers(1, 5))
-        dq, ddq = rng.normal(size=(n, 9, dof)), rng.normal(size=(n, 9, dof))
+        dq, ddq = rng.normal(size=(n, f, dof)), rng.normal(size=(n, f, dof))
         xd, xdd = rng.uniform(0, 2, n + 1), rng.normal(size=n)
         if trial % 3 == 0:
-            dq[rng.integers(0, n), rng.integers(0, 9), rng.integers(0, dof)] = np.nan
+            dq[rng.integers(0, n), rng.integers(0, f), rng.integers(0, dof)] = np.nan
         if trial % 5 == 0:
             dq = np.round(dq)  # equal bounds in several stages
         if trial % 7 == 0:
