@@ -67,7 +67,7 @@ MERGE_DEVIATION = 0.25  # of the blend tolerance: what merging may move the path
 EVAL = np.array([0.0, 0.5, 1.0])
 # Stage fractions of the stage-wise limit check: the quarters. Its bound adds 0.3125 of the
 # samples' largest second difference; at nine fractions (the eighths) it was at most 0.003 tighter,
-# refined no run and changed no plan of 42 on every printer, for 80 % more derivatives (a tenth
+# refined no run and changed no plan of 42 on every printer, for 80 % more derivatives (a sixth
 # of the planner's CPU); at five it is still above a 257-point evaluation on every stage of them.
 CHECK = np.linspace(0.0, 1.0, 5)
 # EVAL's fractions are CHECK's 0, 2 and 4 (exactly: k/4): the derivatives are computed once per
