@@ -1,10 +1,12 @@
 """Limits on real parts at 10 kHz (not a test): parts from ../shared/parts sliced for every printer
 with an extruder (the laser gets the star-and-zig-zag part of tests/test_planning_limits.py),
 planned with both speed limits, sampled at 10 kHz. Prints, per printer, part and mode, the
-analytic stage-wise bound and the peak joint velocity / acceleration ratios by finite differences.
+analytic stage-wise bound and the peak joint velocity / acceleration ratios by finite differences;
+with ``--dense``, also how many stages' stage-wise bound is below their evaluation at 257 points
+(tests/test_planning_limits.py's ``stages_below_dense``: it should be none; slower).
 A part too large for a printer is tried at half and a quarter of its size.
 
-    python benchmarks/bench_limits_parts.py [PRINTER ...]
+    python benchmarks/bench_limits_parts.py [--dense] [PRINTER ...]
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from deltaslice.errors import MeshError, UnreachableError  # noqa: E402
 from deltaslice.pipeline import load_toolpath  # noqa: E402
 from deltaslice.planning import plan  # noqa: E402
-from test_planning_limits import peak_ratios, printer_at, star_part  # noqa: E402
+from test_planning_limits import peak_ratios, printer_at, stages_below_dense, star_part  # noqa: E402
 
 PARTS_DIR = ROOT.parent / "shared" / "parts"
 PARTS = ("pyramid.obj", "small_dorito.obj", "extruder_idler.obj", "20mm_cube.obj")
@@ -45,8 +47,11 @@ def toolpaths(printer, name):
 
 
 def main():
-    worst = 0.0
-    for name in sys.argv[1:] or PRINTERS:
+    args = sys.argv[1:]
+    dense = "--dense" in args
+    names = [a for a in args if a != "--dense"] or PRINTERS
+    worst, below_all = 0.0, 0
+    for name in names:
         printer = printer_at(name, RATE)
         for part, scale, tp in toolpaths(printer, name):
             for mode in ("feed", "machine"):
@@ -56,10 +61,15 @@ def main():
                 rv, ra = peak_ratios(printer, traj.samples(), RATE)
                 worst = max(worst, rv.max(), ra.max())
                 travels = sum(p.kind == "travel" for p in traj.pieces)
+                below = ""
+                if dense:
+                    stages, n_below = stages_below_dense(printer, traj)
+                    below_all += n_below
+                    below = f" stages {stages} below dense {n_below}"
                 print(f"{name:17s} {part:20s} x{scale:<5g} {mode:7s} travels {travels:5d} stage-wise "
-                      f"{max(sv.max(), sa.max()):.6f}  10 kHz v {rv.max():.4f} a {ra.max():.4f} "
+                      f"{max(sv.max(), sa.max()):.6f}  10 kHz v {rv.max():.4f} a {ra.max():.4f}{below} "
                       f"({time.perf_counter() - t0:.1f} s)", flush=True)
-    print(f"worst 10 kHz ratio {worst:.4f}")
+    print(f"worst 10 kHz ratio {worst:.4f}" + (f"; stages whose bound is below their dense evaluation: {below_all}" if dense else ""))
 
 
 if __name__ == "__main__":
