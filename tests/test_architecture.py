@@ -169,15 +169,30 @@ def test_one_table_of_file_suffixes():
         assert not hit, f"{m}: a suffix table ({hit.group(0)!r}): use deltaslice/formats.py"
 
 
+_FIRST_KERNEL_CALL = (  # the first call of a kernel (loads numba and the kernels), checked
+    "from deltaslice.planning.blend import run_cumsum\n"
+    "import numpy as np\n"
+    "out = np.empty(4)\n"
+    "run_cumsum(np.ones(3), np.array([0, 3]), out)\n"
+    "assert out.tolist() == [0.0, 1.0, 2.0, 3.0], out\n"
+)
+
+
+def _in_a_fresh_interpreter(code: str, *argv: str) -> None:
+    """Run ``code`` (which prints ``ok`` last) in a new Python process: imports counted from zero."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
+
+
 def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispatcher():
     """deltaslice.jit: importing the package's modules imports no numba; the first kernel call
     does, and then every module holds numba's dispatcher where it held a stand-in (imported names
     too: topp's run_cumsum, pieces' sample_kernel), so kernels calling kernels compile and Python
     calls go straight to numba. A kernel defined after that is a dispatcher at once. Copying,
     pickling or inspecting a stand-in does not load numba."""
-    import subprocess
-    import sys
-
     code = (
         "import sys, pkgutil, importlib\n"
         "import deltaslice\n"
@@ -195,11 +210,7 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
         "assert str(inspect.signature(k)) == '(values, offsets, out)' and inspect.getdoc(k)\n"
         "assert inspect.getsource(inspect.unwrap(k)).startswith('@njit')\n"
         "assert 'numba' not in sys.modules, 'inspecting a stand-in imported numba'\n"
-        "from deltaslice.planning.blend import run_cumsum\n"
-        "import numpy as np\n"
-        "out = np.empty(4)\n"
-        "run_cumsum(np.ones(3), np.array([0, 3]), out)\n"
-        "assert out.tolist() == [0.0, 1.0, 2.0, 3.0], out\n"
+        + _FIRST_KERNEL_CALL +
         "assert 'numba' in sys.modules and jit.loaded()\n"
         "from numba.core.registry import CPUDispatcher\n"
         "left = [(m.__name__, k) for m, k in stand_ins if not isinstance(vars(m)[k], CPUDispatcher)]\n"
@@ -212,8 +223,7 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
         "assert isinstance(twice, CPUDispatcher) and twice(2.0) == 4.0\n"
         "print('ok')\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
+    _in_a_fresh_interpreter(code)
 
 
 def test_loading_the_kernels_imports_no_scipy_linalg_and_numba_still_finds_blas():
@@ -221,17 +231,10 @@ def test_loading_the_kernels_imports_no_scipy_linalg_and_numba_still_finds_blas(
     compile, while the slicing workers wait on this process); deltaslice.jit gives it
     scipy.linalg.cython_blas alone. numba still finds a BLAS, a kernel that calls one still
     computes, and a later ``import scipy.linalg`` is the usual package, cython_blas in its place."""
-    import subprocess
-    import sys
-
     code = (
         "import sys\n"
-        "import numpy as np\n"
         "from deltaslice import jit\n"
-        "from deltaslice.planning.blend import run_cumsum\n"
-        "out = np.empty(4)\n"
-        "run_cumsum(np.ones(3), np.array([0, 3]), out)\n"
-        "assert out.tolist() == [0.0, 1.0, 2.0, 3.0], out\n"
+        + _FIRST_KERNEL_CALL +
         "assert 'scipy.linalg' not in sys.modules, 'loading the kernels imported scipy.linalg'\n"
         "assert 'scipy.linalg.cython_blas' not in sys.modules\n"
         "import numba.np.arraymath\n"
@@ -247,17 +250,13 @@ def test_loading_the_kernels_imports_no_scipy_linalg_and_numba_still_finds_blas(
         "assert np.allclose(scipy.linalg.solve(np.eye(2) * 2, np.ones(2)), 0.5)\n"
         "print('ok')\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
+    _in_a_fresh_interpreter(code)
 
 
 def test_slicing_a_mesh_imports_neither_scipy_spatial_nor_sparse(tmp_path):
     """Slicing a thin wall (its gap fill takes the Voronoi path, the fit check the hull) imports no
     scipy.spatial or scipy.sparse: importing them cost every compile 0.3-0.5 s before the slicing
     workers could fork (numba's own scipy.linalg comes after, while they slice)."""
-    import subprocess
-    import sys
-
     code = (
         "import sys\n"
         "import numpy as np\n"
@@ -281,6 +280,4 @@ def test_slicing_a_mesh_imports_neither_scipy_spatial_nor_sparse(tmp_path):
         "assert not bad, bad\n"
         "print('ok')\n"
     )
-    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "wall.stl")], capture_output=True, text=True,
-                         timeout=600)
-    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]
+    _in_a_fresh_interpreter(code, str(tmp_path / "wall.stl"))
