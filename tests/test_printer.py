@@ -140,6 +140,8 @@ BAD = {
     ),
     "missing section": (lambda t: t.replace("[bed]", "[bedd]", 1), "unknown key 'bedd'", "did you mean 'bed'"),
     "zero count scale": (_sub("counts_per_unit = 11.111", "counts_per_unit = 0"), "[joints] counts_per_unit", "non-zero"),
+    # 1e-300 passed "> 0" and its cross-section underflowed to zero: a ZeroDivisionError (hypothesis)
+    "tiny filament": (_sub("filament_diameter = 3.0", "filament_diameter = 1e-300"), "[tool] filament_diameter", ">= 0.1"),
     "tilt over 90": (_sub("ball_joint_tilt_max = 13.0", "ball_joint_tilt_max = 100.0"), "[kinematics] ball_joint_tilt_max", "<= 90"),
 }
 

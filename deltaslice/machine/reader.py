@@ -124,7 +124,7 @@ def _read_tool(sec: Section) -> Tool:
     nozzle = sec.getfloat("nozzle_diameter", above=0, maxval=5)
     return Extruder(
         nozzle_diameter=nozzle,
-        filament_diameter=sec.getfloat("filament_diameter", above=0, maxval=5),
+        filament_diameter=sec.getfloat("filament_diameter", minval=0.1, maxval=5),  # its square divides
         max_volumetric_flow=sec.getfloat("max_volumetric_flow", above=0),
         max_filament_acceleration=sec.getfloat("max_filament_acceleration", above=0),
         retract_length=sec.getfloat("retract_length", 0.0, minval=0),
