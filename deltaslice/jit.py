@@ -16,6 +16,7 @@ calls from Python go straight to them."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import sys
 
 _PENDING: list = []  # the stand-ins made before numba was imported, in definition order
@@ -79,16 +80,13 @@ def load() -> None:
     if _NJIT is not None:
         return
     try:  # numba is a declared dependency
-        with _cython_blas_alone():
-            from numba import njit as numba_njit
-            from numba.core.registry import cpu_target
-
-            cpu_target.target_context.refresh()  # numba's BLAS check: see _cython_blas_alone
+        from numba import njit as numba_njit
     except ImportError:  # pragma: no cover
-        numba_njit = _pass_through
+        _NJIT = _pass_through
+    else:
+        _NJIT = _cache_first(numba_njit)
     for stand_in in _PENDING:
-        stand_in.dispatcher = numba_njit(**stand_in.options)(stand_in.py_func)
-    _NJIT = numba_njit
+        stand_in.dispatcher = _NJIT(**stand_in.options)(stand_in.py_func)
     for name, module in list(sys.modules.items()):
         if module is None or not (name == "deltaslice" or name.startswith("deltaslice.")):
             continue
@@ -97,6 +95,54 @@ def load() -> None:
             if type(value) is Deferred:
                 space[key] = value.dispatcher
     _PENDING.clear()
+
+
+def _cache_first(numba_njit):
+    """``numba_njit`` whose dispatchers load a cached kernel without setting up numba's compiler.
+
+    numba sets up its whole compiler before loading a kernel from its cache (``refresh``: every
+    typing and lowering registry, numba.np.*, numba.cpython.*, 0.2-0.3 s of the main process
+    while the slicing workers slice), though a cached kernel is machine code that needs only
+    numba's runtime (NRT; its first kernel crashes without it) and the symbols numba gives the
+    linker (its hash secret is the one the set-up adds: imported here). Here a dispatcher looks in its
+    cache first; only a kernel that is not there sets the compiler up (with
+    :func:`_cython_blas_alone`) and is compiled as numba does. Where numba's internals are not
+    as expected, its own way."""
+    try:
+        import numba.cpython.hashing  # noqa: F401  (registers the hash secret's symbols)
+        from numba.core.caching import Cache
+        from numba.core.registry import cpu_target
+        from numba.core.runtime import rtsys
+
+        context = cpu_target.target_context
+        load_cached = Cache._load_overload
+        guard = Cache._guard_against_spurious_io_errors
+        rtsys.initialize(context)
+    except (ImportError, AttributeError):  # pragma: no cover
+        return numba_njit
+    refreshed = []
+
+    def load_overload(cache, sig, target_context):
+        if target_context is context and not refreshed:
+            with guard(cache):
+                loaded = load_cached(cache, sig, target_context)
+            if loaded is not None:
+                return loaded
+            with _cython_blas_alone():  # numba's BLAS check runs here
+                context.refresh()
+            refreshed.append(True)
+        return Cache.load_overload(cache, sig, target_context)
+
+    def make(**options):
+        def decorate(fn):
+            dispatcher = numba_njit(**options)(fn)
+            cache = getattr(dispatcher, "_cache", None)
+            if isinstance(cache, Cache):
+                cache.load_overload = functools.partial(load_overload, cache)
+            return dispatcher
+        return decorate
+
+    return make
 
 
 @contextlib.contextmanager

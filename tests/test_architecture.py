@@ -226,19 +226,39 @@ def test_numba_loads_at_the_first_kernel_call_and_every_kernel_becomes_its_dispa
     _in_a_fresh_interpreter(code)
 
 
-def test_loading_the_kernels_imports_no_scipy_linalg_and_numba_still_finds_blas():
-    """numba's BLAS check, as its compiler loads, imported all of scipy.linalg (0.2-0.4 s of every
-    compile, while the slicing workers wait on this process); deltaslice.jit gives it
-    scipy.linalg.cython_blas alone. numba still finds a BLAS, a kernel that calls one still
-    computes, and a later ``import scipy.linalg`` is the usual package, cython_blas in its place."""
+_NEW_KERNEL = (  # a cached kernel of its own (allocates: numba's runtime), in a module in tmp_path
+    "import numpy as np\n"
+    "from deltaslice.jit import njit\n"
+    "@njit\n"
+    "def ramp(n):\n"
+    "    out = np.empty(n)\n"
+    "    for i in range(n):\n"
+    "        out[i] = np.sin(0.5 * i)\n"
+    "    return out\n"
+)
+_CALL_NEW_KERNEL = (
+    "import sys\n"
+    "sys.path.insert(0, sys.argv[1])\n"
+    "import numpy as np\n"
+    "import dsl_new_kernel\n"
+    "assert np.array_equal(dsl_new_kernel.ramp(5), np.sin(0.5 * np.arange(5)))\n"
+)
+
+
+def test_a_kernel_not_cached_compiles_without_scipy_linalg_and_numba_still_finds_blas(tmp_path):
+    """A kernel not in numba's cache sets numba's compiler up first, whose BLAS check imported all of
+    scipy.linalg (0.2-0.4 s); deltaslice.jit gives it scipy.linalg.cython_blas alone. numba still
+    finds a BLAS, a kernel that calls one computes, and a later ``import scipy.linalg`` is the
+    usual package, cython_blas in its place."""
+    (tmp_path / "dsl_new_kernel.py").write_text(_NEW_KERNEL)
     code = (
-        "import sys\n"
-        "from deltaslice import jit\n"
-        + _FIRST_KERNEL_CALL +
-        "assert 'scipy.linalg' not in sys.modules, 'loading the kernels imported scipy.linalg'\n"
+        _CALL_NEW_KERNEL +
+        "assert 'numba.np.arraymath' in sys.modules, 'no compiler set up: was the kernel cached?'\n"
+        "assert 'scipy.linalg' not in sys.modules, 'setting up the compiler imported scipy.linalg'\n"
         "assert 'scipy.linalg.cython_blas' not in sys.modules\n"
         "import numba.np.arraymath\n"
         "assert numba.np.arraymath._HAVE_BLAS\n"
+        "from deltaslice import jit\n"
         "@jit.njit(cache=False)\n"
         "def product(a, b):\n"
         "    return np.dot(a, b)\n"
@@ -250,7 +270,23 @@ def test_loading_the_kernels_imports_no_scipy_linalg_and_numba_still_finds_blas(
         "assert np.allclose(scipy.linalg.solve(np.eye(2) * 2, np.ones(2)), 0.5)\n"
         "print('ok')\n"
     )
-    _in_a_fresh_interpreter(code)
+    _in_a_fresh_interpreter(code, str(tmp_path))
+
+
+def test_a_cached_kernel_loads_without_setting_up_numbas_compiler(tmp_path):
+    """numba sets up its whole compiler (every registry: numba.np.*, numba.cpython.*) before it
+    loads a kernel from its cache, 0.2-0.3 s of every compile; deltaslice.jit loads a cached kernel
+    with numba's runtime alone, and the kernel (which allocates) computes the same. The package's
+    own kernels too: a first kernel call that loads them sets nothing up."""
+    (tmp_path / "dsl_new_kernel.py").write_text(_NEW_KERNEL)
+    _in_a_fresh_interpreter(_CALL_NEW_KERNEL + _FIRST_KERNEL_CALL + "print('ok')\n", str(tmp_path))  # now cached
+    code = (
+        _CALL_NEW_KERNEL + _FIRST_KERNEL_CALL +
+        "assert 'numba' in sys.modules\n"
+        "assert 'numba.np.arraymath' not in sys.modules, 'loading cached kernels set the compiler up'\n"
+        "print('ok')\n"
+    )
+    _in_a_fresh_interpreter(code, str(tmp_path))
 
 
 def test_slicing_a_mesh_imports_neither_scipy_spatial_nor_sparse(tmp_path):
