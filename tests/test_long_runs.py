@@ -250,6 +250,14 @@ def test_samples_from_forked_workers_are_the_blocks_sampled_here(spool, small_wi
         for name in ("t", "q", "e", "tool"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
             np.testing.assert_array_equal(getattr(a, name), getattr(c, name))
+    # and a task's blocks come as one transient block: the same samples in the same order
+    monkeypatch.setattr(trajectory_module, "TASK_BLOCKS", 3)
+    tasks = [Samples(*(np.copy(getattr(b, name)) for name in ("t", "q", "e", "tool")))
+             for b in traj.iter_samples(block=64, workers=3, transient=True)]
+    assert [len(b) for b in tasks[:-1]] == [3 * 64] * (len(tasks) - 1) and len(tasks) > 6
+    for name in ("t", "q", "e", "tool"):
+        np.testing.assert_array_equal(np.concatenate([getattr(a, name) for a in here]),
+                                      np.concatenate([getattr(c, name) for c in tasks]))
     assert not pool._INHERITED  # the parent keeps no reference for the next pool
 
 
