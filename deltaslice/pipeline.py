@@ -420,8 +420,6 @@ def compile_part(
     output: path (default ``PART.dsl`` beside the part); checked before any work (not the
     input, directory exists and is writable). max_duration_s, max_bytes: bounds on the
     planned print time and the output size checked before writing (None: no bound)."""
-    from .planning import plan
-
     _check_path(part, "part")
     if output is None:
         output = default_output(part)
@@ -435,6 +433,7 @@ def compile_part(
 
     def while_slicing():
         checked[0] = check_reach(printer)
+        from . import planning as _planner  # noqa: F401  (imported here, while the workers slice, not before they fork)
 
     t0 = time.perf_counter()
     stage = ("reading G-code", "lines") if kind == "gcode" else ("slicing layers", "it")
@@ -464,6 +463,8 @@ def compile_part(
             write_gcode(toolpath, output, printer, max_bytes=max_bytes)
             return CompileResult(printer.name, str(output), fmt, _size(output), s["layers"], s["moves"], {},
                                  "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
+        from .planning import plan
+
         trajectory = plan(toolpath, printer, speed_limit=speed_limit, planner=planner, solver=solver, workers=workers,
                           progress=planning)
         del toolpath
