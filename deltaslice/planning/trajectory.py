@@ -130,7 +130,7 @@ class Trajectory:
         t, q, e, tool = (
             np.frombuffer(mmap.mmap(-1, n_slots * span * w * 8), dtype=np.float64).reshape(n_slots, span, w)
             for w in (1, self.kin.n_joints, 1, 1))
-        tasks = ((i0, min(i0 + span, n_total), block, rate, k % n_slots)
+        tasks = ((i0, min(i0 + span, n_total), rate, k % n_slots)
                  for k, i0 in enumerate(range(0, n_total, span)))
         for i0, i1, k in forked_map(_sample_task, tasks, workers, in_flight=SAMPLE_AHEAD, trajectory=self,
                                     slots=(t, q, e, tool)):
@@ -189,13 +189,11 @@ def _times(i0: int, i1: int, rate: float) -> np.ndarray:
     return np.arange(i0, i1) / rate
 
 
-def _sample_task(i0: int, i1: int, block: int, rate: float, k: int) -> tuple[int, int, int]:
-    """In a forked sampling worker: samples i0..i1 of the inherited trajectory, block by block,
+def _sample_task(i0: int, i1: int, rate: float, k: int) -> tuple[int, int, int]:
+    """In a forked sampling worker: samples i0..i1 of the inherited trajectory, in one pass,
     written into slot k of the inherited shared ``slots`` (t (slots, span, 1), q (slots, span, J),
     e and tool (slots, span, 1)). Returns (i0, i1, k)."""
     traj, (t, q, e, tool) = inherited("trajectory"), inherited("slots")
-    for a in range(i0, i1, block):
-        b = traj._block(a, min(a + block, i1), rate)
-        rows = slice(a - i0, a - i0 + len(b))
-        t[k, rows, 0], q[k, rows], e[k, rows, 0], tool[k, rows, 0] = b.t, b.q, b.e, b.tool
+    b = traj._block(i0, i1, rate)  # a sample's values do not depend on the block it is sampled in
+    t[k, : i1 - i0, 0], q[k, : i1 - i0], e[k, : i1 - i0, 0], tool[k, : i1 - i0, 0] = b.t, b.q, b.e, b.tool
     return i0, i1, k
