@@ -2,12 +2,13 @@
 with a pass-through fallback so a broken install still runs (correct, slow).
 
 Every kernel is compiled with ``cache=True`` (written beside its module in ``__pycache__``: the
-first compile after a fresh install takes seconds, later processes load it) and numpy's error
-model (a division by zero gives inf or NaN, as the vectorised code it replaces, not an exception).
+first compile after a fresh install takes seconds, later processes load it, without setting up
+numba's compiler: :func:`_cache_first`) and numpy's error model (a division by zero gives inf or
+NaN, as the vectorised code it replaces, not an exception).
 
 numba itself is imported when a kernel is first called, not when the modules that define kernels
-are: importing it and setting up its compiler take a few tenths of a second, which a compile
-spends while its slicing workers (which run no kernel) slice. Until then ``njit`` gives a
+are: importing it takes a few tenths of a second, which a compile spends while its slicing
+workers (which run no kernel) slice. Until then ``njit`` gives a
 stand-in (:class:`Deferred`); the first call of any stand-in (or :func:`load`) makes numba's
 dispatcher of every kernel defined so far and puts it in place of the stand-in wherever a
 ``deltaslice`` module holds it, so kernels calling kernels compile against dispatchers, and later
@@ -124,6 +125,7 @@ def _cache_first(numba_njit):
 
     def load_overload(cache, sig, target_context):
         if target_context is context and not refreshed:
+            loaded = None  # where the guard swallows an I/O error (on Windows), as numba's own
             with guard(cache):
                 loaded = load_cached(cache, sig, target_context)
             if loaded is not None:
