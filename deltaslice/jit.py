@@ -105,8 +105,8 @@ def _cache_first(numba_njit):
     typing and lowering registry, numba.np.*, numba.cpython.*, 0.2-0.3 s of the main process
     while the slicing workers slice), though a cached kernel is machine code that needs only
     numba's runtime (NRT; its first kernel crashes without it) and the symbols numba gives the
-    linker (its hash secret is the one the set-up adds: imported here). Here a dispatcher looks in its
-    cache first; only a kernel that is not there sets the compiler up (with
+    linker (its hash secret is the one the set-up adds: imported here). Here a dispatcher looks
+    in its cache first; only a kernel that is not there sets the compiler up (with
     :func:`_cython_blas_alone`) and is compiled as numba does. Where numba's internals are not
     as expected, its own way."""
     try:

@@ -433,7 +433,8 @@ def compile_part(
 
     def while_slicing():
         checked[0] = check_reach(printer)
-        from . import planning as _planner  # noqa: F401  (imported here, while the workers slice, not before they fork)
+        # the planner's modules load here, while the workers slice, not before they fork
+        from . import planning as _planner  # noqa: F401
 
     t0 = time.perf_counter()
     stage = ("reading G-code", "lines") if kind == "gcode" else ("slicing layers", "it")

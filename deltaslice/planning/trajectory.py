@@ -96,10 +96,11 @@ class Trajectory:
 
         workers: processes sampling blocks ahead while the caller consumes them (forked, so they
         share the planned pieces without copying them; where the platform cannot fork, and for
-        short trajectories, the blocks are sampled here). The blocks are the same either way.
+        short trajectories, the blocks are sampled here). The blocks are the same either way
+        (``transient`` ones: their samples).
         transient: for a consumer done with each block before it takes the next (the writers):
         the workers' blocks are views of buffers they write again once the next block is asked
-        for (no copy of every sample), and a task's TASK_BLOCKS blocks come as one (a tenth of
+        for (no copy of every sample), and a task's TASK_BLOCKS blocks come as one (an eighth of
         the writers' per-block work); the same samples in the same order."""
         rate = rate or self.printer.planning.output_rate
         n_total = int(np.ceil(self.duration * rate - 1e-9)) + 1
