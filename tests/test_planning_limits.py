@@ -88,7 +88,7 @@ def stages_below_dense(printer, traj, fractions: int = 257) -> tuple[int, int]:
     them, against the joints' velocity and acceleration ratios at ``fractions`` points of the
     stage with the same derivatives (the brute-force evaluation the check stands for)."""
     from deltaslice.planning.pieces import RunPiece
-    from deltaslice.planning.topp import CHECK, RunPath, stage_maxima
+    from deltaslice.planning.topp import RunPath, stage_maxima
 
     kin, J = printer.kinematics(), printer.n_joints
     vmax, amax = printer.limits.velocity[:J], printer.limits.acceleration[:J]
@@ -99,7 +99,7 @@ def stages_below_dense(printer, traj, fractions: int = 257) -> tuple[int, int]:
             continue
         rp = RunPath(kin, piece.path, None, piece.layer)
         x, xd, xdd = piece.x, piece.xd, piece.xdd
-        bound = stage_maxima(rp, x, xd, xdd, vmax, amax, frac=CHECK, stage=rp.stage_derivatives(x, CHECK)).per_stage
+        bound = stage_maxima(rp, x, xd, xdd, vmax, amax).per_stage  # at CHECK's fractions
         dq, ddq = rp.stage_derivatives(x, dense)
         w = np.maximum((xd[:-1] ** 2)[:, None] + (xd[1:] ** 2 - xd[:-1] ** 2)[:, None] * dense[None], 0.0)
         v = (np.abs(dq) * np.sqrt(w)[:, :, None] / vmax).max(axis=1)
