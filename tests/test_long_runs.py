@@ -355,6 +355,13 @@ def test_a_piece_batch_pickles_its_pieces_bit_for_bit():
     back = pickle.loads(pickle.dumps(PieceBatch([fortran]))).groups[0]
     for a, c in zip(fortran, back):
         _same_piece(a, c)
+    # a field of two dtypes, or of two shapes past the first axis, comes back as it is too
+    mixed = [dataclasses.replace(p, power=np.ones(len(p.e_ratio), np.int64 if k == 1 else np.float64),
+                                 nominal_feed=np.ones((len(p.e_ratio), 2 if k == 1 else 1)))
+             for k, p in enumerate(pieces[i] for i in runs)]
+    back = pickle.loads(pickle.dumps(PieceBatch([mixed]))).groups[0]
+    for a, c in zip(mixed, back):
+        _same_piece(a, c)
     shared = [pieces[runs[0]], dataclasses.replace(pieces[runs[1]], path=pieces[runs[0]].path)]
     back = pickle.loads(pickle.dumps(PieceBatch([shared]))).groups[0]
     assert back[0].path is back[1].path

@@ -18,6 +18,7 @@ start (n,) mm and tool state (n,) at times tau (n,) s from the piece start.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from operator import attrgetter
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -324,16 +325,20 @@ def _columns(objs: list, names: tuple) -> list:
     value is an array of one dtype and one shape past its first axis; else (None, the values)."""
     cols = []
     for name in names:
-        vals = [getattr(o, name) for o in objs]
-        v0 = vals[0]
-        if type(v0) is np.ndarray and v0.ndim >= 1 and all(
-                type(v) is np.ndarray and v.dtype == v0.dtype and v.ndim == v0.ndim and v.shape[1:] == v0.shape[1:]
-                for v in vals):
-            # C order whatever the pieces' (concatenating F-ordered arrays keeps F: its rows' views would not be)
-            data = np.ascontiguousarray(np.concatenate(vals))
-            cols.append((np.fromiter(map(len, vals), np.int64, len(vals)), data))
-        else:
+        vals = list(map(attrgetter(name), objs))
+        data = None
+        # the checks in C loops (a Python test per value cost a worker more than the rest of the
+        # pickling); concatenate refuses other numbers of dimensions or other shapes past the first axis
+        if set(map(type, vals)) == {np.ndarray} and len(set(map(attrgetter("dtype"), vals))) == 1:
+            try:
+                data = np.concatenate(vals)
+            except ValueError:  # 0-d arrays, or shapes that differ past the first axis
+                pass
+        if data is None:
             cols.append((None, vals))
+        else:
+            # C order whatever the pieces' (concatenating F-ordered arrays keeps F: its rows' views would not be)
+            cols.append((np.fromiter(map(len, vals), np.int64, len(vals)), np.ascontiguousarray(data)))
     return cols
 
 
@@ -345,7 +350,7 @@ def _rows(cols: list) -> zip:
             out.append(data)
         else:
             ends = np.cumsum(lengths).tolist()
-            out.append([data[a:b] for a, b in zip([0, *ends[:-1]], ends)])
+            out.append(list(map(data.__getitem__, map(slice, [0, *ends[:-1]], ends))))
     return zip(*out)
 
 
