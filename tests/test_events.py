@@ -20,6 +20,7 @@ from deltaslice.pipeline import decode_stream
 from deltaslice.errors import StreamError
 from deltaslice.gcode import parse_gcode
 from deltaslice.planning import plan, split_runs
+from deltaslice.samples import Samples
 from deltaslice.toolpath import EventKind
 
 EVENTS = [(0, EventKind.BED_SET, 60.0), (0, EventKind.HOTEND_WAIT, 215.0), (700, EventKind.FAN, 255.0),
@@ -170,3 +171,20 @@ def test_sliced_part_carries_heater_events_to_csv_and_stream(tmp_path):
     etitc = printer("delta_etitc")  # an unheated bed: hot-end events only
     compile_part(part, etitc, output=str(tmp_path / "e.csv"), workers=1)
     assert read_output(tmp_path / "e.csv")[0]["events"] == ((0, 1, 200.0), (0, 2, 200.0))
+
+
+@pytest.mark.parametrize("sizes", [(100,), (511, 2), (513,), (700, 1), (1234, 5000)])
+def test_stream_bytes_do_not_depend_on_the_blocks_the_samples_come_in(samples, tmp_path, sizes):
+    """The writer holds back the rows short of a record and completes them from the next block:
+    whatever the blocks (smaller or larger than a record, cut at an event or beside one), the
+    same records, events and bytes as the samples in one block."""
+    p, s = samples
+    events = EVENTS + [(len(s), EventKind.BED_SET, 0.0)]
+    whole = tmp_path / "whole.dsl"
+    write_samples(blocks(s, len(s)), p, whole, fmt="stream", rate=1000.0, events=events)
+    cut = np.cumsum(np.resize(sizes, len(s)))
+    cut = cut[cut < len(s)]
+    parts = [Samples(s.t[a:b], s.q[a:b], s.e[a:b], s.tool[a:b]) for a, b in zip([0, *cut], [*cut, len(s)])]
+    out = tmp_path / "parts.dsl"
+    write_samples(parts, p, out, fmt="stream", rate=1000.0, events=events)
+    assert out.read_bytes() == whole.read_bytes()

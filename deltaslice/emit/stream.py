@@ -565,7 +565,19 @@ class StreamWriter:
                 i = int(np.flatnonzero(big.any(axis=1))[0])
                 raise StreamError(f"sample {self.n_samples + i}: actuator count {counts[i].tolist()} beyond +-2^29")
         self.n_samples += len(samples)
-        pending = np.concatenate([self.pending, counts]) if len(self.pending) else counts
+        # Rows held back are completed to a block with the rows they need, not joined to the whole
+        # block of samples (a copy of every sample): the pending rows start at a record's start, so
+        # taking the rows in two parts cuts the same records.
+        while len(self.pending) and len(counts):
+            k = self.block_samples - len(self.pending)
+            self._take(np.concatenate([self.pending, counts[:k]]))
+            counts = counts[k:]
+        if len(counts):
+            self._take(counts)
+
+    def _take(self, pending):
+        """Write the pending rows (from a record's start) up to each event they reach and in
+        whole blocks; hold the rest back."""
         pending = self._emit_events(pending)
         full = len(pending) // self.block_samples * self.block_samples
         self._emit(pending[:full])
