@@ -469,3 +469,71 @@ def test_split_runs_is_the_run_by_run_cut():
         tp = Toolpath(start=np.zeros(3), xyz=rng.uniform(0, 10, (n, 3)), feed=np.full(n, 20.0), e=np.zeros(n), tool=tool,
                       role=np.zeros(n, np.uint8), layer=np.zeros(n, np.int32), layer_z=np.array([0.3]), events=make_events(rows))
         assert split_runs(tp) == by_run(tp), trial
+
+
+def _merge_reference(points, feed, e, resolution, max_deviation):
+    """merge_short's passes as first written: both parities tried again until neither removes a
+    vertex, the segments measured afresh every pass."""
+    from deltaslice.planning.blend import merge_short
+
+    pts, feed, e = np.asarray(points, float), np.asarray(feed, float), np.asarray(e, float)
+    deviation, idle, parity = 0.0, 0, 1
+    while len(pts) > 2 and idle < 2:
+        short = np.linalg.norm(np.diff(pts, axis=0), axis=1) < resolution
+        v = np.arange(1, len(pts) - 1)
+        cand = (short[v - 1] | short[v]) & (v % 2 == parity)
+        parity ^= 1
+        if cand.any():
+            a, b, c = pts[v - 1], pts[v], pts[v + 1]
+            ac = c - a
+            ll = np.einsum("ij,ij->i", ac, ac)
+            t = np.clip(np.einsum("ij,ij->i", b - a, ac) / np.maximum(ll, 1e-300), 0.0, 1.0)
+            dev = np.linalg.norm(b - a - t[:, None] * ac, axis=1)
+            cand &= (dev <= max_deviation) & (ll > 0)
+        if not cand.any():
+            idle += 1
+            continue
+        idle = 0
+        gone = v[cand]
+        deviation = max(deviation, float(dev[cand].max()))
+        e, feed = e.copy(), feed.copy()
+        e[gone - 1] += e[gone]
+        feed[gone - 1] = np.minimum(feed[gone - 1], feed[gone])
+        keep_seg = np.ones(len(e), dtype=bool)
+        keep_seg[gone] = False
+        keep_pt = np.ones(len(pts), dtype=bool)
+        keep_pt[gone] = False
+        pts, feed, e = pts[keep_pt], feed[keep_seg], e[keep_seg]
+    return pts, feed, e, deviation
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(2, 40), st.integers(0, 2**32 - 1), st.floats(0.0, 1.0), st.sampled_from([0.004, 0.012]))
+def test_merge_short_removes_the_vertices_of_short_segments_as_its_passes_did(m, seed, short_share, short_step):
+    """merge_short measures the segments again only once a pass removed vertices, and stops at
+    once where none is short: the same polyline, filament, feeds and deviation, bit for bit, as
+    every pass measuring them afresh; the filament total is kept and the ends stay. A polyline
+    with no short segment comes back as it was given."""
+    from deltaslice.planning.blend import merge_short
+
+    rng = np.random.default_rng(seed)
+    steps = rng.normal(size=(m, 3)) * np.where(rng.random(m) < short_share, short_step, 1.0)[:, None]
+    pts = np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    feed, e = rng.uniform(5, 60, m), rng.uniform(0, 0.1, m)
+    got = merge_short(pts, feed, e, 0.02, 0.01)
+    want = _merge_reference(pts, feed, e, 0.02, 0.01)
+    for g, w in zip(got[:3], want[:3]):
+        assert g.tobytes() == w.tobytes()
+    assert got[3] == want[3]
+    assert np.isclose(got[2].sum(), e.sum(), rtol=1e-12, atol=1e-15)
+    assert (got[0][0] == pts[0]).all() and (got[0][-1] == pts[-1]).all()
+    if not (np.linalg.norm(steps, axis=1) < 0.02).any():
+        assert got[0] is pts or (got[0] == pts).all()
+
+
+def test_merge_short_drops_a_short_segments_vertex_on_a_straight_line():
+    from deltaslice.planning.blend import merge_short
+
+    pts = np.array([[0.0, 0, 0], [5.0, 0, 0], [5.005, 0, 0], [10.0, 0, 0]])
+    out, feed, e, dev = merge_short(pts, np.array([20.0, 10.0, 30.0]), np.array([0.1, 0.001, 0.1]), 0.02, 0.01)
+    assert len(out) == 3 and dev == 0.0 and np.isclose(e.sum(), 0.201)

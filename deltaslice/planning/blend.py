@@ -447,9 +447,12 @@ def merge_short(points: np.ndarray, feed: np.ndarray, e: np.ndarray, resolution:
     deviation = 0.0
     idle = 0
     parity = 1
+    short = None  # the segments' shortness, measured again only once vertices have gone
     while len(pts) > 2 and idle < 2:
-        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        short = seg < resolution
+        if short is None:
+            short = np.linalg.norm(np.diff(pts, axis=0), axis=1) < resolution
+            if not short.any():  # no vertex can go (most runs): no pass of either parity
+                break
         v = np.arange(1, len(pts) - 1)  # interior vertices; vertex v joins segments v-1 and v
         cand = (short[v - 1] | short[v]) & (v % 2 == parity)
         parity ^= 1
@@ -475,4 +478,5 @@ def merge_short(points: np.ndarray, feed: np.ndarray, e: np.ndarray, resolution:
         keep_pt = np.ones(len(pts), dtype=bool)
         keep_pt[gone] = False
         pts, feed, e = pts[keep_pt], feed[keep_seg], e[keep_seg]
+        short = None
     return pts, feed, e, deviation
