@@ -575,6 +575,9 @@ def test_travels_planned_together_are_each_planned_alone():
             assert x.duration == pytest.approx(y.duration, rel=1e-9, abs=1e-12)
             assert np.allclose(x.q_start, y.q_start, atol=1e-12) and np.allclose(x.q_end, y.q_end, atol=1e-12)
     assert kinds == {"FilamentPiece", "RunPiece", "JointMovePiece"}, kinds
+    # a travel that does not move has no motion piece: its retract and unretract, or nothing
+    for k in (3, 10):
+        assert [type(x).__name__ for x in together[k]] == (["FilamentPiece"] * 2 if k % 2 else []), k
 
 
 def test_joint_moves_checked_together_are_each_checked_alone():

@@ -113,13 +113,24 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     layers = [j["layer"] for j in jobs]
     feeds = [j.get("feed") or printer.slicing.travel_speed for j in jobs]
     retract = np.array([j["retract"] for j in jobs], float)
-    owns = [_own_polyline(a[n], b[n], j.get("via")) for n, j in enumerate(jobs)]
     # The travel's own length, not the distance between its ends: a travel that leaves and comes
-    # back to where it started (a job ending at its start point) still moves.
-    moving = np.array([np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9 for own in owns])
+    # back to where it started (a job ending at its start point) still moves. Most travels have no
+    # points between their ends: their one step is measured for all at once, and their polyline,
+    # a to b (or a alone where it does not move), has no repeated point to drop.
+    vias = [j.get("via") for j in jobs]
+    step = np.linalg.norm(b - a, axis=1)
+    ends = np.stack([a, b], axis=1)
+    moving = step > 1e-9
+    owns = []
+    for n, via in enumerate(vias):
+        if via is None or len(via) == 0:
+            owns.append(ends[n] if moving[n] else ends[n, :1])
+            continue
+        own = _own_polyline(a[n], b[n], via)
+        moving[n] = np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9
+        owns.append(_distinct(own) if moving[n] else own[:1])
     # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
-    best = _straight(kin, printer, [own if m else own[:1] for own, m in zip(owns, moving)], feeds, layers, speed_limit,
-                     solver)
+    best = _straight(kin, printer, owns, feeds, layers, speed_limit, solver, distinct=True)
     # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it is faster and
     # clears the part (half the lift above the top printed so far).
     top = np.maximum(np.maximum(a[:, 2], b[:, 2]), [j["printed_top"] for j in jobs])
@@ -142,8 +153,10 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     cands = [c for c, ok in zip(cands, clear) if ok]
     idx = [n for n, _j, _t in cands]
     # A lift or lower of no height is one point once repeated points are dropped: no move.
-    moves = _straight(kin, printer, [np.array([a[n], a_up[n]]) for n in idx] + [np.array([b_up[n], b[n]]) for n in idx],
-                      [feeds[n] for n in idx] * 2, [layers[n] for n in idx] * 2, speed_limit, solver)
+    up_down = np.concatenate([np.stack([a[idx], a_up[idx]], axis=1), np.stack([b_up[idx], b[idx]], axis=1)])
+    rises = np.linalg.norm(up_down[:, 1] - up_down[:, 0], axis=1) > 1e-9
+    moves = _straight(kin, printer, [line if rise else line[:1] for line, rise in zip(up_down, rises)],
+                      [feeds[n] for n in idx] * 2, [layers[n] for n in idx] * 2, speed_limit, solver, distinct=True)
     for r, (n, joint, own_time) in enumerate(cands):
         cand = moves[r] + [joint] + moves[len(cands) + r]
         if sum(p.duration for p in cand) < own_time:
@@ -166,11 +179,13 @@ def _own_polyline(a, b, via) -> np.ndarray:
     return np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
 
 
-def _straight(kin, printer, polylines, feeds, layers, speed_limit, solver) -> list:
+def _straight(kin, printer, polylines, feeds, layers, speed_limit, solver, distinct: bool = False) -> list:
     """The pieces of straight tool-off travels along each polyline ((m+1, 3) mm; one point: no
     move), one list per polyline: the straight lines (two points once repeated points are
-    dropped) as one batch, the rest (a slicer's z-hop) each alone."""
-    polylines = [_distinct(p) for p in polylines]
+    dropped) as one batch, the rest (a slicer's z-hop) each alone. distinct: the polylines have
+    no repeated points already."""
+    if not distinct:
+        polylines = [_distinct(p) for p in polylines]
     out = [[] for _ in polylines]
     lines = [i for i, p in enumerate(polylines) if len(p) == 2]
     if lines:
