@@ -411,3 +411,79 @@ def test_infill_chain_cut_restarts_the_zigzag_directions():
     assert [c.tolist() for c in chains] == [[0], [1], [2]]
     assert [c.tolist() for c in chain_segments(k, xa, xb, 0.5, 20.0)] == [[0, 1, 2]]
     assert all(len(line) == 2 for line in chain_polylines(k, xa, xb, chains, 0.5, 0.0))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 100_000), anchor=st.floats(0.5, 6.0))
+def test_infill_anchors_link_each_line_once_along_the_outline_to_the_nearest_end(seed, anchor):
+    """link_along_boundary on a region of rings (many short lines whose ends lie on its
+    contours): every line is used once, whole, in its order or reversed; every link follows the
+    contour (its points and its segments' midpoints on it) for at most ``anchor`` mm; and each link
+    goes to the nearest end along the contour of any line not used yet (shapely's projection,
+    measured here afresh), as the greedy chaining promises."""
+    import shapely
+    from manifold3d import CrossSection
+
+    from deltaslice.slicing.infill import chain_polylines, chain_segments, link_along_boundary, scanline_segments
+
+    rng = np.random.default_rng(seed)
+    rings = []
+    for _ in range(int(rng.integers(1, 4))):
+        c, r = rng.uniform(-15, 15, 2), rng.uniform(3, 8)
+        outer = CrossSection.circle(r, int(rng.integers(6, 40))).translate(c)
+        rings.append(outer - CrossSection.circle(r * rng.uniform(0.5, 0.85), int(rng.integers(6, 40))).translate(c))
+    region = rings[0]
+    for ring in rings[1:]:
+        region = region + ring
+    angle, spacing = float(rng.uniform(0, np.pi)), 0.5
+    k, xa, xb = scanline_segments(region, angle, spacing, min_length=0.25)
+    lines = chain_polylines(k, xa, xb, chain_segments(k, xa, xb, spacing, 1.0), spacing, angle)
+    out = link_along_boundary(lines, region, anchor)
+    contours = [shapely.LinearRing(np.asarray(p, float)) for p in region.to_polygons()]
+    boundary = shapely.MultiLineString([list(c.coords) for c in contours])
+
+    def on_contour(p):
+        d = [c.distance(shapely.Point(p)) for c in contours]
+        return int(np.argmin(d)) if min(d) < 1e-6 else -1
+
+    def along(c, p, q):  # distance along contour c between its points p and q, either way
+        L, a, b = contours[c].length, contours[c].project(shapely.Point(p)), contours[c].project(shapely.Point(q))
+        f = (b - a) % L
+        return min(f, L - f)
+
+    used = np.zeros(len(lines), bool)
+    for poly in out:
+        at = 0
+        last = None
+        while at < len(poly):
+            # the input line starting here, whole, forward or reversed
+            hits = [(i, rev) for i, ln in enumerate(lines) for rev in (False, True)
+                    if not used[i] and len(poly) - at >= len(ln)
+                    and np.array_equal(poly[at : at + len(ln)], ln[::-1] if rev else ln)]
+            if last is not None and not hits:  # a link: points on the outline up to the next line
+                j = at
+                while not hits:
+                    j += 1
+                    assert j < len(poly), "a link leads to no line"
+                    hits = [(i, rev) for i, ln in enumerate(lines) for rev in (False, True)
+                            if not used[i] and len(poly) - j >= len(ln)
+                            and np.array_equal(poly[j : j + len(ln)], ln[::-1] if rev else ln)]
+                link = poly[at - 1 : j + 1]
+            else:
+                j, link = at, poly[at - 1 : at + 1] if last is not None else None
+            assert hits, "a polyline does not start with a line"
+            i, rev = hits[0]
+            if link is not None:
+                mids = 0.5 * (link[1:] + link[:-1])
+                assert all(boundary.distance(shapely.Point(p)) < 1e-6 for p in np.vstack([link, mids]))
+                assert np.linalg.norm(np.diff(link, axis=0), axis=1).sum() <= anchor + 1e-6
+                c = on_contour(last)
+                here = along(c, last, lines[i][-1] if rev else lines[i][0])
+                for o in np.flatnonzero(~used):  # no end of a line left is nearer along that contour
+                    for end in (lines[o][0], lines[o][-1]):
+                        if on_contour(end) == c:
+                            assert here <= along(c, last, end) + 1e-6
+            used[i] = True
+            at = j + len(lines[i])
+            last = poly[at - 1]
+    assert used.all() and len(out) <= len(lines)

@@ -212,20 +212,21 @@ def rectilinear(region: CrossSection, angle: float, spacing: float, width: float
     return lines
 
 
-def _arc(ring: np.ndarray, cum: np.ndarray, u0: float, u1: float, forward: bool) -> np.ndarray:
-    """Points along a closed ``ring`` ((k+1, 2), first == last, arc lengths ``cum``) from
-    arc length ``u0`` to ``u1`` going forward (increasing) or backward, ends included."""
-    L = cum[-1]
+def _arc(ring2: tuple, L: float, u0: float, u1: float, forward: bool) -> np.ndarray:
+    """Points along a closed ring from arc length ``u0`` to ``u1`` going forward (increasing) or
+    backward, ends included. ring2: (s2, p2), the ring's arc lengths and points twice over
+    ((2k+1,) and (2k+1, 2): its points, then its points after the first with ``L``, its length,
+    added to their arc lengths), so a stretch across the ring's start is one slice."""
     if not forward:
-        return _arc(ring, cum, u1, u0, True)[::-1]
+        return _arc(ring2, L, u1, u0, True)[::-1]
     if u1 < u0:
         u1 += L
-    s2 = np.concatenate([cum, cum[1:] + L])
-    p2 = np.vstack([ring, ring[1:]])
-    inner = (s2 > u0) & (s2 < u1)
+    s2, p2 = ring2
+    # the points strictly between u0 and u1 (s2 is sorted): a slice, not a mask of the whole ring
+    inner = p2[np.searchsorted(s2, u0, side="right") : np.searchsorted(s2, u1, side="left")]
     start = np.array([np.interp(u0, s2, p2[:, 0]), np.interp(u0, s2, p2[:, 1])])
     end = np.array([np.interp(u1, s2, p2[:, 0]), np.interp(u1, s2, p2[:, 1])])
-    return np.vstack([start, p2[inner], end])
+    return np.vstack([start, inner, end])
 
 
 def link_along_boundary(lines: list[np.ndarray], region: CrossSection, max_link: float) -> list[np.ndarray]:
@@ -255,6 +256,7 @@ def link_along_boundary(lines: list[np.ndarray], region: CrossSection, max_link:
         u[sel] = shapely.line_locate_point(geoms[c], pts[sel])
     which, u = which.reshape(m, 2), u.reshape(m, 2)
     lengths = np.array([c[-1] for c in cums])
+    twice = {}  # a ring's points and arc lengths twice over, made for the rings linked along
 
     alive = np.ones(m, bool)
     out = []
@@ -266,19 +268,23 @@ def link_along_boundary(lines: list[np.ndarray], region: CrossSection, max_link:
         best = None
         if c_end >= 0:
             L = lengths[c_end]
-            idx = np.flatnonzero(alive)
-            for side in (0, 1):  # enter a line at its head (0) or its tail (1, reversed)
-                same = idx[which[idx, side] == c_end]
-                if len(same) == 0:
-                    continue
-                fwd = (u[same, side] - u_end) % L
-                d = np.minimum(fwd, L - fwd)
-                j = int(np.argmin(d))
-                if d[j] <= max_link and (best is None or d[j] < best[0]):
-                    best = (float(d[j]), int(same[j]), side, bool(fwd[j] <= L - fwd[j]))
+            # both ends of every line left on this contour at once, heads before tails: the first
+            # smallest distance along the contour is the head of the lowest line, as when the
+            # heads were searched first and a tail had to be strictly nearer
+            on = alive[:, None] & (which == c_end)
+            if on.any():
+                fwd = (u - u_end) % L
+                d = np.where(on, np.minimum(fwd, L - fwd), np.inf).T.ravel()
+                k = int(np.argmin(d))
+                if d[k] <= max_link:
+                    side, nxt = divmod(k, m)
+                    best = (float(d[k]), nxt, side, bool(fwd[nxt, side] <= L - fwd[nxt, side]))
         if best is not None:
             _, nxt, side, forward = best
-            conn = _arc(rings[c_end], cums[c_end], u_end, u[nxt, side], forward)
+            if c_end not in twice:
+                ring, cum = rings[c_end], cums[c_end]
+                twice[c_end] = (np.concatenate([cum, cum[1:] + L]), np.vstack([ring, ring[1:]]))
+            conn = _arc(twice[c_end], L, u_end, u[nxt, side], forward)
             seg = lines[nxt] if side == 0 else lines[nxt][::-1]
             cur.append(conn[1:-1])
             cur.append(seg)
