@@ -15,7 +15,6 @@ both trees within seconds of each other.
 
 from __future__ import annotations
 
-import argparse
 import filecmp
 import os
 import random
@@ -28,7 +27,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PARTS = ROOT.parent / "shared" / "parts"
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from ab_startup import ab_arguments  # noqa: E402
 
 
 def compile_once(tree: Path, part: Path, scale: float, out: Path) -> tuple[float, float]:
@@ -47,15 +47,7 @@ def compile_once(tree: Path, part: Path, scale: float, out: Path) -> tuple[float
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--base", required=True, type=Path, help="the other source tree (a git worktree)")
-    ap.add_argument("--part", default="featuretype.STL", help="a file in ../shared/parts, or a path")
-    ap.add_argument("--scale", type=float, default=20.0)
-    ap.add_argument("--rounds", type=int, default=30)
-    args = ap.parse_args()
-    part = Path(args.part) if Path(args.part).exists() else PARTS / args.part
-    if not part.exists():
-        raise SystemExit(f"{part}: no such part (../shared/parts is needed for the default)")
+    args, part = ab_arguments(__doc__, rounds=30)
     trees = {"this": ROOT, "base": args.base.resolve()}
     times = {name: [] for name in trees}
     wall_ratio, cpu_ratio, same = [], [], True

@@ -48,16 +48,22 @@ def prefix(tree: Path, part: Path, scale: float, out: Path) -> float:
     return float(lines[-1].split()[1])
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def ab_arguments(description: str, rounds: int) -> tuple[argparse.Namespace, Path]:
+    """The A/B scripts' command line (--base, --part, --scale, --rounds) parsed, and the part's path."""
+    ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--base", required=True, type=Path, help="the other source tree (a git worktree)")
     ap.add_argument("--part", default="featuretype.STL", help="a file in ../shared/parts, or a path")
     ap.add_argument("--scale", type=float, default=20.0)
-    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--rounds", type=int, default=rounds)
     args = ap.parse_args()
     part = Path(args.part) if Path(args.part).exists() else PARTS / args.part
     if not part.exists():
         raise SystemExit(f"{part}: no such part (../shared/parts is needed for the default)")
+    return args, part
+
+
+def main() -> None:
+    args, part = ab_arguments(__doc__, rounds=15)
     out = Path("/tmp") / "ab_startup.dsl"
     here, base, ratios = [], [], []
     for k in range(args.rounds):
