@@ -452,22 +452,22 @@ def test_infill_anchors_link_each_line_once_along_the_outline_to_the_nearest_end
         return min(f, L - f)
 
     used = np.zeros(len(lines), bool)
+
+    def lines_at(poly, j):  # the unused input lines that start at poly[j], whole, forward or reversed
+        return [(i, rev) for i, ln in enumerate(lines) for rev in (False, True)
+                if not used[i] and len(poly) - j >= len(ln) and np.array_equal(poly[j : j + len(ln)], ln[::-1] if rev else ln)]
+
     for poly in out:
         at = 0
         last = None
         while at < len(poly):
-            # the input line starting here, whole, forward or reversed
-            hits = [(i, rev) for i, ln in enumerate(lines) for rev in (False, True)
-                    if not used[i] and len(poly) - at >= len(ln)
-                    and np.array_equal(poly[at : at + len(ln)], ln[::-1] if rev else ln)]
+            hits = lines_at(poly, at)
             if last is not None and not hits:  # a link: points on the outline up to the next line
                 j = at
                 while not hits:
                     j += 1
                     assert j < len(poly), "a link leads to no line"
-                    hits = [(i, rev) for i, ln in enumerate(lines) for rev in (False, True)
-                            if not used[i] and len(poly) - j >= len(ln)
-                            and np.array_equal(poly[j : j + len(ln)], ln[::-1] if rev else ln)]
+                    hits = lines_at(poly, j)
                 link = poly[at - 1 : j + 1]
             else:
                 j, link = at, poly[at - 1 : at + 1] if last is not None else None
