@@ -325,6 +325,24 @@ def test_compiled_inverse_refuses_rows_not_of_three(name):
     assert kin.inverse(np.array([0.0, 0.0, 100.0])).shape == (1, 3)
 
 
+@pytest.mark.parametrize("name", CASES)
+@SETTINGS
+@given(data=st.data())
+def test_inverse_into_writes_inverse(name, data):
+    """inverse_into (the sampler's call, compiled straight into a block's rows in the deltas) writes
+    the very values of inverse, NaN rows included, into every row of out and nowhere else; an out
+    of another shape or dtype is refused, not written past its end."""
+    kin = kin_of(name)
+    pts = np.concatenate([data.draw(point_batches(*box_of(name))), [[1e5, 0.0, 0.0], [np.nan, 0.0, 0.0]]])
+    rows = np.full((len(pts) + 2, kin.n_joints), -7.0)
+    kin.inverse_into(pts, rows[1:-1])
+    np.testing.assert_array_equal(rows[1:-1], _quiet(kin.inverse, pts))
+    assert np.all(rows[[0, -1]] == -7.0)
+    for bad in (np.empty((len(pts) - 1, kin.n_joints)), np.empty((len(pts), kin.n_joints), dtype=np.float32)):
+        with pytest.raises(ValueError, match="out"):
+            kin.inverse_into(pts, bad)
+
+
 def test_rotary_forward_nan_where_forearms_cannot_meet():
     # Forearms (40 mm) shorter than the distance from the axis to the sphere centres (85 mm).
     g = RotaryDeltaGeometry(base_radius=60.0, platform_radius=35.0, upper_arm=60.0, forearm=40.0, shoulder_height=110.0)

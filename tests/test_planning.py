@@ -122,6 +122,39 @@ def test_tool_limits_and_extrusion(planned):
         assert 0.99 * toolpath.extruded_length() <= s.e[-1] <= toolpath.extruded_length() + 1e-9
 
 
+def test_pieces_write_every_row_they_are_given(planned):
+    """sample_into (the sampler's per-piece call, into a block's rows) writes every row of the
+    slices it is given and nothing beside them: NaN-filled buffers come back finite inside, NaN
+    outside; the ends are the piece's (rest poses, its filament; times past them hold them), and
+    each sample of the trajectory is its piece's plus the filament before it. On every printer's
+    pieces, the trapezoid planner's included."""
+    printer, toolpath, out = planned
+    kin = printer.kinematics()
+    J = printer.n_joints
+    trajs = [traj for traj, _ in out.values()] + [plan(toolpath, printer, planner="trapezoid", workers=1)]
+    kinds = set()
+    for traj in trajs:
+        for k, piece in enumerate(traj.pieces):
+            kinds.add(piece.kind)
+            tau = np.concatenate([[-0.5, 0.0], np.linspace(0.0, piece.duration, 40), [piece.duration, piece.duration + 0.5]])
+            q, de, tool = np.full((len(tau) + 4, J), np.nan), np.full(len(tau) + 4, np.nan), np.full(len(tau) + 4, np.nan)
+            piece.sample_into(kin, tau, q[2:-2], de[2:-2], tool[2:-2])
+            for a in (q, de, tool):
+                assert np.isfinite(a[2:-2]).all(), f"{printer.name} {piece.kind} {k}: a row left unwritten"
+                assert np.isnan(a[:2]).all() and np.isnan(a[-2:]).all(), f"{printer.name} {piece.kind} {k}: written outside"
+            np.testing.assert_allclose(q[2:4], [piece.q_start, piece.q_start], atol=1e-9)
+            np.testing.assert_allclose(q[-4:-2], [piece.q_end, piece.q_end], atol=1e-9)
+            np.testing.assert_allclose(de[[2, 3, -4, -3]], [0.0, 0.0, piece.filament_total, piece.filament_total], atol=1e-9)
+            t = traj.starts[k] + tau[2:-2]
+            inside = (t > traj.starts[k]) & (t < traj.starts[k] + piece.duration)
+            s = traj.sample_at(t[inside])
+            ref_q, ref_de, ref_tool = piece.sample(kin, t[inside] - traj.starts[k])
+            np.testing.assert_array_equal(s.q, ref_q)
+            np.testing.assert_array_equal(s.e, traj.e_offsets[k] + ref_de)
+            np.testing.assert_array_equal(s.tool, ref_tool)
+    assert {"run", "travel", "trapezoid"} <= kinds and ("retract" in kinds or printer.is_laser)
+
+
 def test_path_followed_within_blend_tolerance(planned):
     printer, toolpath, out = planned
     kin = printer.kinematics()

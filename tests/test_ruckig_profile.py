@@ -63,6 +63,25 @@ def test_many_profiles_sample_as_each_alone():
         np.testing.assert_allclose(q, ref, rtol=0, atol=1e-12)
 
 
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 4), seed=st.integers(0, 2**32 - 1))
+def test_compiled_positions_equal_the_vectorised_ones(n, seed):
+    """positions (one compiled pass, what the sampler calls per travel) gives bit for bit what
+    positions_many's numpy gives the same profile: at its phase ends, inside its phases, outside
+    [0, duration], at a NaN time (the final position); into out when given."""
+    rng = np.random.default_rng(seed)
+    traj = _move(rng.normal(0, 1, n), rng.normal(0, 1, n), rng.uniform(0.1, 5, n), rng.uniform(0.1, 50, n), rng.uniform(1, 2000, n))
+    prof = RuckigProfile.from_trajectory(traj)
+    tau = np.concatenate([np.linspace(-0.1, traj.duration * 1.1, 200), prof.t_end.ravel(), [np.nan, -np.inf, np.inf]])
+    ref = positions_many([prof], tau[None])[0]
+    np.testing.assert_array_equal(prof.positions(tau), ref)
+    out = np.full((len(tau), n), -7.0)
+    assert prof.positions(tau, out=out) is out
+    np.testing.assert_array_equal(out, ref)
+    with pytest.raises(ValueError, match="out"):
+        prof.positions(tau, out=np.empty((len(tau), n + 1)))
+
+
 def test_joint_move_piece_is_picklable_and_exact():
     traj = _move([0.1, -0.2, 0.3], [0.5, 0.2, -0.1], [2, 2, 2], [20, 20, 20], [500, 500, 500])
     piece = JointMovePiece(RuckigProfile.from_trajectory(traj), None, np.zeros(3), np.ones(3), 0)

@@ -39,6 +39,13 @@ def rows3(v, name: str) -> np.ndarray:
     return v
 
 
+def check_out(out, n: int, j: int) -> None:
+    """ValueError unless out is a float64 array (n, j), what a compiled kernel writes unchecked."""
+    if not isinstance(out, np.ndarray) or out.shape != (n, j) or out.dtype != np.float64:
+        got = f"{out.dtype} {out.shape}" if isinstance(out, np.ndarray) else type(out).__name__
+        raise ValueError(f"out: expected a float64 array of shape ({n}, {j}), got {got}")
+
+
 def solve_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Batched ``np.linalg.solve(a, b)`` that never raises: rows whose matrix is
     singular or holds NaN give NaN (a: (N,k,k), b: (N,k,m) -> (N,k,m))."""
@@ -119,6 +126,13 @@ class Kinematics:
         raise NotImplementedError
 
     # -- shared -------------------------------------------------------------------
+    def inverse_into(self, points: np.ndarray, out: np.ndarray) -> None:
+        """:meth:`inverse` of points (N,3) mm written into out (N,J) float (the sampler's rows of a
+        block); a family with a compiled inverse writes there without a temporary."""
+        q = self.inverse(points)
+        check_out(out, len(q), q.shape[1])
+        out[...] = q
+
     def inverse_jacobian(self, q: np.ndarray) -> np.ndarray:
         """q: (N,J) -> (N,J,3), d(q)/d(point); NaN where the Jacobian is singular."""
         jac = self.jacobian(q)

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import Kinematics, lower_sphere_intersection, rows3, solve_rows
+from .base import Kinematics, check_out, lower_sphere_intersection, rows3, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
@@ -68,6 +68,11 @@ class LinearDelta(Kinematics):
         q = np.empty((len(points), 3))
         _inverse_kernel(points, self.towers, self.L, self.t, q)
         return q
+
+    def inverse_into(self, points, out):
+        points = rows3(points, "points")
+        check_out(out, len(points), 3)
+        _inverse_kernel(points, self.towers, self.L, self.t, out)
 
     def forward(self, q):
         """q: (N,3) mm -> points (N,3) mm: trilateration, effector below every carriage

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import Kinematics, lower_sphere_intersection, rows3, solve_rows
+from .base import Kinematics, check_out, lower_sphere_intersection, rows3, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
@@ -102,6 +102,11 @@ class RotaryDelta(Kinematics):
         q = np.empty((len(points), 3))
         _inverse_kernel(points, self._offsets, self.L1, self.L2, q)
         return q
+
+    def inverse_into(self, points, out):
+        points = rows3(points, "points")
+        check_out(out, len(points), 3)
+        _inverse_kernel(points, self._offsets, self.L1, self.L2, out)
 
     def forward(self, q):
         """q: (N,3) float, rad -> points: (N,3) float, mm (NaN where the spheres do not meet)."""

@@ -5,7 +5,9 @@ The :class:`Piece` protocol is all the Trajectory, the emitters and the reports 
 planned motion: its kind ("run", "travel", "retract", "trapezoid"), layer, duration, the
 joint positions at both ends, the filament it pushes, the time it spends with a limit
 active, and ``sample(kin, tau)``: joint positions (n, J), filament pushed since the piece
-start (n,) mm and tool state (n,) at times tau (n,) s from the piece start.
+start (n,) mm and tool state (n,) at times tau (n,) s from the piece start; ``sample_into`` writes
+the same values into given arrays (a block's rows: the trajectory's sampler allocates nothing per
+piece).
 
 * :class:`RunPiece`: a toppra solution along a blended path (runs and straight travels),
 * :class:`JointMovePiece`: a ruckig jerk-limited joint-space move (travels),
@@ -49,9 +51,23 @@ class Piece(Protocol):
 
     def sample(self, kin, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
+    def sample_into(self, kin, tau: np.ndarray, q: np.ndarray, de: np.ndarray, tool: np.ndarray) -> None: ...
+
+
+class _Sampled:
+    """``sample`` from the piece's ``sample_into``: what every piece shares."""
+
+    def sample(self, kin, tau):
+        tau = np.ascontiguousarray(tau, dtype=np.float64)
+        n = len(tau)
+        q = np.empty((n, kin.n_joints if kin is not None else len(self.q_start)))
+        de, tool = np.empty(n), np.empty(n)
+        self.sample_into(kin, tau, q, de, tool)
+        return q, de, tool
+
 
 @dataclass(frozen=True)
-class RunPiece:
+class RunPiece(_Sampled):
     """A planned run: toppra's solution on its grid.
 
     x: (n+1,) grid in path units; xd: (n+1,) path speed; xdd: (n,) constant path
@@ -100,24 +116,24 @@ class RunPiece:
         """Filament pushed since the run start at arc lengths s, mm."""
         return self.cum_e[piece] + (s - self.path.piece_start[piece]) * self.e_ratio[piece]
 
-    def sample(self, kin, tau: np.ndarray):
-        """Joint positions, relative filament, tool at times tau. -> (q (n,J), de (n,), tool (n,))
+    def sample_into(self, kin, tau: np.ndarray, q: np.ndarray, de: np.ndarray, tool: np.ndarray) -> None:
+        """Joint positions q (n,J), relative filament de (n,), tool (n,) at times tau (n,) s,
+        written into the given float64 arrays (C-contiguous, as the compiled passes take them).
 
         The points and the filament come from one compiled pass (:func:`.blend.sample_kernel`: the
         values of :meth:`arc_length_at`, ``path.locate``, ``path.frame`` and :meth:`filament_at`,
         the emitter's hottest call after the inverse kinematics)."""
-        tau = np.ascontiguousarray(tau, dtype=np.float64)
         n, p = len(tau), self.path
-        point, de, k = np.empty((n, 3)), np.empty(n), np.empty(n, dtype=np.int64)
+        point, k = np.empty((n, 3)), np.empty(n, dtype=np.int64)
         sample_kernel(tau, self.t, self.x, self.xd, self.xdd, float(self.S), p.piece_start, p.kind, p.p0, p.d0,
                        p.normal, p.radius, self.cum_e, self.e_ratio, point, de, k)
-        q = kin.inverse(point)
+        kin.inverse_into(point, q)
         if self.power is None:
-            return q, de, np.full(n, self.tool)
-        tool = self.power[k]
-        if self.dynamic_power:  # GRBL M4: power follows the tool's speed over the requested feed
-            tool = tool * np.clip(self.speed_at(tau) / self.nominal_feed[k], 0.0, 1.0)
-        return q, de, tool
+            tool.fill(self.tool)
+        elif self.dynamic_power:  # GRBL M4: power follows the tool's speed over the requested feed
+            tool[:] = self.power[k] * np.clip(self.speed_at(tau) / self.nominal_feed[k], 0.0, 1.0)
+        else:
+            tool[:] = self.power[k]
 
     @property
     def filament_total(self) -> float:
@@ -125,7 +141,7 @@ class RunPiece:
 
 
 @dataclass(frozen=True)
-class JointMovePiece:
+class JointMovePiece(_Sampled):
     """A ruckig joint-space move from rest to rest, as its phases (:mod:`.ruckig_profile`);
     ``traj`` (the ruckig object, not picklable) only where the phases are not exposed."""
 
@@ -155,13 +171,14 @@ class JointMovePiece:
         # limiting joint at a bound at every instant.
         return self.duration
 
-    def sample(self, kin, tau):
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+    def sample_into(self, kin, tau, q, de, tool):
         if self.profile is not None:
-            q = self.profile.positions(tau)
+            self.profile.positions(tau, out=q)
         else:
-            q = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
-        return q, np.zeros(len(tau)), np.zeros(len(tau))
+            tau = np.clip(tau, 0.0, self.duration)
+            q[:] = np.array([self.traj.at_time(float(t))[0] for t in tau]).reshape(len(tau), -1)
+        de.fill(0.0)
+        tool.fill(0.0)
 
     @property
     def filament_total(self) -> float:
@@ -169,7 +186,7 @@ class JointMovePiece:
 
 
 @dataclass(frozen=True)
-class FilamentPiece:
+class FilamentPiece(_Sampled):
     """Retract or unretract at rest: a trapezoidal filament move of ``amount`` mm."""
 
     q: np.ndarray
@@ -208,8 +225,8 @@ class FilamentPiece:
         ta, tc, _ = self._profile
         return 2 * ta + tc
 
-    def sample(self, kin, tau):
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+    def sample_into(self, kin, tau, q, de, tool):
+        tau = np.clip(tau, 0.0, self.duration)
         ta, tc, vp = self._profile
         a = vp / ta if ta > 0 else 0.0
         d1 = 0.5 * a * ta * ta
@@ -218,7 +235,9 @@ class FilamentPiece:
             0.5 * a * tau**2,
             np.where(tau < ta + tc, d1 + vp * (tau - ta), 2 * d1 + vp * tc - 0.5 * a * (2 * ta + tc - tau) ** 2),
         )
-        return np.broadcast_to(self.q, (len(tau), len(self.q))).copy(), np.sign(self.amount) * pos, np.zeros(len(tau))
+        q[:] = self.q
+        de[:] = np.sign(self.amount) * pos
+        tool.fill(0.0)
 
     @property
     def filament_total(self) -> float:
@@ -226,7 +245,7 @@ class FilamentPiece:
 
 
 @dataclass(frozen=True)
-class TrapezoidPiece:
+class TrapezoidPiece(_Sampled):
     """All moves of a toolpath as one piece. Arrays per move (n,)."""
 
     p0: np.ndarray  # (n,3) start points
@@ -258,8 +277,8 @@ class TrapezoidPiece:
     def active_time(self) -> float:
         return 0.0  # not a certificate this planner provides
 
-    def sample(self, kin, tau):
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
+    def sample_into(self, kin, tau, q, de, tool):
+        tau = np.clip(tau, 0.0, self.duration)
         k = np.clip(np.searchsorted(self.t0, tau, side="right") - 1, 0, len(self.length) - 1)
         dt = tau - self.t0[k]
         vi, vt, vo, a, L = self.v_in[k], self.v_top[k], self.v_out[k], self.accel[k], self.length[k]
@@ -280,9 +299,9 @@ class TrapezoidPiece:
         frac = np.where(L > 0, s / np.where(L > 0, L, 1), 1.0)
         moving = ~self.filament_only[k]
         pts = self.p0[k] + (s * moving)[:, None] * self.d[k]
-        q = kin.inverse(pts)
-        e = self.e0[k] + frac * self.e[k]
-        return q, e, self.tool[k]
+        kin.inverse_into(pts, q)
+        de[:] = self.e0[k] + frac * self.e[k]
+        tool[:] = self.tool[k]
 
 
 class PieceBatch:

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..jit import njit
+
 
 @dataclass(frozen=True)
 class RuckigProfile:
@@ -49,19 +51,42 @@ class RuckigProfile:
             duration=float(traj.duration),
         )
 
-    def positions(self, tau: np.ndarray) -> np.ndarray:
-        """Joint positions (n,J) at times tau (n,) s, clipped to [0, duration]."""
-        tau = np.clip(np.asarray(tau, dtype=float), 0.0, self.duration)
-        n_phases = self.t_end.shape[1]
-        q = np.empty((len(tau), self.t_end.shape[0]))
-        for d in range(self.t_end.shape[0]):  # a loop over the 3-4 joints, not the samples
-            k = np.searchsorted(self.t_end[d], tau, side="right")
-            done = k >= n_phases
-            k = np.minimum(k, n_phases - 1)
-            start = np.where(k > 0, self.t_end[d][np.maximum(k - 1, 0)], 0.0)
-            q[:, d] = np.where(done, self.pf[d],
-                               _cubic(tau - start, self.p[d, k], self.v[d, k], self.a[d, k], self.j[d, k]))
-        return q
+    def positions(self, tau: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Joint positions (n,J) at times tau (n,) s, clipped to [0, duration]; written into out
+        (n,J) float64 when given (the sampler's rows), and returned. One compiled pass: per joint
+        numpy took a dozen calls, a sampled travel's largest cost."""
+        tau = np.ascontiguousarray(tau, dtype=np.float64)
+        J = self.t_end.shape[0]
+        if out is None:
+            out = np.empty((len(tau), J))
+        elif not isinstance(out, np.ndarray) or out.shape != (len(tau), J) or out.dtype != np.float64:
+            raise ValueError(f"positions: out: expected a float64 array of shape ({len(tau)}, {J})")
+        _positions_kernel(self.t_end, self.p, self.v, self.a, self.j, self.pf, float(self.duration), tau, out)
+        return out
+
+
+@njit
+def _positions_kernel(t_end, p, v, a, j, pf, duration, tau, q):
+    """q (n, J): each joint's position at tau (n,) clipped to [0, duration]: in the phase whose
+    cumulative end is the first after the time (searchsorted, side right, on t_end (J, P)), the
+    cubic :func:`_cubic` evaluates in the same operations; the final position pf past the last
+    phase, and at a NaN time (which numpy's search puts after every end)."""
+    J, P = t_end.shape
+    for i in range(tau.shape[0]):
+        ta = tau[i]
+        nan = ta != ta
+        ta = min(max(ta, 0.0), duration)
+        for d in range(J):
+            k = 0
+            if nan:
+                k = P
+            while k < P and t_end[d, k] <= ta:
+                k += 1
+            if k >= P:
+                q[i, d] = pf[d]
+            else:
+                dt = ta - (t_end[d, k - 1] if k > 0 else 0.0)
+                q[i, d] = p[d, k] + dt * (v[d, k] + dt * (0.5 * a[d, k] + dt * j[d, k] / 6.0))
 
 
 def _cubic(dt, p, v, a, j):

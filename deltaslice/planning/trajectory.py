@@ -67,9 +67,8 @@ class Trajectory:
         e = np.empty(n)
         tool = np.zeros(n)
         for i, lo, hi in self._piece_ranges(t):
-            piece = self.pieces[i]
-            qq, de, tl = piece.sample(self.kin, t[lo:hi] - self.starts[i])
-            q[lo:hi], e[lo:hi], tool[lo:hi] = qq, self.e_offsets[i] + de, tl
+            self.pieces[i].sample_into(self.kin, t[lo:hi] - self.starts[i], q[lo:hi], e[lo:hi], tool[lo:hi])
+            e[lo:hi] += self.e_offsets[i]
         return Samples(t, q, e, tool)
 
     def _piece_ranges(self, t: np.ndarray):
