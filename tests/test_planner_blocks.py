@@ -678,6 +678,39 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
     assert not got[0]
 
 
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), units=st.integers(1, 12))
+def test_unit_profiles_are_each_units_numpy_profile(seed, units):
+    """_solve_units' per-unit pass against numpy a unit at a time, bit for bit: x from 0 to 1 in
+    the unit's length, speed and acceleration scaled to it, time from 0 by np.cumsum (a unit of
+    one stage and a zero first stage included); the active time to rounding. Each unit's rows are
+    where the next unit's start."""
+    rng = np.random.default_rng(seed)
+    stages = rng.integers(1, 30, units)
+    at = np.concatenate([[0], np.cumsum(stages)]).astype(np.int64)
+    n = int(at[-1])
+    s = np.concatenate([[0.0], np.cumsum(rng.uniform(0, 3, n))])
+    lengths = s[at[1:]] - s[at[:-1]] + rng.choice([0.0, 1e-3], units)
+    sd, xdd = rng.uniform(0, 2, n + 1), rng.normal(size=n)
+    dt = rng.uniform(0, 0.1, n) * (rng.random(n) > 0.1)
+    active = rng.random(n) > 0.3
+    L = float(rng.uniform(1, 500))
+    x, xd, t = (np.full(n + units, np.nan) for _ in range(3))
+    acc, busy = np.full(n, np.nan), np.full(units, np.nan)
+    topp._unit_profiles(s, sd, xdd, dt, active, at, lengths, L, x, xd, acc, t, busy)
+    for r in range(units):
+        g0, g1, o = int(at[r]), int(at[r + 1]), int(at[r]) + r
+        want_x = (s[g0 : g1 + 1] - s[g0]) / lengths[r]
+        want_x[0], want_x[-1] = 0.0, 1.0
+        scale = L / lengths[r]
+        np.testing.assert_array_equal(x[o : o + g1 - g0 + 1], want_x)
+        np.testing.assert_array_equal(xd[o : o + g1 - g0 + 1], sd[g0 : g1 + 1] * scale)
+        np.testing.assert_array_equal(acc[g0:g1], xdd[g0:g1] * scale)
+        np.testing.assert_array_equal(t[o : o + g1 - g0 + 1], np.concatenate([[0.0], np.cumsum(dt[g0:g1])]))
+        assert busy[r] == pytest.approx(dt[g0:g1][active[g0:g1]].sum(), rel=1e-12, abs=1e-15)
+    assert not np.isnan(x).any() and not np.isnan(xd).any() and not np.isnan(t).any() and not np.isnan(acc).any()
+
+
 @pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel"])
 def test_the_filaments_rows_once_give_the_same_solution(name):
     """The compiled solver takes the filament's acceleration rows at one fraction of each stage

@@ -413,8 +413,10 @@ def grid(path: BlendedPath, rest: np.ndarray | None = None) -> np.ndarray:
     at_rest[0] = at_rest[-1] = True
     short = np.flatnonzero((length < SHORT_PIECE_STEPS * MIN_STEP) & (length > 0) & at_rest[:-1] & at_rest[1:])
     in_short = (path.piece_start[short, None] + length[short, None] * SHORT_FRACTIONS[None]).ravel()
-    g = np.unique(np.concatenate([joins, left[inside], right[inside], on_arcs, in_short]))
-    # Points closer than 1e-7 mm add nothing but ill-conditioned stages.
+    # sorted stably (the parts are runs in order, which timsort merges), duplicates and points
+    # closer than 1e-7 mm (nothing but ill-conditioned stages) left out: np.unique's values, a
+    # third faster
+    g = np.sort(np.concatenate([joins, left[inside], right[inside], on_arcs, in_short]), kind="stable")
     keep = np.concatenate([[True], np.diff(g) > 1e-7])
     g = g[keep]
     g[-1] = path.length
@@ -1273,16 +1275,49 @@ def _solve_units(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_fee
     at = np.searchsorted(sol.s, offsets)
     if not np.array_equal(sol.s[np.minimum(at, len(sol.s) - 1)], offsets):
         raise PlanningError("a unit's end is not a grid point")
-    out = []
-    for r, length in enumerate(lengths.tolist()):
-        g0, g1 = int(at[r]), int(at[r + 1])
-        x = (sol.s[g0 : g1 + 1] - sol.s[g0]) / length
-        x[0], x[-1] = 0.0, 1.0
-        scale = path.length / length
-        dt = sol.dt[g0:g1]
-        out.append((x, sol.sd[g0 : g1 + 1] * scale, sol.xdd[g0:g1] * scale, np.concatenate([[0.0], np.cumsum(dt)]),
-                    float(dt[sol.active[g0:g1]].sum())))
-    return out
+    at = at.astype(np.int64)
+    n_stages = int(at[-1])
+    x, xd, t = np.empty(n_stages + len(lengths)), np.empty(n_stages + len(lengths)), np.empty(n_stages + len(lengths))
+    xdd, active = np.empty(n_stages), np.empty(len(lengths))
+    _unit_profiles(sol.s, sol.sd, sol.xdd, sol.dt, sol.active, at, np.ascontiguousarray(lengths, dtype=np.float64),
+                   float(path.length), x, xd, xdd, t, active)
+    # each unit's arrays are views of the units' laid end to end (unit r's points from at[r] + r)
+    ends = (at + np.arange(len(at))).tolist()
+    at, active = at.tolist(), active.tolist()
+    return [(x[ends[r] : ends[r + 1]], xd[ends[r] : ends[r + 1]], xdd[at[r] : at[r + 1]],
+             t[ends[r] : ends[r + 1]], active[r]) for r in range(len(active))]
+
+
+@njit
+def _unit_profiles(s, sd, xdd, dt, active, at, lengths, path_length, x_out, xd_out, xdd_out, t_out, active_out):
+    """:func:`_solve_units`' per-unit profiles in one pass: unit r (grid points at[r]..at[r + 1] of
+    the solution s, sd (n+1,), stages at[r]..at[r + 1]-1 of xdd, dt, active (n,)) in its own path
+    units, its points at at[r] + r.. of x_out, xd_out, t_out and its stages at at[r].. of xdd_out:
+    x = (s - its start) / its length (0 and 1 at its ends), sd and xdd scaled by path_length /
+    its length, t from 0 summed in order as np.cumsum sums; active_out (R,): the time of its
+    stages with a limit active. The operations numpy did a unit at a time, the same values (the
+    active time summed in order, not pairwise: a report's figure)."""
+    for r in range(lengths.shape[0]):
+        g0 = at[r]
+        g1 = at[r + 1]
+        o = g0 + r
+        length = lengths[r]
+        scale = path_length / length
+        for k in range(g1 - g0 + 1):
+            x_out[o + k] = (s[g0 + k] - s[g0]) / length
+            xd_out[o + k] = sd[g0 + k] * scale
+        x_out[o] = 0.0
+        x_out[o + g1 - g0] = 1.0
+        t_out[o] = 0.0
+        total = 0.0
+        busy = 0.0
+        for k in range(g1 - g0):
+            xdd_out[g0 + k] = xdd[g0 + k] * scale
+            total = dt[g0 + k] if k == 0 else total + dt[g0 + k]
+            t_out[o + k + 1] = total
+            if active[g0 + k]:
+                busy += dt[g0 + k]
+        active_out[r] = busy
 
 
 BATCH_PIECES = 16384  # path pieces (lines and arcs) solved at once by plan_runs
