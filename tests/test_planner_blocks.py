@@ -679,6 +679,27 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
 
 
 @settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 40))
+def test_stepped_grid_points_are_numpys_in_order(seed, n):
+    """The grid's geometric points (one compiled pass) are the joins and the masked broadcast of
+    every join plus and minus the steps below 0.999 of half its interval, the same values, and
+    come in order (zero-length and long intervals included)."""
+    rng = np.random.default_rng(seed)
+    offsets = np.cumsum([topp.MIN_STEP * topp.GROWTH**k for k in range(8)])
+    # lengths drawn at random, and ones whose half is a step or just past it (within the 0.999)
+    edge = 2 * offsets[rng.integers(0, 8, n)] * rng.choice([1.0, 1.0005, 1.002], n)
+    length = np.where(rng.random(n) < 0.5, rng.choice([0.0, 0.01, 0.05, 0.3, 2.0, 40.0], n) * rng.uniform(0.5, 1.5, n), edge)
+    joins = np.concatenate([[0.0], np.cumsum(length)])
+    half = np.diff(joins) / 2
+    inside = offsets[None, :] < half[:, None] * 0.999
+    want = np.concatenate([joins, (joins[:-1, None] + offsets[None, :])[inside], (joins[1:, None] - offsets[None, :])[inside]])
+    out = np.full(len(joins) + 2 * n * len(offsets), np.nan)
+    got = out[: topp._stepped_points(joins, offsets, out)]
+    assert np.all(np.diff(got) >= 0)
+    np.testing.assert_array_equal(got, np.sort(want))
+
+
+@settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), units=st.integers(1, 12))
 def test_unit_profiles_are_each_units_numpy_profile(seed, units):
     """_solve_units' per-unit pass against numpy a unit at a time, bit for bit: x from 0 to 1 in

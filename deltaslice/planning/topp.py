@@ -394,9 +394,9 @@ def grid(path: BlendedPath, rest: np.ndarray | None = None) -> np.ndarray:
         steps.append(min(steps[-1] * GROWTH, MAX_STEP))
         total += steps[-1]
     offsets = np.cumsum(steps)
-    inside = offsets[None, :] < half[:, None] * 0.999
-    left = joins[:-1, None] + offsets[None, :]
-    right = joins[1:, None] - offsets[None, :]
+    # every join, then the steps out of it that stay short of its interval's middle from both ends
+    stepped = np.empty(len(joins) + 2 * (len(joins) - 1) * len(offsets))
+    stepped = stepped[: _stepped_points(joins, offsets, stepped)]
     # Inside arcs the acceleration direction turns with the tangent: one point per ARC_STEP rad.
     arc = np.flatnonzero(path.kind == 1)
     arc_len = path.piece_start[arc + 1] - path.piece_start[arc]
@@ -416,7 +416,7 @@ def grid(path: BlendedPath, rest: np.ndarray | None = None) -> np.ndarray:
     # sorted stably (the parts are runs in order, which timsort merges), duplicates and points
     # closer than 1e-7 mm (nothing but ill-conditioned stages) left out: np.unique's values, a
     # third faster
-    g = np.sort(np.concatenate([joins, left[inside], right[inside], on_arcs, in_short]), kind="stable")
+    g = np.sort(np.concatenate([stepped, on_arcs, in_short]), kind="stable")
     keep = np.concatenate([[True], np.diff(g) > 1e-7])
     g = g[keep]
     g[-1] = path.length
@@ -424,6 +424,31 @@ def grid(path: BlendedPath, rest: np.ndarray | None = None) -> np.ndarray:
         f = np.arange(REFINE) / REFINE
         g = np.concatenate([(g[:-1, None] + np.diff(g)[:, None] * f[None]).ravel(), g[-1:]])
     return g
+
+
+@njit
+def _stepped_points(joins, offsets, out):
+    """:func:`grid`'s geometric points into out, in order: each join, then in its interval the
+    points join + offset and next join - offset for the offsets (ascending) below 0.999 of half
+    the interval, then the last join. Returns how many. The values numpy's broadcast made (an
+    (intervals, steps) array of each, masked), without them."""
+    m = 0
+    for k in range(joins.shape[0] - 1):
+        a = joins[k]
+        b = joins[k + 1]
+        limit = (b - a) / 2 * 0.999
+        out[m] = a
+        m += 1
+        n = 0
+        while n < offsets.shape[0] and offsets[n] < limit:
+            out[m] = a + offsets[n]
+            m += 1
+            n += 1
+        for i in range(n - 1, -1, -1):
+            out[m] = b - offsets[i]
+            m += 1
+    out[m] = joins[joins.shape[0] - 1]
+    return m + 1
 
 
 def _conservative_profile(x, dq_stage, ddq_stage, vmax, amax, xd_cap):
