@@ -678,6 +678,45 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
     assert not got[0]
 
 
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_travel_jobs_are_their_moves_definition(seed):
+    """Each travel job's keywords (one-move travels take a scalar path) against their definition:
+    from where the tool is to the last move's end, through the points between, the negative and
+    positive filament summed apart, and the largest feed of a move that moves (None where none
+    moves or that feed is not positive). Travels of one and of several moves, moves of zero
+    length, retracts and unretracts."""
+    from deltaslice.planning import _jobs, split_runs
+    from deltaslice.toolpath import Role, ToolpathBuilder
+
+    rng = np.random.default_rng(seed)
+    b = ToolpathBuilder((0.0, 0.0, 5.0))
+    b.new_layer(0.3)
+    here = np.array([0.0, 0.0, 5.0])
+    for _ in range(int(rng.integers(1, 6))):
+        for _ in range(int(rng.integers(1, 4))):  # a travel of one to three moves
+            step = rng.choice([0.0, 1.0]) * rng.normal(0, 10, 3)
+            here = here + step
+            b.add(here, float(rng.choice([5.0, 40.0, 120.0])), float(rng.choice([-0.8, 0.0, 0.5])), 0, Role.TRAVEL)
+        pts = here + np.cumsum(rng.normal(0, 2, (3, 3)), axis=0)
+        b.add(pts, 30.0, 0.1, 1, Role.PERIMETER)
+        here = pts[-1]
+    tp = b.build()
+    travels = [(i, j, job) for i, j, kind, job in _jobs(tp, split_runs(tp), False) if kind == "travel"]
+    assert travels
+    for i, j, job in travels:
+        pos = tp.start if i == 0 else tp.xyz[i - 1]
+        e = tp.e[i:j]
+        moves = np.linalg.norm(tp.xyz[i:j] - np.concatenate([[pos], tp.xyz[i : j - 1]]), axis=1) > 0
+        feed = max([0.0, *tp.feed[i:j][moves].tolist()])
+        np.testing.assert_array_equal(job["a"], pos)
+        np.testing.assert_array_equal(job["b"], tp.xyz[j - 1])
+        np.testing.assert_array_equal(job["via"], tp.xyz[i : j - 1])
+        assert job["retract"] == e[e < 0].sum() and job["unretract"] == e[e > 0].sum()
+        assert job["feed"] == (feed if feed > 0 else None)
+        assert job["layer"] == int(tp.layer[min(j, len(tp) - 1)])
+
+
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 40))
 def test_stepped_grid_points_are_numpys_in_order(seed, n):

@@ -569,8 +569,16 @@ def _event_times(ev: np.ndarray, times) -> tuple:
 def _travel_args(toolpath, i, j, pos, printed_top) -> dict:
     """plan_travel's keywords for the non-working moves [i, j) that go from pos to the start of move j."""
     target = toolpath.xyz[j - 1]
-    e = toolpath.e[i:j]
     layer = int(toolpath.layer[min(j, len(toolpath) - 1)])
+    if j - i == 1:  # four travels in five (featuretype): the same values from the move's scalars
+        e = float(toolpath.e[i])
+        # a step of nonzero length: a sum of squares is zero only where every square is
+        moved = any(d * d > 0.0 for d in (toolpath.xyz[i] - pos).tolist())
+        feed = float(toolpath.feed[i]) if moved else 0.0
+        return dict(a=np.asarray(pos, float), b=np.asarray(target, float), layer=layer, printed_top=printed_top,
+                    retract=e if e < 0 else 0.0, unretract=e if e > 0 else 0.0, via=toolpath.xyz[i:i].copy(),
+                    feed=(feed if feed > 0.0 or feed != feed else 0.0) or None)
+    e = toolpath.e[i:j]
     steps = np.linalg.norm(toolpath.xyz[i:j] - np.concatenate([[pos], toolpath.xyz[i : j - 1]]), axis=1)
     return dict(
         a=np.asarray(pos, float),
