@@ -108,7 +108,7 @@ def voronoi_graph(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         uy = (bv[:, 0] * c2 - cv[:, 0] * b2) / d
     centre = p[:, 0] + np.c_[ux, uy] + origin
     # neighbours share a side: each side's key (its two corners) sorted, equal keys side by side
-    a, b = vertex, np.roll(vertex, -1, axis=1)
+    a, b = vertex, vertex[:, [1, 2, 0]]  # each side's two corners
     key = (np.minimum(a, b) * (int(vertex.max()) + 1) + np.maximum(a, b)).ravel()
     order = np.argsort(key, kind="stable")
     key, owner = key[order], np.repeat(np.arange(len(p)), 3)[order]

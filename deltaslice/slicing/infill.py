@@ -61,7 +61,7 @@ def scanline_segments(region: CrossSection, angle: float, spacing: float, min_le
         e = np.zeros(0)
         return e.astype(int), e, e
     p0 = np.concatenate(polys)
-    p1 = np.concatenate([np.roll(p, -1, axis=0) for p in polys])
+    p1 = np.concatenate([q for p in polys for q in (p[1:], p[:1])])  # each ring's next vertex
     y0, y1 = p0[:, 1], p1[:, 1]
     ylo, yhi = np.minimum(y0, y1), np.maximum(y0, y1)
     # scanline k at (k + 0.5) * spacing; count crossings with half-open [ylo, yhi)

@@ -37,7 +37,7 @@ class Path:
         """This path's attributes lined up with ``pts`` (reversed, or a loop rolled to ``start``)."""
 
         def fix(v):
-            if np.ndim(v) == 0:
+            if getattr(v, "ndim", 0) == 0:  # np.ndim makes an array of a Python number to ask
                 return v
             return v[::-1] if reverse else np.concatenate([v[start:], v[:start]])  # np.roll(v, -start), cheaper
 
@@ -197,7 +197,7 @@ class MoveWriter:
 
         def per_seg(v):
             # a scalar stays one (repeated when the layer is handed over)
-            if np.ndim(v) == 0:
+            if getattr(v, "ndim", 0) == 0:  # np.ndim makes an array of a Python number to ask
                 return v
             v = np.asarray(v)
             return v if every else v[keep]
@@ -211,6 +211,6 @@ class MoveWriter:
         else:
             fpm = filament_per_mm(per_seg(width), height, self.area, self.s.extrusion_multiplier)
         role = per_seg(role)
-        feed = self.feeds[role.astype(np.intp)] if np.ndim(role) else float(self.feeds[int(role)])
+        feed = self.feeds[role.astype(np.intp)] if getattr(role, "ndim", 0) else float(self.feeds[int(role)])
         self._add(xyz, feed, (seg if every else seg[keep]) * fpm, 1.0, role)
         self.extruded = True

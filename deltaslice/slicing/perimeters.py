@@ -84,6 +84,12 @@ def seam_index(poly: np.ndarray, mode: str, position: np.ndarray) -> int:
     return int(np.argmax(score))
 
 
+def _next(a: np.ndarray) -> np.ndarray:
+    """Each row's successor round a loop, np.roll(a, -1, axis=0) without its set-up (a few
+    microseconds a call, thousands of calls a print)."""
+    return np.concatenate([a[1:], a[:1]])
+
+
 def overhang_segments(poly: np.ndarray, below, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Split a loop where it leaves the layer below: (points (m, 2), over (m,) bool per
     segment i -> i+1 mod m). A segment is over air when its midpoint lies outside
@@ -91,15 +97,15 @@ def overhang_segments(poly: np.ndarray, below, step: float) -> tuple[np.ndarray,
     width, so only a bead with nothing under it counts). Segments are cut every
     ``step`` mm to find where support ends, then merged back where the flag does not
     change, so a loop without overhang comes back unchanged."""
-    nxt = np.roll(poly, -1, axis=0)
+    nxt = _next(poly)
     seg = np.linalg.norm(nxt - poly, axis=1)
     n = np.maximum(np.ceil(seg / step).astype(int), 1)
     owner = np.repeat(np.arange(len(poly)), n)
     t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / n[owner]
     dense = poly[owner] + t[:, None] * (nxt - poly)[owner]
-    mid = 0.5 * (dense + np.roll(dense, -1, axis=0))
+    mid = 0.5 * (dense + _next(dense))
     over = ~shapely.contains_xy(below, mid[:, 0], mid[:, 1])
-    keep = (t == 0) | (over != np.roll(over, 1))
+    keep = (t == 0) | (over != np.concatenate([over[-1:], over[:-1]]))
     return dense[keep], over[keep]
 
 
