@@ -477,6 +477,50 @@ def test_limit_monitor_over_blocks_equals_whole_array_differences():
     assert whole["violating_samples"] == int(bad[1:-1].sum()) > 0
 
 
+def test_limit_monitor_watching_blocks_refilled_in_place_sees_each_as_it_was():
+    """watch observes each block in a second thread while the caller uses it: every block must be
+    observed before the next is taken, since a writer's blocks are views of buffers refilled then.
+    Here one buffer is refilled with each block (and scribbled over with NaN while the next is
+    asked for) and each observation is slowed: the results are those of observing copies one by
+    one, and the caller gets every block unchanged."""
+    import threading
+    import time
+
+    from deltaslice.machine import LimitMonitor
+    from deltaslice.samples import Samples
+
+    printer = load_printer("printers/delta_etitc.toml")
+    traj = plan(layered_part(0.5, 0.4, 1, 40), printer, speed_limit="machine", workers=1)
+    rate = printer.planning.output_rate
+    blocks = list(traj.iter_samples(rate, block=331))
+    buf = [np.empty((331, printer.n_joints)), np.empty(331), np.empty(331), np.empty(331)]
+    observing = []
+
+    class Slow(LimitMonitor):
+        def observe(self, block):
+            observing.append(threading.get_ident())
+            time.sleep(0.002)
+            super().observe(block)
+
+    def refilled():
+        for b in blocks:
+            n = len(b)
+            for dst, src in zip(buf, (b.q, b.t, b.e, b.tool)):
+                dst[:n] = src
+            yield Samples(buf[1][:n], buf[0][:n], buf[2][:n], buf[3][:n])
+            for dst in buf:  # what a sampler's next task does to the slot
+                dst[:] = np.nan
+
+    ref = LimitMonitor(printer.limits, printer.tool, rate).consume(blocks)
+    m = Slow(printer.limits, printer.tool, rate)
+    for got, b in zip(m.watch(refilled()), blocks):
+        np.testing.assert_array_equal(got.q, b.q)
+    assert len(observing) == len(blocks) and threading.get_ident() not in observing
+    np.testing.assert_array_equal(m.peak_v, ref.peak_v)
+    np.testing.assert_array_equal(m.peak_a, ref.peak_a)
+    assert (m.peak_tool_v, m.violating_samples, m.events) == (ref.peak_tool_v, ref.violating_samples, ref.events)
+
+
 def test_split_runs_is_the_run_by_run_cut():
     """split_runs (the extruder's, in one numpy pass over the toolpath) against cutting each run
     of working moves where its tool value changes or a wait stands inside it: random tool values

@@ -337,7 +337,7 @@ def _write_record(x, a, b, order, width, v0, size, buf, pos):
         buf[pos + size - 4 + i] = 0
 
 
-@njit
+@njit(nogil=True)  # beside the limit monitor's thread (LimitMonitor.watch)
 def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
     """Block records of counts x (n, C) into buf: nominal ``block_samples`` rows each,
     halved until a record fits ``max_record`` bytes. rec_end[i]: where record i ends in buf.
@@ -373,7 +373,7 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
     return count
 
 
-@njit
+@njit(nogil=True)
 def _time_base_offset(t, n0, rate):
     """The largest |t[k] - (n0 + k) / rate| over t (n,), s (the division numpy's, of the index as a
     float); NaN if any t is NaN: the writer's time-base check in one pass instead of six."""

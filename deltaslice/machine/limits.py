@@ -292,10 +292,20 @@ class LimitMonitor:
         self._bad_before = False
 
     def watch(self, blocks):
-        """Yield the blocks unchanged, observing each."""
-        for block in blocks:
-            self.observe(block)
-            yield block
+        """Yield the blocks unchanged, observing each in a second thread while the caller uses it
+        (the compiled pass holds no GIL: beside a writer's compiled passes, which hold none either,
+        the monitor costs the writing process no time; it was a quarter of it). Each block is
+        observed before the next is taken (a writer's blocks may be views of buffers refilled
+        then), in order, so the results are those of observing them here one by one."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(1, thread_name_prefix="deltaslice-monitor") as thread:
+            for block in blocks:
+                seen = thread.submit(self.observe, block)
+                try:
+                    yield block
+                finally:
+                    seen.result()
 
     def consume(self, blocks) -> "LimitMonitor":
         for block in blocks:
@@ -357,7 +367,7 @@ class LimitMonitor:
         return peak
 
 
-@njit
+@njit(nogil=True)  # the writer's: runs beside the monitor's thread (LimitMonitor.watch)
 def _counts_kernel(q, channel, cpu, zero, out):
     """out[k, c] = rint(cpu[c] * value + zero[c]) for the joints' values q[k, c] and, in the last
     column, channel[k]: numpy's ``np.rint(cpu * values + zero)`` (half to even), to int64.
@@ -396,7 +406,7 @@ def _row_ratios(q, i, half, rate2, vlim, alim):
     return row_v, row_a
 
 
-@njit
+@njit(nogil=True)  # in LimitMonitor.watch's thread, beside the writer's kernels
 def _observe_kernel(q, c, tool, rate, vlim, alim, peak_v, peak_a, bad_before):
     """:meth:`LimitMonitor.observe` over one block in one pass (it was ten numpy passes over
     the block's arrays, the emit stage's second largest cost). q (n, J), c, tool (n,); peak_v,
