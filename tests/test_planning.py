@@ -126,8 +126,8 @@ def test_pieces_write_every_row_they_are_given(planned):
     """sample_into (the sampler's per-piece call, into a block's rows) writes every row of the
     slices it is given and nothing beside them: NaN-filled buffers come back finite inside, NaN
     outside; the ends are the piece's (rest poses, its filament; times past them hold them), and
-    each sample of the trajectory is its piece's plus the filament before it. On every printer's
-    pieces, the trapezoid planner's included."""
+    each sample of the trajectory is its piece's plus the filament before it, also written into
+    given arrays (a sampler's slot). On every printer's pieces, the trapezoid planner's included."""
     printer, toolpath, out = planned
     kin = printer.kinematics()
     J = printer.n_joints
@@ -152,6 +152,14 @@ def test_pieces_write_every_row_they_are_given(planned):
             np.testing.assert_array_equal(s.q, ref_q)
             np.testing.assert_array_equal(s.e, traj.e_offsets[k] + ref_de)
             np.testing.assert_array_equal(s.tool, ref_tool)
+        # a sampler's slot: the trajectory's samples written into given arrays, the same values
+        t = np.linspace(-0.1, traj.duration + 0.1, 501)
+        want = traj.sample_at(t)
+        out = (np.full((len(t), J), np.nan), np.full(len(t), np.nan), np.full(len(t), np.nan))
+        got = traj.sample_at(t, out=out)
+        assert all(np.shares_memory(a, b) for a, b in zip((got.q, got.e, got.tool), out))
+        for a, b in ((got.q, want.q), (got.e, want.e), (got.tool, want.tool)):
+            np.testing.assert_array_equal(a, b)
     assert {"run", "travel", "trapezoid"} <= kinds and ("retract" in kinds or printer.is_laser)
 
 

@@ -59,13 +59,17 @@ class Trajectory:
     def metadata(self) -> dict:
         return {"planner": self.planner, "speed_limit": self.speed_limit, "duration_s": f"{self.duration:.6f}"}
 
-    def sample_at(self, t: np.ndarray) -> Samples:
-        """Samples at absolute times t (s, sorted). Times past the end hold the last pose."""
+    def sample_at(self, t: np.ndarray, out: tuple | None = None) -> Samples:
+        """Samples at absolute times t (s, sorted). Times past the end hold the last pose.
+        out: (q (n,J), e (n,), tool (n,)) C-contiguous float64 arrays written in place of new ones
+        (a sampling worker's slot: its samples are not copied there)."""
         t = np.asarray(t, dtype=float)
         n = len(t)
-        q = np.empty((n, self.kin.n_joints))
-        e = np.empty(n)
-        tool = np.zeros(n)
+        if out is None:
+            q, e, tool = np.empty((n, self.kin.n_joints)), np.empty(n), np.zeros(n)
+        else:
+            q, e, tool = out
+            tool.fill(0.0)
         for i, lo, hi in self._piece_ranges(t):
             self.pieces[i].sample_into(self.kin, t[lo:hi] - self.starts[i], q[lo:hi], e[lo:hi], tool[lo:hi])
             e[lo:hi] += self.e_offsets[i]
@@ -194,6 +198,8 @@ def _sample_task(i0: int, i1: int, rate: float, k: int) -> tuple[int, int, int]:
     written into slot k of the inherited shared ``slots`` (t (slots, span, 1), q (slots, span, J),
     e and tool (slots, span, 1)). Returns (i0, i1, k)."""
     traj, (t, q, e, tool) = inherited("trajectory"), inherited("slots")
-    b = traj._block(i0, i1, rate)  # a sample's values do not depend on the block it is sampled in
-    t[k, : i1 - i0, 0], q[k, : i1 - i0], e[k, : i1 - i0, 0], tool[k, : i1 - i0, 0] = b.t, b.q, b.e, b.tool
+    n = i1 - i0
+    t[k, :n, 0] = _times(i0, i1, rate)
+    # sampled straight into the slot (a sample's values do not depend on the block it is sampled in)
+    traj.sample_at(t[k, :n, 0], out=(q[k, :n], e[k, :n, 0], tool[k, :n, 0]))
     return i0, i1, k
