@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from deltaslice import UnreachableError, load_printer
+from deltaslice import planning
 from deltaslice.planning import plan, split_runs, topp
 from deltaslice.planning.blend import blend_polyline
 from deltaslice.planning.pieces import JointMovePiece
@@ -265,27 +266,34 @@ def test_unreachable_point_is_named_before_any_output(tmp_path):
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_the_reach_check_speaks_first_while_workers_plan(workers):
+@pytest.mark.parametrize("runs_before", [0, 4])
+def test_the_reach_check_speaks_first_while_workers_plan(workers, runs_before):
     """The reach check runs while the workers start on the first runs (plan's rest links): a
-    point out of reach in the first run is reported by the check (layer, point, why, whether it
-    would fit centred), not by the chunk that met it first (the first is planned in this process
-    before the workers fork)."""
+    point out of reach in the first chunk is reported by the check (layer, point, why, whether it
+    would fit centred), not by the chunk that met it first: among the first chunk's first jobs,
+    planned in this process before the workers fork (to load the kernels), or after them, which
+    the workers plan."""
     printer = load_printer("printers/delta_ucb.toml")
-    good = layered_part(0.25, 0.2, 8, 30)
+    good = layered_part(0.25, 0.2, 24, 30)
+    ranges = split_runs(good)
+    cut = ranges[runs_before][0] if runs_before else 0
     b = ToolpathBuilder((0, 0, 1))
     b.new_layer(0.25)
+    b.add(good.xyz[:cut], good.feed[:cut], good.e[:cut], good.tool[:cut], good.role[:cut])
     b.add([[0, 0, 0.25], [200, 0, 0.25]], 30, [0, 1.0], [0, 1], Role.PERIMETER)
-    b.add(good.xyz, good.feed, good.e, good.tool, good.role)  # then eight layers' runs, all within reach
+    b.add(good.xyz[cut:], good.feed[cut:], good.e[cut:], good.tool[cut:], good.role[cut:])  # all within reach
     bad = b.build()
-    assert len(split_runs(bad)) > 16  # enough for the workers
-    with pytest.raises(UnreachableError, match=r"layer 0: x = 200.00, y = 0.00, z = 0.25 mm is out of reach of delta_ucb"):
+    n_jobs = 2 * len(split_runs(bad)) + 1
+    chunk = min(planning.CHUNK_MAX, n_jobs // planning.CHUNKS_PER_PRINT)
+    # the bad run's job (a travel before each run) among the first jobs, or past them in the first chunk
+    assert (2 * runs_before + 1 < planning.WARM_UP_JOBS) == (runs_before == 0) and 2 * runs_before + 1 < chunk
+    with pytest.raises(UnreachableError, match=r"x = 200.00, y = 0.00, z = 0.25 mm is out of reach of delta_ucb"):
         plan(bad, printer, workers=workers)
 
 
 def test_the_chunks_in_flight_are_four_a_worker_and_the_next(monkeypatch):
     """Memory is bounded by the chunks in flight: four per worker handed out and not yet put away
-    (one more once the next is handed out, before the oldest is), the first chunk (planned here
-    before the workers fork) counted as one of them."""
+    (one more once the next is handed out, before the oldest is), the first chunk among them."""
     import deltaslice.planning as planning
 
     monkeypatch.setattr(planning, "CHUNK_MAX", 2)  # many chunks from a small part

@@ -13,7 +13,6 @@ from __future__ import annotations
 import itertools
 from array import array
 from collections import deque
-from concurrent.futures import Future
 
 import numpy as np
 
@@ -34,6 +33,7 @@ _WORKER = {}
 # milliseconds, and 128 rather than 64 took featuretype's planning 4 % less CPU (the same bytes).
 CHUNKS_PER_PRINT = 8
 CHUNK_MAX = 128
+WARM_UP_JOBS = 8  # the first chunk's jobs planned in the parent before the pool forks (its kernels)
 # Moves a run handed over in chunks (plan_stream) gathers before it is planned as its parts come.
 STREAM_RUN = 50_000
 
@@ -482,23 +482,22 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     else:
         ahead = 4 * workers  # chunks in flight; slots queued at most twice that
         queue, in_flight = deque(), 0
-        # The first chunk is planned here before the workers fork: the compiled kernels load in
-        # this process once and the workers inherit them (each loading them at its first chunk
-        # cost it a tenth of a second and held the first results back)
+        # The first chunk's first jobs are planned here, and dropped, before the workers fork:
+        # the compiled kernels load in this process once and the workers inherit them (each
+        # loading them at its first chunk cost it a tenth of a second and held the first results
+        # back). Only a few: the rest of the chunk's work ran here with the other core idle. The
+        # chunk itself goes to the workers like the others (the same pieces wherever it is planned).
         head = next(slots, None)
-        if head is not None and head[0] == "pool":
-            _init_worker(printer)
-            try:
-                done_here = Future()
-                done_here.set_result(_plan_chunk(as_chunk(head[1])))
-            except DeltasliceError:
-                if first is not None:
-                    first()  # the reach check speaks first, as when the workers plan the chunk
-                raise
-            queue.append((head[1], done_here))
-            in_flight = 1  # it is drained as the workers' chunks are, which counts it
-        elif head is not None:
+        if head is not None:
             slots = itertools.chain([head], slots)
+            if head[0] == "pool":
+                _init_worker(printer)
+                try:
+                    _plan_chunk(as_chunk(head[1][:WARM_UP_JOBS]))
+                except DeltasliceError:
+                    if first is not None:
+                        first()  # the reach check speaks first, as when the workers plan the chunk
+                    raise  # the error of the chunk's first job that fails: it is among these
         with start_pool(workers, initializer=_init_worker, initargs=(printer,)) as pool:
 
             def run_first():
