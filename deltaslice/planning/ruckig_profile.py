@@ -66,11 +66,18 @@ class RuckigProfile:
 
 
 @njit
+def _cubic(dt, p, v, a, j):
+    """A constant-jerk phase's position dt s after its start (p, v, a: its start state; j: its jerk),
+    as ruckig evaluates it: numbers (the compiled pass) or arrays (positions_many)."""
+    return p + dt * (v + dt * (0.5 * a + dt * j / 6.0))
+
+
+@njit
 def _positions_kernel(t_end, p, v, a, j, pf, duration, tau, q):
     """q (n, J): each joint's position at tau (n,) clipped to [0, duration]: in the phase whose
-    cumulative end is the first after the time (searchsorted, side right, on t_end (J, P)), the
-    cubic :func:`_cubic` evaluates in the same operations; the final position pf past the last
-    phase, and at a NaN time (which numpy's search puts after every end)."""
+    cumulative end is the first after the time (searchsorted, side right, on t_end (J, P)), its
+    cubic (:func:`_cubic`); the final position pf past the last phase, and at a NaN time (which
+    numpy's search puts after every end)."""
     J, P = t_end.shape
     for i in range(tau.shape[0]):
         ta = tau[i]
@@ -85,14 +92,7 @@ def _positions_kernel(t_end, p, v, a, j, pf, duration, tau, q):
             if k >= P:
                 q[i, d] = pf[d]
             else:
-                dt = ta - (t_end[d, k - 1] if k > 0 else 0.0)
-                q[i, d] = p[d, k] + dt * (v[d, k] + dt * (0.5 * a[d, k] + dt * j[d, k] / 6.0))
-
-
-def _cubic(dt, p, v, a, j):
-    """A constant-jerk phase's position dt s after its start (p, v, a: its start state; j: its jerk),
-    as ruckig evaluates it."""
-    return p + dt * (v + dt * (0.5 * a + dt * j / 6.0))
+                q[i, d] = _cubic(ta - (t_end[d, k - 1] if k > 0 else 0.0), p[d, k], v[d, k], a[d, k], j[d, k])
 
 
 def positions_many(profiles, tau: np.ndarray) -> np.ndarray:

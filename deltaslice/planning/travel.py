@@ -138,7 +138,7 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     a_up[:, 2] = np.maximum(a[:, 2], top + lift)
     b_up[:, 2] = np.maximum(b[:, 2], top + lift)
     q = kin.inverse(np.concatenate([a, b, a_up, b_up])).reshape(4, k, -1)
-    short = (np.linalg.norm(b - a, axis=1) < tool.retract_min_travel) & (retract == 0)
+    short = (step < tool.retract_min_travel) & (retract == 0)  # the ends' distance, measured above
     cands = []  # (travel, joint move, its own travel's time)
     limits = _ruckig_limits(printer, q.shape[2])
     for n in np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2))):
