@@ -63,23 +63,47 @@ def test_many_profiles_sample_as_each_alone():
         np.testing.assert_allclose(q, ref, rtol=0, atol=1e-12)
 
 
+def _numpy_positions(prof, tau):
+    """The profile's positions in numpy, as ruckig evaluates them: the phase holding each time by
+    searchsorted (side right; NaN after every end) on the cumulative ends, its cubic from the
+    phase's start state, the final position past the last phase; times clipped to [0, duration]."""
+    tau = np.clip(tau, 0.0, prof.duration)
+    q = np.empty((len(tau), len(prof.pf)))
+    for d in range(len(prof.pf)):
+        k = np.searchsorted(prof.t_end[d], tau, side="right")
+        done = k >= prof.t_end.shape[1]
+        k = np.minimum(k, prof.t_end.shape[1] - 1)
+        dt = tau - np.where(k > 0, prof.t_end[d, np.maximum(k - 1, 0)], 0.0)
+        p, v, a, j = prof.p[d, k], prof.v[d, k], prof.a[d, k], prof.j[d, k]
+        q[:, d] = np.where(done, prof.pf[d], p + dt * (v + dt * (0.5 * a + dt * j / 6.0)))
+    return q
+
+
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(1, 4), seed=st.integers(0, 2**32 - 1))
-def test_compiled_positions_equal_the_vectorised_ones(n, seed):
-    """positions (one compiled pass, what the sampler calls per travel) gives bit for bit what
-    positions_many's numpy gives the same profile: at its phase ends, inside its phases, outside
-    [0, duration], at a NaN time (the final position); into out when given."""
+def test_compiled_positions_equal_numpys(n, seed):
+    """positions (one compiled pass, what the sampler calls per travel) and positions_many (the
+    clearance check's, compiled too) give bit for bit what numpy gives the same profile: at its
+    phase ends, inside its phases, outside [0, duration], at a NaN time (the final position); into
+    out when given; positions_many each of several profiles as its own positions."""
     rng = np.random.default_rng(seed)
     traj = _move(rng.normal(0, 1, n), rng.normal(0, 1, n), rng.uniform(0.1, 5, n), rng.uniform(0.1, 50, n), rng.uniform(1, 2000, n))
     prof = RuckigProfile.from_trajectory(traj)
     tau = np.concatenate([np.linspace(-0.1, traj.duration * 1.1, 200), prof.t_end.ravel(), [np.nan, -np.inf, np.inf]])
-    ref = positions_many([prof], tau[None])[0]
+    ref = _numpy_positions(prof, tau)
     np.testing.assert_array_equal(prof.positions(tau), ref)
+    np.testing.assert_array_equal(positions_many([prof], tau[None])[0], ref)
     out = np.full((len(tau), n), -7.0)
     assert prof.positions(tau, out=out) is out
     np.testing.assert_array_equal(out, ref)
     with pytest.raises(ValueError, match="out"):
         prof.positions(tau, out=np.empty((len(tau), n + 1)))
+    other = RuckigProfile.from_trajectory(_move(rng.normal(0, 1, n), rng.normal(0, 1, n), rng.uniform(0.1, 5, n),
+                                                rng.uniform(0.1, 50, n), rng.uniform(1, 2000, n)))
+    later = tau[::-1] * 0.5  # its own times, not the first's
+    many = positions_many([prof, other, prof], np.stack([tau, later, later]))
+    for got, pr, t in zip(many, (prof, other, prof), (tau, later, later)):
+        np.testing.assert_array_equal(got, _numpy_positions(pr, t))
 
 
 def test_joint_move_piece_is_picklable_and_exact():

@@ -68,7 +68,7 @@ class RuckigProfile:
 @njit
 def _cubic(dt, p, v, a, j):
     """A constant-jerk phase's position dt s after its start (p, v, a: its start state; j: its jerk),
-    as ruckig evaluates it: numbers (the compiled pass) or arrays (positions_many)."""
+    as ruckig evaluates it."""
     return p + dt * (v + dt * (0.5 * a + dt * j / 6.0))
 
 
@@ -95,26 +95,23 @@ def _positions_kernel(t_end, p, v, a, j, pf, duration, tau, q):
                 q[i, d] = _cubic(ta - (t_end[d, k - 1] if k > 0 else 0.0), p[d, k], v[d, k], a[d, k], j[d, k])
 
 
+@njit
+def _positions_many_kernel(t_end, p, v, a, j, pf, duration, tau, q):
+    """:func:`_positions_kernel` of each profile r of (P, ...) stacked arrays at its own times tau[r]
+    into q[r]."""
+    for r in range(tau.shape[0]):
+        _positions_kernel(t_end[r], p[r], v[r], a[r], j[r], pf[r], duration[r], tau[r], q[r])
+
+
 def positions_many(profiles, tau: np.ndarray) -> np.ndarray:
     """:meth:`RuckigProfile.positions` of P profiles with as many joints, each at its own times:
-    tau (P, n) s, each row clipped to its profile's [0, duration] -> (P, n, J). One pass over all
-    of them (the clearance check of a batch of travels samples hundreds of moves); for one
-    profile, its own method is cheaper."""
-    t_end = np.array([pr.t_end for pr in profiles])  # (P, J, 7)
-    p, v, a, j = (np.array([getattr(pr, f) for pr in profiles]) for f in ("p", "v", "a", "j"))
-    pf = np.array([pr.pf for pr in profiles])
-    duration = np.array([pr.duration for pr in profiles])
-    tau = np.clip(np.asarray(tau, dtype=float), 0.0, duration[:, None])
-    n_phases = t_end.shape[2]
-    rows = np.arange(len(profiles))[:, None]
+    tau (P, n) s, each row clipped to its profile's [0, duration] -> (P, n, J). One compiled pass
+    over all of them (the clearance check of a batch of travels samples hundreds of moves: in
+    numpy, arrays of every phase at every time, and an array signature of the cubic to load)."""
+    t_end, p, v, a, j, pf = (np.array([getattr(pr, f) for pr in profiles], dtype=np.float64)
+                             for f in ("t_end", "p", "v", "a", "j", "pf"))
+    duration = np.array([pr.duration for pr in profiles], dtype=np.float64)
+    tau = np.ascontiguousarray(tau, dtype=np.float64).reshape(len(profiles), -1)
     q = np.empty(tau.shape + (t_end.shape[1],))
-    for d in range(t_end.shape[1]):
-        # the phase holding each time: searchsorted(side="right") on each row's cumulative ends
-        # (NaN after them all, as searchsorted puts it)
-        k = np.where(np.isnan(tau), n_phases, (t_end[:, d, None, :] <= tau[:, :, None]).sum(axis=2))
-        done = k >= n_phases
-        k = np.minimum(k, n_phases - 1)
-        start = np.where(k > 0, t_end[rows, d, np.maximum(k - 1, 0)], 0.0)
-        q[:, :, d] = np.where(done, pf[:, d, None], _cubic(tau - start, p[rows, d, k], v[rows, d, k], a[rows, d, k],
-                                                            j[rows, d, k]))
+    _positions_many_kernel(t_end, p, v, a, j, pf, duration, tau, q)
     return q
