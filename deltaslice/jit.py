@@ -119,6 +119,7 @@ def _cache_first(numba_njit):
         load_cached = Cache._load_overload
         guard = Cache._guard_against_spurious_io_errors
         rtsys.initialize(context)
+        _link_lazily(context.codegen())
     except (ImportError, AttributeError):  # pragma: no cover
         return numba_njit
     refreshed = []
@@ -145,6 +146,76 @@ def _cache_first(numba_njit):
         return decorate
 
     return make
+
+
+def _link_lazily(codegen) -> None:
+    """``codegen`` loading a cached kernel's library without parsing its linking module.
+
+    numba caches a kernel as its machine code (an object file) beside the LLVM bitcode of the same
+    module, which it parses at every load (to link the kernel into a kernel compiled later that
+    calls it) and walks, a Python call per function, for the names the kernel defines (which the
+    JIT's symbol lookup needs): a third of a cached kernel's load, a tenth of a second of a
+    compile's loads, most of it before the planning workers fork, with the other core idle. Here
+    the names come from the object file's symbol table (:func:`_elf_defined_symbols`: the same
+    names) and the bitcode is parsed only where a kernel compiled in this process links it. An
+    object file other than ELF (macOS, Windows), or numba's internals not as expected: numba's own
+    load."""
+    import llvmlite.binding as ll
+
+    engine, original = codegen._engine, codegen.unserialize_library
+    base = codegen._library_class
+    engine._defined_symbols  # noqa: B018  (numba's JIT engine as expected: AttributeError otherwise)
+
+    class LazyLinkingLibrary(base):
+        _shared_bitcode = None
+
+        def _get_module_for_linking(self):
+            if self._shared_module is None and self._shared_bitcode is not None:
+                self._ensure_finalized()
+                self._shared_module = ll.parse_bitcode(self._shared_bitcode)
+            return super()._get_module_for_linking()
+
+    def unserialize_library(serialized):
+        name, kind, data = serialized
+        symbols = _elf_defined_symbols(data[0]) if kind == "object" else None
+        if not symbols:
+            return original(serialized)
+        library = LazyLinkingLibrary(codegen, name)
+        library._shared_bitcode = data[1]
+        library.enable_object_caching()
+        library._set_compiled_object(data[0])
+        library._finalize_final_module()
+        engine._defined_symbols |= symbols
+        return library
+
+    codegen.unserialize_library = unserialize_library
+
+
+def _elf_defined_symbols(obj) -> set | None:
+    """The names of the symbols an ELF64 little-endian object file defines (functions and data,
+    not sections or files), or None for anything else (another format, a truncated file)."""
+    import struct
+
+    try:
+        if bytes(obj[:6]) != b"\x7fELF\x02\x01":
+            return None
+        shoff = struct.unpack_from("<Q", obj, 0x28)[0]
+        shentsize, shnum = struct.unpack_from("<HH", obj, 0x3A)
+        sections = [struct.unpack_from("<IIQQQQIIQQ", obj, shoff + i * shentsize) for i in range(shnum)]
+        names = set()
+        for _name, kind, _flags, _addr, offset, size, link, _info, _align, entsize in sections:
+            if kind != 2 or entsize < 24:  # SHT_SYMTAB
+                continue
+            strings = sections[link][4]
+            for k in range(size // entsize):
+                st_name, st_info, _other, st_shndx = struct.unpack_from("<IBBH", obj, offset + k * entsize)
+                if st_shndx == 0 or (st_info & 0xF) in (3, 4) or st_name == 0:  # undefined, SECTION, FILE
+                    continue
+                start = strings + st_name
+                names.add(bytes(obj[start : obj.index(b"\0", start)]).decode())
+        return names
+    except (struct.error, ValueError, IndexError, UnicodeDecodeError):
+        return None
 
 
 @contextlib.contextmanager

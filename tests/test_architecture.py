@@ -289,6 +289,47 @@ def test_a_cached_kernel_loads_without_setting_up_numbas_compiler(tmp_path):
     _in_a_fresh_interpreter(code, str(tmp_path))
 
 
+def test_a_cached_kernel_loads_without_parsing_its_bitcode_and_still_links(tmp_path):
+    """deltaslice.jit loads a cached kernel's machine code without parsing the LLVM bitcode numba
+    keeps beside it (a third of each load): the names the kernel defines come from the object
+    file's symbol table, the same names the bitcode gives (the package's kernels and one of the
+    test's own), and the bitcode is parsed only when a kernel compiled later links the cached one,
+    which then computes."""
+    (tmp_path / "dsl_new_kernel.py").write_text(_NEW_KERNEL)
+    _in_a_fresh_interpreter(_CALL_NEW_KERNEL + "print('ok')\n", str(tmp_path))  # now cached
+    code = (
+        "import llvmlite.binding as ll\n"
+        "from numba.core.registry import cpu_target\n"
+        "from deltaslice import jit\n"
+        "jit.load()\n"
+        "codegen = cpu_target.target_context.codegen()\n"
+        "loading, states = codegen.unserialize_library, []\n"
+        "codegen.unserialize_library = lambda state: (states.append(state), loading(state))[1]\n"
+        + _CALL_NEW_KERNEL + _FIRST_KERNEL_CALL +
+        "from deltaslice.planning.blend import run_cumsum\n"
+        "def names(bitcode):\n"
+        "    mod = ll.parse_bitcode(bitcode)\n"
+        "    return {g.name for gs in (mod.functions, mod.global_variables) for g in gs if not g.is_declaration}\n"
+        "assert len(states) >= 2 and {kind for _n, kind, _d in states} == {'object'}, states\n"
+        "for _name, _kind, (obj, bitcode) in states:\n"
+        "    got = jit._elf_defined_symbols(obj)\n"
+        "    assert got and got == names(bitcode), (got, names(bitcode))\n"
+        "assert jit._elf_defined_symbols(b'not an object file') is None\n"
+        "assert jit._elf_defined_symbols(states[0][2][0][:80]) is None\n"
+        "libs = [cres.library for k in (run_cumsum, dsl_new_kernel.ramp) for cres in k.overloads.values()]\n"
+        "for lib in libs:\n"
+        "    assert type(lib).__name__ == 'LazyLinkingLibrary' and lib._shared_module is None, type(lib)\n"
+        "ramp = dsl_new_kernel.ramp\n"
+        "@jit.njit(cache=False)\n"
+        "def total(n):\n"
+        "    return ramp(n).sum()\n"
+        "assert total(5) == np.sin(0.5 * np.arange(5)).sum()\n"
+        "assert libs[-1]._shared_module is not None, 'linked without its bitcode?'\n"
+        "print('ok')\n"
+    )
+    _in_a_fresh_interpreter(code, str(tmp_path))
+
+
 def test_slicing_a_mesh_imports_neither_scipy_spatial_nor_sparse(tmp_path):
     """Slicing a thin wall (its gap fill takes the Voronoi path, the fit check the hull) imports no
     scipy.spatial or scipy.sparse: importing them cost every compile 0.3-0.5 s before the slicing
