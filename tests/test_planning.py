@@ -256,6 +256,47 @@ def test_parallel_equals_serial():
     assert a.duration == pytest.approx(b.duration, rel=1e-12)
 
 
+@pytest.mark.parametrize("name", ["delta_ucb", "delta_espe_laser"])
+def test_jobs_named_by_their_moves_are_the_jobs_themselves(name):
+    """The planning workers get each job as the moves it is made from (a run's (i, j), a travel's
+    (i, j, printed top)) and make its arguments from the toolpath they inherit: the same RunSpec
+    (a laser's too, with its power) and the same travel keywords as the parent makes: the first
+    travel from the toolpath's start, those between runs from the run before, the last after the
+    last run, the printed top before each."""
+    from dataclasses import fields
+
+    printer = load_printer(f"printers/{name}.toml")
+    toolpath = CASES[name]()
+    if name == "delta_ucb":  # a last travel after the last run, and z-hop travels of several moves
+        b = ToolpathBuilder(tuple(toolpath.start))
+        b.new_layer(0.25)
+        b.add(toolpath.xyz, toolpath.feed, toolpath.e, toolpath.tool, toolpath.role)
+        b.add([[5.0, 5.0, 2.0], [8.0, 5.0, 2.0], [8.0, 5.0, 0.85]], 100, [-1.0, 0, 0], 0, Role.TRAVEL)
+        toolpath = b.build()
+    laser = printer.tool.channel_kind == "laser"
+    ranges = split_runs(toolpath, laser)
+    full = list(planning._jobs(toolpath, ranges, laser))
+    named = list(planning._jobs(toolpath, ranges, laser, by_index=True))
+    kinds = [kind for _s, _e, kind, _j in full]
+    assert kinds.count("run") == len(ranges) and kinds[0] == "travel" and "travel" in kinds[1:-1]
+    assert (kinds[-1] == "travel") == (name == "delta_ucb")
+    planning._init_worker(printer, toolpath, laser)
+    try:
+        for (s0, e0, k0, job), (s1, e1, k1, ref) in zip(full, named, strict=True):
+            assert (s0, e0, k0) == (s1, e1, k1) and type(ref) is tuple
+            made = planning._job_args(k1, ref)
+            assert type(made) is type(job)
+            if k0 == "run":
+                for f in fields(job):
+                    np.testing.assert_array_equal(getattr(made, f.name), getattr(job, f.name), err_msg=f.name)
+            else:
+                assert made.keys() == job.keys()
+                for key in job:
+                    np.testing.assert_array_equal(made[key], job[key], err_msg=key)
+    finally:
+        planning._init_worker(printer)
+
+
 def test_unreachable_point_is_named_before_any_output(tmp_path):
     printer = load_printer("printers/delta_ucb.toml")
     b = ToolpathBuilder((0, 0, 1))

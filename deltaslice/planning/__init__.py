@@ -136,15 +136,34 @@ def _run_spec(toolpath: Toolpath, i: int, j: int, laser: bool) -> RunSpec:
     return RunSpec(pts, toolpath.feed[i:j], toolpath.e[i:j], float(toolpath.tool[i]), int(toolpath.layer[i]))
 
 
-def _init_worker(printer):
+def _init_worker(printer, toolpath=None, laser=False):
+    """A planning process's state: the printer, its kinematics and, where the jobs name their
+    moves by index (:func:`_jobs`' ``by_index``), the toolpath (inherited by a forked worker, not
+    pickled) and whether its tool is a laser."""
     _WORKER["printer"] = printer
     _WORKER["kin"] = printer.kinematics()
+    _WORKER["toolpath"], _WORKER["laser"] = toolpath, laser
+
+
+def _job_args(kind: str, job):
+    """A job's RunSpec or plan_travel keywords: ``job`` itself, or made here from the moves it
+    names (a tuple: (i, j) of a run, (i, j, printed_top) of a travel; see :func:`_jobs`) in the
+    process's toolpath (:func:`_init_worker`)."""
+    if type(job) is not tuple:
+        return job
+    toolpath = _WORKER["toolpath"]
+    if kind == "run":
+        return _run_spec(toolpath, job[0], job[1], _WORKER["laser"])
+    i, j, printed_top = job
+    return _travel_args(toolpath, i, j, toolpath.xyz[i - 1] if i > 0 else toolpath.start, printed_top)
 
 
 def _plan_chunk(args):
-    """Plan a chunk of jobs in print order: ("run", RunSpec) or ("travel", plan_travel's keywords).
-    Returns a PieceBatch of one list of pieces per job (what a worker hands back)."""
+    """Plan a chunk of jobs in print order: ("run", RunSpec) or ("travel", plan_travel's keywords),
+    or the moves they are made from (:func:`_job_args`). Returns a PieceBatch of one list of
+    pieces per job (what a worker hands back)."""
     jobs, speed_limit, solver = args
+    jobs = [(kind, _job_args(kind, job)) for kind, job in jobs]
     printer, kin = _WORKER["printer"], _WORKER["kin"]
     out = [None] * len(jobs)
     # The chunk's travels in one batch: their straight moves are solved together.
@@ -352,27 +371,34 @@ def _at_rest(index: np.ndarray, n: int, events: tuple, offset: float, duration: 
     )
 
 
-def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, printed_top: float = 0.0, tops: dict | None = None):
+def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, printed_top: float = 0.0, tops: dict | None = None,
+          by_index: bool = False):
     """(first move, end move, kind, job) of every run and of the travels between them (and before
     the first, after the last), in print order, made one at a time: a print of 270k runs would
     hold hundreds of MB of them at once. offset: the toolpath's first move's index in the print;
     printed_top: the top of what is printed already (mm), for a toolpath that goes on from
-    another; ``tops["before"]``, when given, is set to the printed top before each job yielded."""
+    another; ``tops["before"]``, when given, is set to the printed top before each job yielded.
+    by_index: each job the moves it is made from, (i, j) of a run and (i, j, printed_top) of a
+    travel (:func:`_job_args` makes it where it is planned, from the toolpath the planning
+    workers inherit: making and pickling every job's arrays in the parent cost it 0.2 CPU-s on
+    featuretype, beside the workers)."""
     pos = toolpath.start
     prev_end = 0
     tops = {} if tops is None else tops
     for i, j in ranges:
         tops["before"] = printed_top
         if i > prev_end:
-            yield offset + prev_end, offset + i, "travel", _travel_args(toolpath, prev_end, i, pos, printed_top)
-        yield offset + i, offset + j, "run", _run_spec(toolpath, i, j, laser)
+            yield offset + prev_end, offset + i, "travel", ((prev_end, i, printed_top) if by_index else
+                                                             _travel_args(toolpath, prev_end, i, pos, printed_top))
+        yield offset + i, offset + j, "run", (i, j) if by_index else _run_spec(toolpath, i, j, laser)
         pos = toolpath.xyz[j - 1]
         printed_top = max(printed_top, float(toolpath.xyz[i:j, 2].max()))
         prev_end = j
     if prev_end < len(toolpath):
         tops["before"] = printed_top
-        yield offset + prev_end, offset + len(toolpath), "travel", _travel_args(toolpath, prev_end, len(toolpath), pos,
-                                                                                 printed_top)
+        end = len(toolpath)
+        yield offset + prev_end, offset + end, "travel", ((prev_end, end, printed_top) if by_index else
+                                                           _travel_args(toolpath, prev_end, end, pos, printed_top))
 
 
 def _slots(jobs, chunk: int):
@@ -381,7 +407,7 @@ def _slots(jobs, chunk: int):
     run handed over in parts too: "parts", see :func:`plan_stream`)."""
     group = []
     for item in jobs:
-        if item[2] == "parts" or (item[2] == "run" and is_long(item[3])):
+        if item[2] == "parts" or (item[2] == "run" and is_long(_spec_moves(item[3]))):
             if group:
                 yield "pool", group
                 group = []
@@ -393,6 +419,11 @@ def _slots(jobs, chunk: int):
                 group = []
     if group:
         yield "pool", group
+
+
+def _spec_moves(job) -> int:
+    """The moves of a run's job: a RunSpec's, or those of the (i, j) it names."""
+    return job[1] - job[0] if type(job) is tuple else len(job.points) - 1
 
 
 def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, rest_links, spool) -> Trajectory:
@@ -412,13 +443,14 @@ def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, rest
         links["head"], links["tail"] = rest_links()
         pieces.extend(links["head"])
 
-    job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges, laser), pieces, chunk, len(toolpath), n_jobs < 8,
-                                      printer, speed_limit, workers, progress, solver, first=first)
+    job_start, job_piece = _plan_jobs(_jobs(toolpath, ranges, laser, by_index=True), pieces, chunk, len(toolpath),
+                                      n_jobs < 8, printer, speed_limit, workers, progress, solver, first=first,
+                                      toolpath=toolpath)
     return _trajectory(printer, pieces, links["tail"], speed_limit, job_start, job_piece, toolpath.events, len(toolpath))
 
 
 def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer, speed_limit, workers, progress,
-               solver, first=None):
+               solver, first=None, toolpath=None):
     """Plan ``jobs`` (see :func:`_jobs`) into ``pieces`` (a list or a PieceSpool), returning per job
     its first move and the index of its first piece (arrays of int64).
 
@@ -432,7 +464,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     worker processes to pay (they are planned here). first: a callable run here before anything
     is put away, once the workers have their first chunks (so it costs no time where it raises
     nothing; where it raises, the chunks not yet started are cancelled and the running ones
-    waited for), or None."""
+    waited for), or None. toolpath: the toolpath jobs that name their moves come from (inherited
+    by the workers), or None."""
     workers = resolve_workers(workers, "plan")
     job_start, job_piece = array("q"), array("q")  # per job: its first move, the index of its first piece
     done = 0
@@ -453,6 +486,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
 
     def plan_here(item):
         start, end, kind, spec = item
+        spec = _job_args(kind, spec)
         job_start.append(start)
         job_piece.append(len(pieces))
         before = 0.0
@@ -470,8 +504,9 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     def as_chunk(group):
         return [(kind, job) for _s, _e, kind, job in group], speed_limit, solver
 
+    laser = printer.tool.channel_kind == "laser"
     if workers == 1 or few:
-        _init_worker(printer)
+        _init_worker(printer, toolpath, laser)
         if first is not None:
             first()
         for where, item in slots:
@@ -491,14 +526,14 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
         if head is not None:
             slots = itertools.chain([head], slots)
             if head[0] == "pool":
-                _init_worker(printer)
+                _init_worker(printer, toolpath, laser)
                 try:
                     _plan_chunk(as_chunk(head[1][:WARM_UP_JOBS]))
                 except DeltasliceError:
                     if first is not None:
                         first()  # the reach check speaks first, as when the workers plan the chunk
                     raise  # the error of the chunk's first job that fails: it is among these
-        with start_pool(workers, initializer=_init_worker, initargs=(printer,)) as pool:
+        with start_pool(workers, initializer=_init_worker, initargs=(printer, toolpath, laser)) as pool:
 
             def run_first():
                 nonlocal first

@@ -629,9 +629,9 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     return [_plan_polyline(kin, printer, spec, poly, speed_limit, tol, kind, solver)[0]]
 
 
-def is_long(spec: RunSpec) -> bool:
-    """A run planned in windows (see :func:`iter_run`)."""
-    return len(spec.points) - 1 > LONG_RUN
+def is_long(spec: RunSpec | int) -> bool:
+    """A run planned in windows (see :func:`iter_run`): its RunSpec, or its number of moves."""
+    return (spec if isinstance(spec, int) else len(spec.points) - 1) > LONG_RUN
 
 
 def iter_run(kin, printer, spec: RunSpec, speed_limit: str, solver: str = "fast"):
