@@ -498,10 +498,10 @@ def _gcode_stream(part, printer, fmt, planner, options, progress, echo):
     None: a mesh, an image, a smaller file, a G-code output, or the trapezoid planner (which takes
     the whole toolpath). A centred file (the footprint of every move) is then taken whole from the
     stream (see gcode.GcodeStream)."""
-    from . import gcode
-
     if part_kind(part) != "gcode" or fmt == "gcode" or planner != "toppra":
         return None
+    from . import gcode  # here: a mesh's compile imports no G-code reader before its slicing forks
+
     try:
         if os.path.getsize(part) <= STREAM_BYTES:
             return None
