@@ -162,9 +162,13 @@ def _link_lazily(codegen) -> None:
     load."""
     import llvmlite.binding as ll
 
-    engine, original = codegen._engine, codegen.unserialize_library
-    base = codegen._library_class
-    engine._defined_symbols  # noqa: B018  (numba's JIT engine as expected: AttributeError otherwise)
+    engine, original = getattr(codegen, "_engine", None), getattr(codegen, "unserialize_library", None)
+    base = getattr(codegen, "_library_class", None)
+    needed = ("enable_object_caching", "_set_compiled_object", "_finalize_final_module", "_get_module_for_linking",
+              "_ensure_finalized")
+    if (original is None or base is None or not isinstance(getattr(engine, "_defined_symbols", None), set)
+            or not all(hasattr(base, n) for n in needed)):
+        return  # another numba: its own load
 
     class LazyLinkingLibrary(base):
         _shared_bitcode = None
@@ -176,14 +180,17 @@ def _link_lazily(codegen) -> None:
             return super()._get_module_for_linking()
 
     def unserialize_library(serialized):
-        name, kind, data = serialized
-        symbols = _elf_defined_symbols(data[0]) if kind == "object" else None
+        try:
+            name, kind, (obj, bitcode) = serialized
+        except (TypeError, ValueError):  # not numba's (name, kind, (object, bitcode)) of an object file
+            return original(serialized)
+        symbols = _elf_defined_symbols(obj) if kind == "object" else None
         if not symbols:
             return original(serialized)
         library = LazyLinkingLibrary(codegen, name)
-        library._shared_bitcode = data[1]
+        library._shared_bitcode = bitcode
         library.enable_object_caching()
-        library._set_compiled_object(data[0])
+        library._set_compiled_object(obj)
         library._finalize_final_module()
         engine._defined_symbols |= symbols
         return library
