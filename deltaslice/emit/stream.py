@@ -257,19 +257,15 @@ def _put_varint(buf, pos, u):
 
 
 @njit
-def _plan(x, a, b, use1, use2, order, width, v0):
-    """Per channel of rows a..b-1: first (order 1) or second (order 2) differences, whichever
-    needs fewer bits of their zig-zag; v0 the first difference an order-2 channel starts from.
-    Returns the record's size in bytes. The bits a width needs are those of the largest zig-zag,
-    which are those of all of them or-ed together (a pass without a branch)."""
-    n = b - a
-    nch = x.shape[1]
-    size = 1 + 2 + 2 + 4  # type, length, count, crc
-    row_bits = 0
-    for c in range(nch):
+def _ors(x, a, b, ored):
+    """ored[0, c]: the or of the zig-zags of channel c's first differences over rows a..b-1,
+    ored[1, c] of its second differences (0 where there are none). The bits a width needs are
+    those of the largest zig-zag, which are those of all of them or-ed together (a pass without a
+    branch)."""
+    for c in range(x.shape[1]):
         m1 = 0
         m2 = 0
-        if n >= 2:
+        if b - a >= 2:
             d_prev = x[a + 1, c] - x[a, c]
             m1 = _zz(d_prev)
             for k in range(a + 2, b):
@@ -277,8 +273,36 @@ def _plan(x, a, b, use1, use2, order, width, v0):
                 m1 |= _zz(d)
                 m2 |= _zz(d - d_prev)
                 d_prev = d
-        w1 = _bits(m1) if (use1 or n < 3) else 99
-        w2 = _bits(m2) if (n >= 3 and use2) else 99
+        ored[0, c] = m1
+        ored[1, c] = m2
+
+
+@njit
+def _halves_ors(x, a, m, b, left, right, whole):
+    """:func:`_ors` of rows a..m-1 and m..b-1 (a + 2 <= m <= b - 2), and of a..b-1 from theirs:
+    the whole's differences are the halves' and those that cross m (the first difference at row
+    m, the second differences at rows m and m + 1). One pass over the rows for the three."""
+    _ors(x, a, m, left)
+    _ors(x, m, b, right)
+    for c in range(x.shape[1]):
+        d_before = x[m - 1, c] - x[m - 2, c]
+        d_at = x[m, c] - x[m - 1, c]
+        d_after = x[m + 1, c] - x[m, c]
+        whole[0, c] = left[0, c] | right[0, c] | _zz(d_at)
+        whole[1, c] = left[1, c] | right[1, c] | _zz(d_at - d_before) | _zz(d_after - d_at)
+
+
+@njit
+def _sized(x, a, b, use1, use2, order, width, v0, ored):
+    """Per channel of rows a..b-1 (their ors: :func:`_ors`): first (order 1) or second (order 2)
+    differences, whichever needs fewer bits of their zig-zag; v0 the first difference an order-2
+    channel starts from. Returns the record's size in bytes."""
+    n = b - a
+    size = 1 + 2 + 2 + 4  # type, length, count, crc
+    row_bits = 0
+    for c in range(x.shape[1]):
+        w1 = _bits(ored[0, c]) if (use1 or n < 3) else 99
+        w2 = _bits(ored[1, c]) if (n >= 3 and use2) else 99
         if w2 < w1:
             order[c], width[c], v0[c] = 2, w2, x[a + 1, c] - x[a, c]
         else:
@@ -288,6 +312,13 @@ def _plan(x, a, b, use1, use2, order, width, v0):
             size += _varint_len(_zz(v0[c]))
         row_bits += width[c]
     return size + ((n - 1) * row_bits + 7) // 8
+
+
+@njit
+def _plan(x, a, b, use1, use2, order, width, v0, ored):
+    """:func:`_sized` of rows a..b-1, their ors taken into ``ored`` ((2, C) int64)."""
+    _ors(x, a, b, ored)
+    return _sized(x, a, b, use1, use2, order, width, v0, ored)
 
 
 @njit
@@ -341,29 +372,55 @@ def _write_record(x, a, b, order, width, v0, size, buf, pos):
 def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
     """Block records of counts x (n, C) into buf: nominal ``block_samples`` rows each,
     halved until a record fits ``max_record`` bytes. rec_end[i]: where record i ends in buf.
-    Returns the number of records, or -1 when one sample does not fit."""
+    Returns the number of records, or -1 when one sample does not fit.
+
+    A nominal block's halves are measured in the pass that measures it (:func:`_halves_ors`):
+    most of a print's blocks are halved once, and measuring each half again cost a third of
+    the encoding. A half halved again is measured as it comes."""
     nch = x.shape[1]
     order = np.empty(nch, dtype=np.int64)
     width = np.empty(nch, dtype=np.int64)
     v0 = np.empty(nch, dtype=np.int64)
-    stack = np.empty((64, 2), dtype=np.int64)
+    ored = np.empty((2, nch), dtype=np.int64)  # of the range being sized; [1] and [2]: a block's halves
+    halves = np.empty((2, 2, nch), dtype=np.int64)
+    stack = np.empty((64, 3), dtype=np.int64)  # a, b, and which ors are known: -1 none, 0 or 1 a half's
     pos = 0
     count = 0
     for first in range(0, x.shape[0], block_samples):
-        stack[0, 0] = first
-        stack[0, 1] = min(first + block_samples, x.shape[0])
-        top = 1
+        a = first
+        b = min(first + block_samples, x.shape[0])
+        top = 0
+        if b - a >= 4:
+            m = (a + b) // 2
+            _halves_ors(x, a, m, b, halves[0], halves[1], ored)
+            size = _sized(x, a, b, use1, use2, order, width, v0, ored)
+            if size <= max_record:
+                _write_record(x, a, b, order, width, v0, size, buf, pos)
+                pos += size
+                rec_end[count] = pos
+                count += 1
+                continue
+            stack[0, 0], stack[0, 1], stack[0, 2] = m, b, 1
+            stack[1, 0], stack[1, 1], stack[1, 2] = a, m, 0
+            top = 2
+        else:
+            stack[0, 0], stack[0, 1], stack[0, 2] = a, b, -1
+            top = 1
         while top:
             top -= 1
             a = stack[top, 0]
             b = stack[top, 1]
-            size = _plan(x, a, b, use1, use2, order, width, v0)
+            known = stack[top, 2]
+            if known >= 0:
+                size = _sized(x, a, b, use1, use2, order, width, v0, halves[known])
+            else:
+                size = _plan(x, a, b, use1, use2, order, width, v0, ored)
             if size > max_record:
                 if b - a == 1:
                     return -1
                 m = (a + b) // 2
-                stack[top, 0], stack[top, 1] = m, b
-                stack[top + 1, 0], stack[top + 1, 1] = a, m
+                stack[top, 0], stack[top, 1], stack[top, 2] = m, b, -1
+                stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, m, -1
                 top += 2
                 continue
             _write_record(x, a, b, order, width, v0, size, buf, pos)
