@@ -297,6 +297,30 @@ def test_jobs_named_by_their_moves_are_the_jobs_themselves(name):
         planning._init_worker(printer)
 
 
+def test_a_long_run_first_is_planned_here_from_its_moves(monkeypatch):
+    """A long run is planned in the main process (its windows put away one by one), from the moves
+    its job names, also where it is the print's first job (no travel, so no chunk, before it: the
+    main process has planned nothing yet); the same trajectory with the workers as in one process,
+    and the main process keeps no toolpath once planned."""
+    printer = load_printer("printers/delta_ucb.toml")
+    b = ToolpathBuilder((0.0, 0.0, 0.25))
+    b.new_layer(0.25)
+    t = np.linspace(0, 4 * np.pi, 121)[1:]
+    b.add(np.c_[10 * np.cos(t) - 10, 10 * np.sin(t), np.full(len(t), 0.25)], 30, np.full(len(t), 0.01), 1,
+          Role.PERIMETER)
+    for k in range(12):
+        b.add([[15.0 + k, 5.0, 0.25]], 100, 0, 0, Role.TRAVEL)
+        b.add([[15.0 + k, 10.0, 0.25], [16.0 + k, 10.0, 0.25]], 30, [0.02, 0.01], 1, Role.PERIMETER)
+    toolpath = b.build()
+    assert split_runs(toolpath)[0][0] == 0
+    monkeypatch.setattr(planning, "is_long", lambda moves: moves > 50)  # the first run, not the short ones
+    pools = plan(toolpath, printer, workers=2)
+    assert planning._WORKER["toolpath"] is None
+    alone = plan(toolpath, printer, workers=1)
+    assert pools.duration == alone.duration and len(pools.pieces) == len(alone.pieces)
+    np.testing.assert_array_equal(pools.samples().q, alone.samples().q)
+
+
 def test_unreachable_point_is_named_before_any_output(tmp_path):
     printer = load_printer("printers/delta_ucb.toml")
     b = ToolpathBuilder((0, 0, 1))

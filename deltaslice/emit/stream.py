@@ -381,8 +381,8 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
     order = np.empty(nch, dtype=np.int64)
     width = np.empty(nch, dtype=np.int64)
     v0 = np.empty(nch, dtype=np.int64)
-    ored = np.empty((2, nch), dtype=np.int64)  # of the range being sized; [1] and [2]: a block's halves
-    halves = np.empty((2, 2, nch), dtype=np.int64)
+    ored = np.empty((2, nch), dtype=np.int64)  # of the range being sized
+    halves = np.empty((2, 2, nch), dtype=np.int64)  # of a nominal block's two halves
     stack = np.empty((64, 3), dtype=np.int64)  # a, b, and which ors are known: -1 none, 0 or 1 a half's
     pos = 0
     count = 0

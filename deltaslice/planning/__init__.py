@@ -139,7 +139,8 @@ def _run_spec(toolpath: Toolpath, i: int, j: int, laser: bool) -> RunSpec:
 def _init_worker(printer, toolpath=None, laser=False):
     """A planning process's state: the printer, its kinematics and, where the jobs name their
     moves by index (:func:`_jobs`' ``by_index``), the toolpath (inherited by a forked worker, not
-    pickled) and whether its tool is a laser."""
+    pickled; pickled once to each worker where processes are spawned) and whether its tool is a
+    laser."""
     _WORKER["printer"] = printer
     _WORKER["kin"] = printer.kinematics()
     _WORKER["toolpath"], _WORKER["laser"] = toolpath, laser
@@ -380,7 +381,7 @@ def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, printed_top:
     another; ``tops["before"]``, when given, is set to the printed top before each job yielded.
     by_index: each job the moves it is made from, (i, j) of a run and (i, j, printed_top) of a
     travel (:func:`_job_args` makes it where it is planned, from the toolpath the planning
-    workers inherit: making and pickling every job's arrays in the parent cost it 0.2 CPU-s on
+    workers inherit: making and pickling every job's arrays in the parent cost it 0.17 CPU-s on
     featuretype, beside the workers)."""
     pos = toolpath.start
     prev_end = 0
@@ -504,66 +505,70 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
     def as_chunk(group):
         return [(kind, job) for _s, _e, kind, job in group], speed_limit, solver
 
-    laser = printer.tool.channel_kind == "laser"
-    if workers == 1 or few:
-        _init_worker(printer, toolpath, laser)
-        if first is not None:
-            first()
-        for where, item in slots:
-            if where == "here":
-                plan_here(item)
-            else:
-                put_away(item, _plan_chunk(as_chunk(item)))
-    else:
-        ahead = 4 * workers  # chunks in flight; slots queued at most twice that
-        queue, in_flight = deque(), 0
-        # The first chunk's first jobs are planned here, and dropped, before the workers fork:
-        # the compiled kernels load in this process once and the workers inherit them (each
-        # loading them at its first chunk cost it a tenth of a second and held the first results
-        # back). Only a few: the rest of the chunk's work ran here with the other core idle. The
-        # chunk itself goes to the workers like the others (the same pieces wherever it is planned).
-        head = next(slots, None)
-        if head is not None:
-            slots = itertools.chain([head], slots)
-            if head[0] == "pool":
-                _init_worker(printer, toolpath, laser)
-                try:
-                    _plan_chunk(as_chunk(head[1][:WARM_UP_JOBS]))
-                except DeltasliceError:
-                    if first is not None:
-                        first()  # the reach check speaks first, as when the workers plan the chunk
-                    raise  # the error of the chunk's first job that fails: it is among these
-        with start_pool(workers, initializer=_init_worker, initargs=(printer, toolpath, laser)) as pool:
-
-            def run_first():
-                nonlocal first
-                if first is not None:
-                    try:
-                        first()
-                    except BaseException:
-                        # no worker outlives the error: the chunks not started are dropped, the
-                        # ones running finish (a few tenths of a second)
-                        pool.shutdown(wait=True, cancel_futures=True)
-                        raise
-                    first = None
-
+    # this process plans the warm-up, long runs and, with one worker, everything: its jobs too are
+    # made from the toolpath
+    _init_worker(printer, toolpath, printer.tool.channel_kind == "laser")
+    try:
+        if workers == 1 or few:
+            if first is not None:
+                first()
             for where, item in slots:
-                if where == "here" and item[2] == "parts":  # its parts are read as it is planned: nothing after it is read before
-                    run_first()
-                    while queue:
-                        _drain_one(queue, put_away, plan_here)
-                    in_flight = 0
+                if where == "here":
                     plan_here(item)
-                    continue
-                future = pool.submit(_plan_chunk, as_chunk(item)) if where == "pool" else None
-                queue.append((item, future))
-                in_flight += future is not None
-                while in_flight > ahead or len(queue) > 2 * ahead:
-                    run_first()
-                    in_flight -= _drain_one(queue, put_away, plan_here)
-            run_first()
-            while queue:
-                _drain_one(queue, put_away, plan_here)
+                else:
+                    put_away(item, _plan_chunk(as_chunk(item)))
+        else:
+            ahead = 4 * workers  # chunks in flight; slots queued at most twice that
+            queue, in_flight = deque(), 0
+            # The first chunk's first jobs are planned here, and dropped, before the workers fork:
+            # the compiled kernels load in this process once and the workers inherit them (each
+            # loading them at its first chunk cost it a tenth of a second and held the first results
+            # back). Only a few: the rest of the chunk's work ran here with the other core idle. The
+            # chunk itself goes to the workers like the others (the same pieces wherever it is planned).
+            head = next(slots, None)
+            if head is not None:
+                slots = itertools.chain([head], slots)
+                if head[0] == "pool":
+                    try:
+                        _plan_chunk(as_chunk(head[1][:WARM_UP_JOBS]))
+                    except DeltasliceError:
+                        if first is not None:
+                            first()  # the reach check speaks first, as when the workers plan the chunk
+                        raise  # the error of the chunk's first job that fails: it is among these
+            with start_pool(workers, initializer=_init_worker,
+                            initargs=(printer, toolpath, _WORKER["laser"])) as pool:
+
+                def run_first():
+                    nonlocal first
+                    if first is not None:
+                        try:
+                            first()
+                        except BaseException:
+                            # no worker outlives the error: the chunks not started are dropped, the
+                            # ones running finish (a few tenths of a second)
+                            pool.shutdown(wait=True, cancel_futures=True)
+                            raise
+                        first = None
+
+                for where, item in slots:
+                    if where == "here" and item[2] == "parts":  # its parts are read as it is planned: nothing after it is read before
+                        run_first()
+                        while queue:
+                            _drain_one(queue, put_away, plan_here)
+                        in_flight = 0
+                        plan_here(item)
+                        continue
+                    future = pool.submit(_plan_chunk, as_chunk(item)) if where == "pool" else None
+                    queue.append((item, future))
+                    in_flight += future is not None
+                    while in_flight > ahead or len(queue) > 2 * ahead:
+                        run_first()
+                        in_flight -= _drain_one(queue, put_away, plan_here)
+                run_first()
+                while queue:
+                    _drain_one(queue, put_away, plan_here)
+    finally:
+        _WORKER["toolpath"] = None  # this process keeps no toolpath once it is planned
     return np.asarray(job_start), np.asarray(job_piece)
 
 
