@@ -280,7 +280,7 @@ def test_jobs_named_by_their_moves_are_the_jobs_themselves(name):
     kinds = [kind for _s, _e, kind, _j in full]
     assert kinds.count("run") == len(ranges) and kinds[0] == "travel" and "travel" in kinds[1:-1]
     assert (kinds[-1] == "travel") == (name == "delta_ucb")
-    planning._init_worker(printer, toolpath, laser)
+    planning._init_worker(printer, toolpath)
     try:
         for (s0, e0, k0, job), (s1, e1, k1, ref) in zip(full, named, strict=True):
             assert (s0, e0, k0) == (s1, e1, k1) and type(ref) is tuple

@@ -136,14 +136,13 @@ def _run_spec(toolpath: Toolpath, i: int, j: int, laser: bool) -> RunSpec:
     return RunSpec(pts, toolpath.feed[i:j], toolpath.e[i:j], float(toolpath.tool[i]), int(toolpath.layer[i]))
 
 
-def _init_worker(printer, toolpath=None, laser=False):
+def _init_worker(printer, toolpath=None):
     """A planning process's state: the printer, its kinematics and, where the jobs name their
     moves by index (:func:`_jobs`' ``by_index``), the toolpath (inherited by a forked worker, not
-    pickled; pickled once to each worker where processes are spawned) and whether its tool is a
-    laser."""
+    pickled; pickled once to each worker where processes are spawned)."""
     _WORKER["printer"] = printer
     _WORKER["kin"] = printer.kinematics()
-    _WORKER["toolpath"], _WORKER["laser"] = toolpath, laser
+    _WORKER["toolpath"] = toolpath
 
 
 def _job_args(kind: str, job):
@@ -154,7 +153,7 @@ def _job_args(kind: str, job):
         return job
     toolpath = _WORKER["toolpath"]
     if kind == "run":
-        return _run_spec(toolpath, job[0], job[1], _WORKER["laser"])
+        return _run_spec(toolpath, job[0], job[1], _WORKER["printer"].tool.channel_kind == "laser")
     i, j, printed_top = job
     return _travel_args(toolpath, i, j, toolpath.xyz[i - 1] if i > 0 else toolpath.start, printed_top)
 
@@ -408,7 +407,7 @@ def _slots(jobs, chunk: int):
     run handed over in parts too: "parts", see :func:`plan_stream`)."""
     group = []
     for item in jobs:
-        if item[2] == "parts" or (item[2] == "run" and is_long(_spec_moves(item[3]))):
+        if item[2] == "parts" or (item[2] == "run" and is_long(item[1] - item[0])):  # a run's moves, however named
             if group:
                 yield "pool", group
                 group = []
@@ -420,11 +419,6 @@ def _slots(jobs, chunk: int):
                 group = []
     if group:
         yield "pool", group
-
-
-def _spec_moves(job) -> int:
-    """The moves of a run's job: a RunSpec's, or those of the (i, j) it names."""
-    return job[1] - job[0] if type(job) is tuple else len(job.points) - 1
 
 
 def _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, rest_links, spool) -> Trajectory:
@@ -507,7 +501,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
 
     # this process plans the warm-up, long runs and, with one worker, everything: its jobs too are
     # made from the toolpath
-    _init_worker(printer, toolpath, printer.tool.channel_kind == "laser")
+    _init_worker(printer, toolpath)
     try:
         if workers == 1 or few:
             if first is not None:
@@ -535,8 +529,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                         if first is not None:
                             first()  # the reach check speaks first, as when the workers plan the chunk
                         raise  # the error of the chunk's first job that fails: it is among these
-            with start_pool(workers, initializer=_init_worker,
-                            initargs=(printer, toolpath, _WORKER["laser"])) as pool:
+            with start_pool(workers, initializer=_init_worker, initargs=(printer, toolpath)) as pool:
 
                 def run_first():
                     nonlocal first
