@@ -34,6 +34,7 @@ from pathlib import Path  # noqa: E402
 import click  # noqa: E402
 
 from .errors import DeltasliceError  # noqa: E402
+from .pool import keep_freed_memory  # noqa: E402
 
 # The compile's parallelism is its worker processes. OpenBLAS (numpy's and scipy's, each) would
 # start a thread per core that spins whenever woken, on the workers' cores, for BLAS calls too small
@@ -491,7 +492,9 @@ def run():
     threads for 50-70 ms of a compile's last, single-core stretch. Leaving at once also keeps an
     interrupt's 130: Python kills itself with SIGINT at exit when a KeyboardInterrupt ever passed
     through C code (an extension's import) even if it was handled ("killed by signal").
-    An exception other than SystemExit leaves as usual, with its traceback."""
+    An exception other than SystemExit leaves as usual, with its traceback. Freed memory is kept
+    for reuse (:func:`~deltaslice.pool.keep_freed_memory`)."""
+    keep_freed_memory()
     try:
         main()
         code = 0

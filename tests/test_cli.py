@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import platform
 import shutil
 import subprocess
 import sys
@@ -46,6 +47,38 @@ def test_the_command_runs_blas_on_one_thread_unless_told_otherwise():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env={**env, "OPENBLAS_NUM_THREADS": "2"}, timeout=120)
     assert out.stdout.split()[0] == "2", out.stderr[-2000:]
+
+
+def _huge_pages_always() -> bool:
+    try:
+        with open("/sys/kernel/mm/transparent_hugepage/enabled") as f:
+            return "[always]" in f.read()
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc" or _huge_pages_always(),
+                    reason="glibc's malloc settings, counted in page faults of 4 KB to 64 KB")
+def test_the_console_script_keeps_freed_memory_for_the_next_arrays():
+    """In the console script's process, a 16 MB array freed and allocated again is written into
+    the same pages (no page fault), where glibc's defaults give the freed pages back and the next
+    array faults its pages in again (as in a program that only imports deltaslice)."""
+    code = ("import resource, sys\n"
+            "import numpy as np\n"
+            "import deltaslice.cli as cli\n"
+            "def faults():\n"
+            "    a = np.ones(2 << 20); del a\n"
+            "    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n"
+            "    b = np.ones(2 << 20)\n"
+            "    print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)\n"
+            "cli.main = faults\n"
+            "cli.run() if sys.argv[1] == 'run' else faults()\n")
+    counts = {}
+    for how in ("run", "import"):
+        out = subprocess.run([sys.executable, "-c", code, how], capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stderr[-2000:]
+        counts[how] = int(out.stdout)
+    assert counts["run"] < 16 and counts["import"] >= 256, counts
 
 
 def test_printers_lists_the_shipped_printers_and_they_are_package_data():
