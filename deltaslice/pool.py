@@ -13,6 +13,7 @@ import ctypes
 import gc
 import multiprocessing
 import os
+import sys
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 
@@ -61,14 +62,16 @@ TRIM_THRESHOLD = 64 << 20  # the heap's top is given back once this much of it i
 
 def keep_freed_memory() -> bool:
     """Have glibc's malloc keep freed memory for the next allocations of this process and of the
-    workers it forks. By default an array over 128 KB is mapped on its own and unmapped when freed
-    (the threshold then grows with the arrays freed) and the heap's top is given back past 128 KB
-    free, so the planning workers' kernels wrote into fresh pages that the kernel zeroes: about
-    90,000 page faults (0.35 s of system time) of the 190,000 of a featuretype compile at 20.
-    Here arrays up to 32 MB come from the heap and at most 64 MB of its top stays unreturned per
-    process. For the console script, which owns its process; a program that imports deltaslice
-    keeps its own allocator settings. Returns whether the settings were taken (False without
-    glibc: macOS has no mallopt; musl's ignores them)."""
+    workers it forks. By default an array over 128 KB is mapped on its own and unmapped when
+    freed (the threshold then grows with the arrays freed) and the heap's top is given back past
+    128 KB free (twice the grown threshold), so the planning workers' kernels wrote into fresh
+    pages the kernel zeroes: about 90,000 of the 190,000 page faults of featuretype at 20 (0.35 s
+    of system time). Here arrays up to 32 MB come from the heap and at most 64 MB of its top is
+    kept per process. For the console script, which owns its process; a program that imports
+    deltaslice keeps its own allocator settings. Returns whether the settings were taken (False
+    without glibc: other systems have no mallopt; musl's ignores them)."""
+    if not sys.platform.startswith("linux"):
+        return False
     try:
         mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):
