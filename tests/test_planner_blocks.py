@@ -9,6 +9,7 @@ import itertools
 
 import numpy as np
 import pytest
+import ruckig
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -16,6 +17,7 @@ from deltaslice.errors import UnreachableError
 from deltaslice.planning import topp, travel
 from deltaslice.planning.blend import BlendedPath, blend_polyline, blend_runs
 from deltaslice.planning.pieces import JointMovePiece, RunPiece
+from deltaslice.planning.ruckig_profile import RuckigProfile
 from deltaslice.planning.trajectory import Trajectory
 from deltaslice.slicing.ordering import Path, nearest_order
 
@@ -592,6 +594,42 @@ def test_joint_moves_checked_together_are_each_checked_alone():
     alone = [travel.joint_move_clear(kin, m, z) for m, z in zip(moves, z_min)]
     assert together.tolist() == alone
     assert True in alone and False in alone
+
+
+def _ruckig_alone(p, q0, q1):
+    """ruckig's rest-to-rest move q0 -> q1 from a calculator, input and output of its own."""
+    vel, acc, jerk = travel._ruckig_limits(p, 3)
+    otg, inp, traj = ruckig.Ruckig(3), ruckig.InputParameter(3), ruckig.Trajectory(3)
+    inp.current_position, inp.target_position = [float(v) for v in q0], [float(v) for v in q1]
+    inp.current_velocity = inp.current_acceleration = inp.target_velocity = inp.target_acceleration = [0.0] * 3
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk
+    assert otg.calculate(inp, traj) in (ruckig.Result.Working, ruckig.Result.Finished)
+    return traj
+
+
+def test_joint_moves_made_one_after_another_are_each_made_alone(monkeypatch):
+    """A batch's ruckig calculator, input and output, reused move after move, give every move
+    exactly as ruckig plans it alone (a calculator, input and output of its own), down and up
+    the bed; where a move keeps ruckig's object (no profile arrays), each keeps its own, not the
+    one reused for the next move."""
+    p = printer("delta_etitc")
+    kin = p.kinematics()
+    pts = _bed_points(p, np.random.default_rng(7), 16)
+    ends = [kin.inverse(np.array([pts[k], pts[8 + k]])) for k in range(8)]
+    batch = travel._JointMoves(p, 3)
+    together = [batch.move(a, b, layer=k) for k, (a, b) in enumerate(ends)]
+    alone = [_ruckig_alone(p, a, b) for a, b in ends]
+    assert len({traj.duration for traj in alone}) == 8
+    for k, (x, traj) in enumerate(zip(together, alone)):
+        y = RuckigProfile.from_trajectory(traj)
+        assert x.duration == traj.duration and x.layer == k
+        for f in ("t_end", "p", "v", "a", "j", "pf"):
+            np.testing.assert_array_equal(getattr(x.profile, f), getattr(y, f))
+    monkeypatch.setattr(travel.RuckigProfile, "from_trajectory", classmethod(lambda cls, traj: None))
+    kept = [batch.move(a, b, layer=0) for a, b in ends]
+    assert [m.duration for m in kept] == [traj.duration for traj in alone]
+    tau = np.linspace(0.0, alone[0].duration, 7)
+    np.testing.assert_array_equal(kept[0].sample(kin, tau)[0], [alone[0].at_time(t)[0] for t in tau])
 
 
 def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():

@@ -33,28 +33,37 @@ def _ruckig_limits(printer, n: int) -> tuple:
     return list(map(float, lim.velocity[:n])), list(map(float, acc)), list(map(float, jerk))
 
 
-def _ruckig_move(printer, q0, q1, layer, limits=None):
-    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece).
-    limits: :func:`_ruckig_limits` (computed here when None; a batch of travels passes it)."""
-    n = len(q0)
-    vel, acc, jerk = _ruckig_limits(printer, n) if limits is None else limits
-    otg = ruckig.Ruckig(n)
-    inp = ruckig.InputParameter(n)
-    inp.current_position = list(map(float, q0))
-    inp.target_position = list(map(float, q1))
-    inp.current_velocity = [0.0] * n
-    inp.current_acceleration = [0.0] * n
-    inp.target_velocity = [0.0] * n
-    inp.target_acceleration = [0.0] * n
-    inp.max_velocity = vel
-    inp.max_acceleration = acc
-    inp.max_jerk = jerk
-    traj = ruckig.Trajectory(n)
-    result = otg.calculate(inp, traj)
-    if result not in (ruckig.Result.Working, ruckig.Result.Finished):
-        raise PlanningError(f"layer {layer}: ruckig could not plan a travel ({result})")
-    profile = RuckigProfile.from_trajectory(traj)
-    return JointMovePiece(profile, None if profile is not None else traj, np.asarray(q0, float), np.asarray(q1, float), layer)
+class _JointMoves:
+    """ruckig's calculator, input and output made once for many rest-to-rest moves of one printer
+    (a batch of travels): making and filling them took three times ruckig's calculation of a move."""
+
+    def __init__(self, printer, n: int):
+        vel, acc, jerk = _ruckig_limits(printer, n)
+        self.n = n
+        self.otg, self.inp, self.traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
+        inp = self.inp
+        inp.current_velocity = inp.current_acceleration = [0.0] * n
+        inp.target_velocity = inp.target_acceleration = [0.0] * n
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk
+
+    def move(self, q0, q1, layer) -> JointMovePiece:
+        """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece)."""
+        self.inp.current_position = list(map(float, q0))
+        self.inp.target_position = list(map(float, q1))
+        result = self.otg.calculate(self.inp, self.traj)
+        if result not in (ruckig.Result.Working, ruckig.Result.Finished):
+            raise PlanningError(f"layer {layer}: ruckig could not plan a travel ({result})")
+        profile = RuckigProfile.from_trajectory(self.traj)
+        traj = None
+        if profile is None:  # the piece keeps ruckig's object, one of its own (this one is reused)
+            traj = ruckig.Trajectory(self.n)
+            self.otg.calculate(self.inp, traj)
+        return JointMovePiece(profile, traj, np.asarray(q0, float), np.asarray(q1, float), layer)
+
+
+def _ruckig_move(printer, q0, q1, layer):
+    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone."""
+    return _JointMoves(printer, len(q0)).move(q0, q1, layer)
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
@@ -140,9 +149,9 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     q = kin.inverse(np.concatenate([a, b, a_up, b_up])).reshape(4, k, -1)
     short = (step < tool.retract_min_travel) & (retract == 0)  # the ends' distance, measured above
     cands = []  # (travel, joint move, its own travel's time)
-    limits = _ruckig_limits(printer, q.shape[2])
+    joint_moves = _JointMoves(printer, q.shape[2])
     for n in np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2))):
-        joint = _ruckig_move(printer, q[2, n], q[3, n], layers[n], limits)
+        joint = joint_moves.move(q[2, n], q[3, n], layers[n])
         # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
         # travel, its clearance check and its lift and lower moves need not be planned.
         own_time = sum(p.duration for p in best[n])
