@@ -38,9 +38,13 @@ def resolve_workers(workers, where: str) -> int:
 
 
 def start_pool(workers: int, mp_context=None, initializer=None, initargs=()) -> ProcessPoolExecutor:
-    """A ProcessPoolExecutor of ``workers`` processes, started now. With the fork start method
-    (Linux's default) every worker forks at the first task, which runs here with the collector
-    frozen; with spawn the freeze costs nothing and changes nothing."""
+    """A ProcessPoolExecutor of ``workers`` processes, started now. mp_context: None for fork on
+    Linux (Python 3.14 made forkserver the default there: its workers would start from a fresh
+    interpreter, without this process's loaded kernels and malloc settings) and the platform's
+    default elsewhere. With fork every worker forks at the first task, which runs here with the
+    collector frozen; with spawn the freeze costs nothing and changes nothing."""
+    if mp_context is None and sys.platform.startswith("linux"):
+        mp_context = multiprocessing.get_context("fork")
     pool = ProcessPoolExecutor(workers, mp_context=mp_context, initializer=initializer, initargs=initargs)
     gc.freeze()
     try:
@@ -56,8 +60,8 @@ def start_pool(workers: int, mp_context=None, initializer=None, initargs=()) -> 
 # glibc's mallopt parameters (malloc.h) and the values keep_freed_memory sets
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
-MMAP_THRESHOLD = 32 << 20  # glibc's largest: an allocation up to this size comes from the heap
-TRIM_THRESHOLD = 64 << 20  # the heap's top is given back once this much of it is free
+MMAP_THRESHOLD = 32 << 20  # up to this size from the heap (the cap of glibc's own growing threshold)
+TRIM_THRESHOLD = 64 << 20  # an arena's top is given back once this much of it is free
 
 
 def keep_freed_memory() -> bool:
@@ -66,10 +70,12 @@ def keep_freed_memory() -> bool:
     freed (the threshold then grows with the arrays freed) and the heap's top is given back past
     128 KB free (twice the grown threshold), so the planning workers' kernels wrote into fresh
     pages the kernel zeroes: about 90,000 of the 190,000 page faults of featuretype at 20 (0.35 s
-    of system time). Here arrays up to 32 MB come from the heap and at most 64 MB of its top is
-    kept per process. For the console script, which owns its process; a program that imports
-    deltaslice keeps its own allocator settings. Returns whether the settings were taken (False
-    without glibc: other systems have no mallopt; musl's ignores them)."""
+    of system time). Here arrays up to 32 MB come from the heap and at most 64 MB free at the top
+    of each arena (the main one and each thread's) is kept, per process: a compile's largest
+    process grew 5-10 MB (featuretype), its workers at most 64 MB each. For the console script,
+    which owns its process (its pools fork: :func:`start_pool`); a program that imports deltaslice
+    keeps its own allocator settings. Returns whether the settings were taken (False without
+    glibc: other systems have no mallopt; musl's ignores them)."""
     if not sys.platform.startswith("linux"):
         return False
     try:

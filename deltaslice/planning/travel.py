@@ -57,7 +57,8 @@ class _JointMoves:
         traj = None
         if profile is None:  # the piece keeps ruckig's object, one of its own (this one is reused)
             traj = ruckig.Trajectory(self.n)
-            self.otg.calculate(self.inp, traj)
+            if self.otg.calculate(self.inp, traj) != result:
+                raise PlanningError(f"layer {layer}: ruckig planned a travel two ways")
         return JointMovePiece(profile, traj, np.asarray(q0, float), np.asarray(q1, float), layer)
 
 
