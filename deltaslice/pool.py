@@ -72,7 +72,7 @@ def keep_freed_memory() -> bool:
     pages the kernel zeroes: about 90,000 of the 190,000 page faults of featuretype at 20 (0.35 s
     of system time). Here arrays up to 32 MB come from the heap and at most 64 MB free at the top
     of each arena (the main one and each thread's) is kept, per process: a compile's largest
-    process grew 5-10 MB (featuretype), its workers at most 64 MB each. For the console script,
+    process grew 5-10 MB (featuretype); a worker can keep up to 64 MB more. For the console script,
     which owns its process (its pools fork: :func:`start_pool`); a program that imports deltaslice
     keeps its own allocator settings. Returns whether the settings were taken (False without
     glibc: other systems have no mallopt; musl's ignores them)."""
