@@ -383,35 +383,26 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
     v0 = np.empty(nch, dtype=np.int64)
     ored = np.empty((2, nch), dtype=np.int64)  # of the range being sized
     halves = np.empty((2, 2, nch), dtype=np.int64)  # of a nominal block's two halves
-    stack = np.empty((64, 3), dtype=np.int64)  # a, b, and which ors are known: -1 none, 0 or 1 a half's
+    # a, b, and which ors are known: -1 none, 0 or 1 a half's (in halves), 2 the nominal block's (in ored)
+    stack = np.empty((64, 3), dtype=np.int64)
     pos = 0
     count = 0
     for first in range(0, x.shape[0], block_samples):
         a = first
         b = min(first + block_samples, x.shape[0])
-        top = 0
+        stack[0, 0], stack[0, 1], stack[0, 2] = a, b, -1
         if b - a >= 4:
-            m = (a + b) // 2
-            _halves_ors(x, a, m, b, halves[0], halves[1], ored)
-            size = _sized(x, a, b, use1, use2, order, width, v0, ored)
-            if size <= max_record:
-                _write_record(x, a, b, order, width, v0, size, buf, pos)
-                pos += size
-                rec_end[count] = pos
-                count += 1
-                continue
-            stack[0, 0], stack[0, 1], stack[0, 2] = m, b, 1
-            stack[1, 0], stack[1, 1], stack[1, 2] = a, m, 0
-            top = 2
-        else:
-            stack[0, 0], stack[0, 1], stack[0, 2] = a, b, -1
-            top = 1
+            _halves_ors(x, a, (a + b) // 2, b, halves[0], halves[1], ored)
+            stack[0, 2] = 2
+        top = 1
         while top:
             top -= 1
             a = stack[top, 0]
             b = stack[top, 1]
             known = stack[top, 2]
-            if known >= 0:
+            if known == 2:
+                size = _sized(x, a, b, use1, use2, order, width, v0, ored)
+            elif known >= 0:
                 size = _sized(x, a, b, use1, use2, order, width, v0, halves[known])
             else:
                 size = _plan(x, a, b, use1, use2, order, width, v0, ored)
@@ -419,8 +410,9 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
                 if b - a == 1:
                     return -1
                 m = (a + b) // 2
-                stack[top, 0], stack[top, 1], stack[top, 2] = m, b, -1
-                stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, m, -1
+                nominal = known == 2  # its halves' ors were taken with its own
+                stack[top, 0], stack[top, 1], stack[top, 2] = m, b, 1 if nominal else -1
+                stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, m, 0 if nominal else -1
                 top += 2
                 continue
             _write_record(x, a, b, order, width, v0, size, buf, pos)

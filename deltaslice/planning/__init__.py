@@ -407,7 +407,7 @@ def _slots(jobs, chunk: int):
     run handed over in parts too: "parts", see :func:`plan_stream`)."""
     group = []
     for item in jobs:
-        if item[2] == "parts" or (item[2] == "run" and is_long(item[1] - item[0])):  # a run's moves, however named
+        if item[2] == "parts" or (item[2] == "run" and is_long(item[1] - item[0])):  # a run's moves, from its first and end move
             if group:
                 yield "pool", group
                 group = []

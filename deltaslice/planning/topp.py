@@ -629,9 +629,9 @@ def _plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | 
     return [_plan_polyline(kin, printer, spec, poly, speed_limit, tol, kind, solver)[0]]
 
 
-def is_long(spec: RunSpec | int) -> bool:
-    """A run planned in windows (see :func:`iter_run`): its RunSpec, or its number of moves."""
-    return (spec if isinstance(spec, int) else len(spec.points) - 1) > LONG_RUN
+def is_long(n_moves: int) -> bool:
+    """Whether a run of ``n_moves`` moves is planned in windows (see :func:`iter_run`)."""
+    return n_moves > LONG_RUN
 
 
 def iter_run(kin, printer, spec: RunSpec, speed_limit: str, solver: str = "fast"):
@@ -1375,7 +1375,8 @@ def _plan_runs(kin, printer, specs, speed_limit: str, solver: str) -> list:
     batches, size = {True: [], False: []}, {True: 0, False: 0}
     batched, prepared = [], []
     for i, spec in enumerate(specs):
-        deduped = None if solver != "fast" or spec.power is not None or is_long(spec) else dedupe(spec.points, spec.feed, spec.e)
+        alone = solver != "fast" or spec.power is not None or is_long(len(spec.points) - 1)
+        deduped = None if alone else dedupe(spec.points, spec.feed, spec.e)
         if deduped is None or len(deduped[0]) < 2:
             out[i] = plan_run(kin, printer, spec, speed_limit, solver=solver)
             continue
