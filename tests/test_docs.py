@@ -42,3 +42,11 @@ def test_the_docs_anchors_into_benchmarks_exist():
             if anchor[1] and path.name != "benchmarks.md":
                 continue
             assert name in anchors, f"{path.name}: no heading for #{name} in docs/benchmarks.md"
+
+
+def test_the_module_table_has_one_short_row_per_module():
+    """docs/architecture.md says what each module owns in a line; how it does it is the code's."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    table = text.split("\n## Modules\n", 1)[1].split("\n## ", 1)[0]
+    long = [row.split("|")[1].strip() for row in table.splitlines() if row.startswith("| `") and len(row) > 300]
+    assert not long, f"module rows over 300 characters: {long}"
