@@ -251,3 +251,63 @@ class Kinematics:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             det = np.einsum("ni,ni->n", ji[:, 0], adj[:, 0])
             return np.sqrt(np.einsum("nij,nij->n", ji, ji) * np.einsum("nij,nij->n", adj, adj)) / np.abs(det)
+
+
+# -- dynamics ------------------------------------------------------------------------------------
+# Every family models its moving parts as rigid bodies turning about a joint's fixed axis (an
+# upper arm, a rotor) plus point masses whose positions follow from the joints (elbows, platforms,
+# carriages, and each uniform rod as three points: m/6 at either end and 2m/3 at its middle, which
+# gives a thin rod's kinetic energy m/6 (|v_a|^2 + v_a.v_b + |v_b|^2) and its centre of mass
+# exactly, where the usual half-and-half split overstates its kinetic energy by m/12 |v_a - v_b|^2).
+# d'Alembert over the point masses, tau = sum_k J_k^T m_k (a_k - g), with a_k = J_k qdd + Jdot_k qd
+# from the closure equations, is then the exact rigid-body inverse dynamics of that model, velocity
+# terms included.
+
+GRAVITY = 9.80665  # m/s^2, standard gravity; the bed frame's z is up
+MM = 1e-3  # m per mm: positions and Jacobians are in mm, the dynamics in SI
+
+
+def joint_scale(kinds) -> np.ndarray:
+    """(J,) factor taking a point Jacobian column in mm per joint unit to SI: m/rad for a revolute
+    joint (its torque comes out in N m), m/m for a prismatic one (mm/mm; its force in N)."""
+    return np.array([MM if k == "revolute" else 1.0 for k in kinds])
+
+
+def closure_motion(d, de, dde, qd, qdd):
+    """Velocity Jacobian and acceleration of a point held by one rigid link per joint.
+
+    Joint i moves its link's near end e_i(q_i) (a function of q_i alone); the link's far end is the
+    point p (plus a constant) and keeps |d_i| constant, d_i = p + c_i - e_i. d: (N, J, k) links, mm;
+    de, dde: (N, J, k) e_i's first and second derivatives in q_i (mm per joint unit, per unit^2);
+    qd, qdd: (N, J) joint velocities and accelerations (units/s, units/s^2). Returns (jac (N, k, J)
+    dp/dq in mm per unit, acc (N, k) mm/s^2); NaN where the links' matrix is singular.
+
+    From d_i.(v - e_i' qd_i) = 0 and, differentiated, |v - e_i' qd_i|^2 + d_i.(a - e_i' qdd_i -
+    e_i'' qd_i^2) = 0: D jac = diag(d_i.e_i') and D a = (d_i.e_i') qdd_i + (d_i.e_i'') qd_i^2 -
+    |v - e_i' qd_i|^2, D with rows d_i."""
+    g = np.einsum("njk,njk->nj", d, de)
+    jac = solve_rows(d, g[:, :, None] * np.eye(d.shape[1])[None])
+    v = np.einsum("nkj,nj->nk", jac, qd)
+    rel = v[:, None, :] - de * qd[..., None]
+    rhs = g * qdd + np.einsum("njk,njk->nj", d, dde) * qd**2 - np.einsum("njk,njk->nj", rel, rel)
+    return jac, solve_rows(d, rhs[:, :, None])[..., 0]
+
+
+def point_forces(mass, acc):
+    """mass kg, acc (N, 3) mm/s^2 -> (N, 3) N: m (a - g), what d'Alembert loads a point mass with."""
+    f = acc * MM
+    f[:, 2] += GRAVITY
+    return mass * f
+
+
+def path_coefficients(dynamics, q, dq, ddq):
+    """The torque along a path q(s) as ``tau = A sdd + B sd^2 + C``, the form of the planner's
+    joint-acceleration constraint, from any inverse dynamics ``dynamics(q, qd, qdd)`` that is
+    linear in qdd and quadratic in qd (a rigid-body model is: tau = M(q) qdd + c(q, qd) + g(q)).
+
+    q, dq = dq/ds, ddq = d2q/ds2: (N, J). With qd = dq sd and qdd = dq sdd + ddq sd^2:
+    A = M dq, B = M ddq + c(q, dq), C = g(q), evaluated as C = tau(q, 0, 0), A = tau(q, 0, dq) - C,
+    B = tau(q, dq, ddq) - C. Returns (A, B, C), each (N, J) in the dynamics' units (N m or N)."""
+    zero = np.zeros_like(np.asarray(q, dtype=float))
+    c = dynamics(q, zero, zero)
+    return dynamics(q, zero, dq) - c, dynamics(q, dq, ddq) - c, c

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import Section
-from .base import Kinematics, closure_derivatives, solve_rows
+from .base import GRAVITY, MM, Kinematics, closure_derivatives, closure_motion, solve_rows
 
 
 def _wrap(a, centre=0.0):
@@ -67,6 +67,44 @@ def read_geometry(sec: Section) -> FiveBarGeometry:
         origin_y=sec.getfloat("origin_y", required=True),
         codo1=sec.getint("codo1", choices=(1, -1)),
         codo2=sec.getint("codo2", choices=(1, -1)),
+    )
+
+
+@dataclass(frozen=True)
+class FiveBarMasses:
+    """The moving parts of a five-bar printer (the ``[dynamics]`` table). kg, kg m^2.
+
+    ``proximal_inertia``: links A-B and C-D each about its motor axis, (A side, C side);
+    ``elbow_mass``: the joint hardware at B and at D each; ``distal_mass``: links B-P and D-P each,
+    uniform between the joint centres; ``tool_mass``: what rides at P (the print head). The linkage
+    moves in a horizontal plane (gravity does no work on it). ``z_mass``: what the lead screw lifts
+    (with the rotor and screw reflected: J (2 pi / lead)^2), the bed (``z_carries = "bed"``, which
+    goes down as the tool height z grows) or the head (``"head"``)."""
+
+    proximal_inertia: tuple[float, float]
+    elbow_mass: float
+    distal_mass: float
+    tool_mass: float
+    z_mass: float
+    z_carries: str = "bed"
+    rotor_inertia: float = 0.0
+
+
+def read_dynamics(sec: Section, geometry: FiveBarGeometry) -> FiveBarMasses:
+    """The family's keys of the ``[dynamics]`` table. A proximal link of unknown shape defaults to a
+    uniform bar from its motor axis to its elbow (m l^2 / 3 with its own length)."""
+    prox = sec.getfloat("proximal_mass", minval=0, maxval=100)
+    given = sec.getfloat("proximal_inertia", required=False, minval=0, maxval=100)
+    inertia = tuple(prox * (length * MM) ** 2 / 3 if given is None else given
+                    for length in (geometry.proximal_a, geometry.proximal_c))
+    return FiveBarMasses(
+        proximal_inertia=inertia,
+        elbow_mass=sec.getfloat("elbow_mass", 0.0, minval=0, maxval=100),
+        distal_mass=sec.getfloat("distal_mass", minval=0, maxval=100),
+        tool_mass=sec.getfloat("tool_mass", minval=0, maxval=1000),
+        z_mass=sec.getfloat("z_mass", minval=0, maxval=1000),
+        z_carries=sec.getstr("z_carries", "bed", choices=("bed", "head"), required=False),
+        rotor_inertia=sec.getfloat("rotor_inertia", 0.0, minval=0, maxval=100),
     )
 
 
@@ -171,6 +209,35 @@ class FiveBar(Kinematics):
         dde = radius * np.concatenate([-c, -s], axis=2)
         q1, q2 = closure_derivatives(links, de, dde, t[:, :2], kappa[:, :2])
         return np.column_stack([q1, t[:, 2]]), np.column_stack([q2, kappa[:, 2]])
+
+    def inverse_dynamics(self, masses: FiveBarMasses, q, qd, qdd):
+        """Joint torques and force (N, 3): N m at the two arms, N on the lead screw (up positive in
+        the tool height z), for joints q (N,3) (rad, rad, mm), qd (per s), qdd (per s^2); NaN where
+        the linkage cannot close. Proximal links turn about their motor axes; elbows, the tool and
+        each distal link's three points (see :mod:`.base`) are point masses in the horizontal plane,
+        so the arms feel no gravity; the z axis carries ``z_mass`` up or down."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(v, dtype=float)) for v in (q, qd, qdd))
+        m = masses
+        g = self.geometry
+        b, d = self._elbows(q)
+        elbows = np.stack([b, d], axis=1)  # (N, 2 arms, 2) mm
+        p = self.forward(q)[:, :2]
+        c, s = np.cos(q[:, :2])[..., None], np.sin(q[:, :2])[..., None]
+        radius = np.array([g.proximal_a, g.proximal_c])[None, :, None]
+        de = radius * np.concatenate([-s, c], axis=2)
+        dde = radius * np.concatenate([-c, -s], axis=2)
+        jac, acc = closure_motion(p[:, None, :] - elbows, de, dde, qd[:, :2], qdd[:, :2])
+        acc_e = de * qdd[:, :2, None] + dde * (qd[:, :2] ** 2)[..., None]
+        f_mid = (2 * m.distal_mass / 3) * MM * 0.5 * (acc_e + acc[:, None, :])
+        f_p = (m.tool_mass + 2 * m.distal_mass / 6) * MM * acc + 0.5 * f_mid.sum(axis=1)
+        f_e = (m.elbow_mass + m.distal_mass / 6) * MM * acc_e + 0.5 * f_mid
+        tau = np.empty((len(q), 3))
+        tau[:, :2] = MM * (np.einsum("nkj,nk->nj", jac, f_p) + np.einsum("njk,njk->nj", de, f_e))
+        tau[:, :2] += (np.array(m.proximal_inertia) + m.rotor_inertia) * qdd[:, :2]
+        # the lifted body is at +z (head) or -z (bed) plus a constant: tau = J m (J zdd + g), J = +-1
+        sign = 1.0 if m.z_carries == "head" else -1.0
+        tau[:, 2] = m.z_mass * (MM * qdd[:, 2] + sign * GRAVITY)
+        return tau
 
     def jacobian(self, q):
         """q: (N,3) -> (N,3,3) d(point)/d(q): mm/rad for the arms, 1 for z."""

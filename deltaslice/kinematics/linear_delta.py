@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import Kinematics, check_out, lower_sphere_intersection, rows3, solve_rows
+from .base import MM, Kinematics, check_out, closure_motion, lower_sphere_intersection, point_forces, rows3, solve_rows
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
@@ -50,6 +50,31 @@ def read_geometry(sec: Section) -> LinearDeltaGeometry:
     if g.diagonal_rod <= g.delta_radius:
         sec.fail("diagonal_rod", g.diagonal_rod, f"a rod longer than delta_radius ({g.delta_radius:g} mm)")
     return g
+
+
+@dataclass(frozen=True)
+class LinearDeltaMasses:
+    """The moving parts of a linear delta (the ``[dynamics]`` table), kg. ``carriage_mass``: one
+    carriage with what rides on it; ``drive_mass``: the motor's rotor and pulley reflected to the
+    carriage (rotor inertia / pulley radius^2) plus the belt; ``rod_mass``: both rods of one
+    carriage, uniform between the ball-joint centres; ``effector_mass``: the effector with the tool
+    (``tool_mass``) and the effector-side rod ends."""
+
+    carriage_mass: float
+    rod_mass: float
+    effector_mass: float
+    drive_mass: float = 0.0
+
+
+def read_dynamics(sec: Section, geometry: LinearDeltaGeometry) -> LinearDeltaMasses:
+    """The family's keys of the ``[dynamics]`` table, kg."""
+    return LinearDeltaMasses(
+        carriage_mass=sec.getfloat("carriage_mass", minval=0, maxval=100),
+        rod_mass=sec.getfloat("rod_mass", minval=0, maxval=100),
+        effector_mass=sec.getfloat("effector_mass", minval=0, maxval=1000) + sec.getfloat("tool_mass", 0.0, minval=0,
+                                                                                           maxval=1000),
+        drive_mass=sec.getfloat("drive_mass", 0.0, minval=0, maxval=100),
+    )
 
 
 class LinearDelta(Kinematics):
@@ -106,6 +131,27 @@ class LinearDelta(Kinematics):
         _derivatives_kernel(*(np.ascontiguousarray(v, dtype=float) for v in (points, q, t, kappa)),
                             self.towers, self.t, q1, q2)
         return q1, q2
+
+    def inverse_dynamics(self, masses: LinearDeltaMasses, q, qd, qdd):
+        """Carriage forces (N, 3) N along the towers (up positive) that move the carriages along q
+        (N,3) mm with velocities qd (mm/s) and accelerations qdd (mm/s^2) against gravity; NaN where
+        the rods cannot close. Carriages and effector are point masses, each rod pair three (see
+        :mod:`.base`); exact for that model, velocity terms included."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(v, dtype=float)) for v in (q, qd, qdd))
+        m = masses
+        p = self.forward(q)
+        z = np.array([0.0, 0.0, 1.0])
+        carriages = np.concatenate([np.broadcast_to(self.towers[None], (len(q), 3, 2)), q[..., None]], axis=2)
+        d = (p + self.t * z)[:, None, :] - carriages  # rod vectors, effector joint minus carriage joint
+        de = np.broadcast_to(z, d.shape)
+        jac, acc = closure_motion(d, de, np.zeros_like(d), qd, qdd)
+        acc_c = de * qdd[..., None]
+        rod = m.rod_mass
+        f_mid = point_forces(2 * rod / 3, 0.5 * (acc_c + acc[:, None, :]).reshape(-1, 3)).reshape(acc_c.shape)
+        f_p = point_forces(m.effector_mass + 3 * rod / 6, acc) + 0.5 * f_mid.sum(axis=1)
+        f_c = point_forces(m.carriage_mass + rod / 6, acc_c.reshape(-1, 3)).reshape(acc_c.shape) + 0.5 * f_mid
+        # a carriage's Jacobian is z: only its vertical force loads its own joint
+        return np.einsum("nkj,nk->nj", jac, f_p) + f_c[..., 2] + m.drive_mass * MM * qdd
 
     def jacobian(self, q):
         """q: (N,3) -> (N,3,3) d(point)/d(q), dimensionless."""

@@ -24,7 +24,8 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import Kinematics, check_out, lower_sphere_intersection, rows3, solve_rows
+from .base import (GRAVITY, MM, Kinematics, check_out, closure_motion, lower_sphere_intersection, point_forces, rows3,
+                   solve_rows)
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
@@ -70,6 +71,43 @@ def read_geometry(sec: Section) -> RotaryDeltaGeometry:
     if g.forearm <= g.upper_arm * 0.5:
         sec.fail("forearm", g.forearm, f"a forearm longer than half the upper arm ({g.upper_arm / 2:g} mm)")
     return g
+
+
+@dataclass(frozen=True)
+class RotaryDeltaMasses:
+    """The moving parts of a rotary delta, per arm (the ``[dynamics]`` table). kg, kg m^2, mm.
+
+    ``upper_arm_inertia`` is about the shoulder axis, ``upper_arm_com`` the distance from that axis
+    to the arm's centre of mass along the arm (shoulder to elbow). ``elbow_mass``: what moves with
+    the elbow point (rod ends, nuts, axle). ``forearm_mass``: both rods of one parallelogram,
+    taken as uniform rods between the ball-joint centres. ``platform_mass``: the platform with
+    everything rigidly on it, the tool (``tool_mass``) and the platform-side rod ends included.
+    ``rotor_inertia``: the motor and gear train reflected to the joint."""
+
+    upper_arm_mass: float
+    upper_arm_inertia: float
+    upper_arm_com: float
+    elbow_mass: float
+    forearm_mass: float
+    platform_mass: float
+    rotor_inertia: float = 0.0
+
+
+def read_dynamics(sec: Section, geometry: RotaryDeltaGeometry) -> RotaryDeltaMasses:
+    """The family's keys of the ``[dynamics]`` table (masses kg, inertias kg m^2, lengths mm).
+    An upper arm of unknown shape defaults to a uniform bar from the shoulder axis to the elbow."""
+    L1 = geometry.upper_arm
+    arm = sec.getfloat("upper_arm_mass", minval=0, maxval=100)
+    return RotaryDeltaMasses(
+        upper_arm_mass=arm,
+        upper_arm_inertia=sec.getfloat("upper_arm_inertia", arm * (L1 * MM) ** 2 / 3, minval=0, maxval=100),
+        upper_arm_com=sec.getfloat("upper_arm_com", L1 / 2, minval=0, maxval=10 * L1),
+        elbow_mass=sec.getfloat("elbow_mass", 0.0, minval=0, maxval=100),
+        forearm_mass=sec.getfloat("forearm_mass", minval=0, maxval=100),
+        platform_mass=sec.getfloat("platform_mass", minval=0, maxval=1000) + sec.getfloat("tool_mass", 0.0, minval=0,
+                                                                                             maxval=1000),
+        rotor_inertia=sec.getfloat("rotor_inertia", 0.0, minval=0, maxval=100),
+    )
 
 
 class RotaryDelta(Kinematics):
@@ -166,6 +204,32 @@ class RotaryDelta(Kinematics):
                 raise ValueError(f"scaled_path_derivatives: an output is {out.dtype} {out.shape}, "
                                  f"expected float64 ({len(points)}, 3)")
         return int(_scaled_rates_kernel(points, t, kappa, self._offsets, self.L1, self.L2, float(scale), out1, out2))
+
+    def inverse_dynamics(self, masses: RotaryDeltaMasses, q, qd, qdd):
+        """Joint torques (N, 3) N m that move the arms along q (N,3) rad with velocities qd
+        (rad/s) and accelerations qdd (rad/s^2) against gravity; NaN where the mechanism cannot
+        close or is singular. Exact for the rigid-body model of :class:`RotaryDeltaMasses`
+        (:mod:`.base`'s notes): each upper arm turns about its shoulder axis (inertia and gravity
+        of its centre of mass), the elbow and the platform are point masses, each forearm pair is
+        three point masses (elbow end, middle, platform end); Coriolis and centripetal terms come
+        in through the platform's and the elbows' accelerations."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(v, dtype=float)) for v in (q, qd, qdd))
+        m = masses
+        c, s = np.cos(q)[..., None], np.sin(q)[..., None]
+        de = self.L1 * (-s * U[None] - c * Z)  # elbow rate d e_i / d q_i, (N, 3 arms, 3) mm/rad
+        dde = self.L1 * (-c * U[None] + s * Z)
+        d = self.forward(q)[:, None, :] + (self.r * U + self.t * Z)[None] - self.elbows(q)
+        jac, acc = closure_motion(d, de, dde, qd, qdd)  # of the platform (the ball joints move with it)
+        acc_e = de * qdd[..., None] + dde * (qd**2)[..., None]
+        rod = m.forearm_mass
+        # the middle of rod pair i is (e_i + p) / 2: half its force goes to each end's Jacobian
+        f_mid = point_forces(2 * rod / 3, 0.5 * (acc_e + acc[:, None, :]).reshape(-1, 3)).reshape(acc_e.shape)
+        f_p = point_forces(m.platform_mass + 3 * rod / 6, acc) + 0.5 * f_mid.sum(axis=1)
+        f_e = point_forces(m.elbow_mass + rod / 6, acc_e.reshape(-1, 3)).reshape(acc_e.shape) + 0.5 * f_mid
+        tau = MM * (np.einsum("nkj,nk->nj", jac, f_p) + np.einsum("njk,njk->nj", de, f_e))
+        # upper arm about its fixed axis: its centre of mass is upper_arm_com (cos q u - sin q z) from it
+        tau += (m.upper_arm_inertia + m.rotor_inertia) * qdd - m.upper_arm_mass * GRAVITY * m.upper_arm_com * MM * np.cos(q)
+        return tau
 
     def ball_joint_tilt(self, points, q):
         """Sideways tilt of each forearm out of its arm's vertical plane: (N,3) rad."""

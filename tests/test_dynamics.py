@@ -1,0 +1,217 @@
+"""The inverse dynamics of every family (issue 56) against calculations that share none of its code:
+the static torques against the gradient of the potential energy, and the work the joints do along a
+trajectory against the change of kinetic plus potential energy, both from the bodies' positions by
+forward kinematics (velocities by finite differences in time, each uniform rod's kinetic energy in
+its own closed form, not the model's three-point split)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from deltaslice.kinematics.base import path_coefficients
+from deltaslice.kinematics.five_bar import FiveBar, FiveBarGeometry, FiveBarMasses
+from deltaslice.kinematics.linear_delta import LinearDelta, LinearDeltaGeometry, LinearDeltaMasses
+from deltaslice.kinematics.rotary_delta import RotaryDelta, RotaryDeltaGeometry, RotaryDeltaMasses
+
+G = 9.80665
+ANG = np.radians([0.0, 120.0, 240.0])
+UNIT = np.stack([np.cos(ANG), np.sin(ANG), np.zeros(3)], axis=1)
+
+
+def rod_kinetic(m, va, vb):
+    """A uniform thin rod's kinetic energy from its ends' velocities (m/s): the integral of
+    m/2 |v|^2 along it, v linear from va to vb."""
+    return m / 6 * (np.einsum("...i,...i->...", va, va) + np.einsum("...i,...i->...", va, vb)
+                    + np.einsum("...i,...i->...", vb, vb))
+
+
+# ------------------------------------------------------------------------------------ the machines
+# Each machine: its kinematics, masses (unequal and odd on purpose, so a term applied to the wrong
+# body shows), a trajectory's centre and amplitude in joint units, and its energies from positions:
+# potential(q (N, 3)) -> (N,) J and kinetic(q (T, 3) sampled every dt s) -> (T,) J.
+
+Z = np.array([0.0, 0.0, 1.0])
+
+
+class Rotary:
+    kin = RotaryDelta(RotaryDeltaGeometry(93.5, 58.5, 176.0, 360.0, 527.0, 40.0, None),
+                      np.radians([-45.0] * 3), np.radians([90.0] * 3))
+    m = RotaryDeltaMasses(upper_arm_mass=0.05793, upper_arm_inertia=0.0021, upper_arm_com=70.0, elbow_mass=0.06124,
+                          forearm_mass=0.08, platform_mass=0.76872, rotor_inertia=0.003)
+    centre, amplitude = np.radians([30.0, 25.0, 35.0]), np.radians([25.0, 30.0, 20.0])
+
+    @classmethod
+    def bodies(cls, q):
+        """Platform (N, 3) and elbows (N, 3, 3), m: the platform translates, so each of its points
+        moves as the tool tip; the elbows from the thesis's geometry."""
+        g = cls.kin.geometry
+        c, s = np.cos(q)[..., None], np.sin(q)[..., None]
+        shoulder = (g.base_radius * UNIT + g.shoulder_height * Z) * 1e-3
+        return cls.kin.forward(q) * 1e-3, shoulder + g.upper_arm * 1e-3 * (c * UNIT - s * Z)
+
+    @classmethod
+    def potential(cls, q):
+        m = cls.m
+        p, e = cls.bodies(q)
+        arm = -m.upper_arm_com * 1e-3 * np.sin(q)  # the arm's centre of mass below its shoulder
+        return G * (m.upper_arm_mass * arm.sum(1) + m.elbow_mass * e[..., 2].sum(1)
+                    + m.forearm_mass * (0.5 * (e[..., 2] + p[:, None, 2])).sum(1) + m.platform_mass * p[:, 2])
+
+    @classmethod
+    def kinetic(cls, q, dt):
+        m = cls.m
+        p, e = cls.bodies(q)
+        vp, ve, qd = (np.gradient(x, dt, axis=0) for x in (p, e, q))
+        return (0.5 * (m.upper_arm_inertia + m.rotor_inertia) * (qd**2).sum(1) + 0.5 * m.elbow_mass * (ve**2).sum((1, 2))
+                + rod_kinetic(m.forearm_mass, ve, vp[:, None]).sum(1) + 0.5 * m.platform_mass * (vp**2).sum(1))
+
+
+class Linear:
+    kin = LinearDelta(LinearDeltaGeometry(105.0, 215.0, 12.0), np.zeros(3), np.full(3, 480.0))
+    m = LinearDeltaMasses(carriage_mass=0.083, rod_mass=0.041, effector_mass=0.27, drive_mass=0.055)
+    centre, amplitude = np.array([300.0, 310.0, 290.0]), np.array([40.0, 55.0, 35.0])
+
+    @classmethod
+    def bodies(cls, q):
+        """Effector joints' point (N, 3) and carriages (N, 3, 3), m."""
+        towers = np.concatenate([cls.kin.towers, np.zeros((3, 1))], axis=1)
+        eff = cls.kin.forward(q) + cls.kin.geometry.tool_offset * Z
+        return eff * 1e-3, (towers[None] + q[..., None] * Z) * 1e-3
+
+    @classmethod
+    def potential(cls, q):
+        m = cls.m
+        p, c = cls.bodies(q)
+        return G * (m.carriage_mass * c[..., 2].sum(1) + m.rod_mass * (0.5 * (c[..., 2] + p[:, None, 2])).sum(1)
+                    + m.effector_mass * p[:, 2])
+
+    @classmethod
+    def kinetic(cls, q, dt):
+        m = cls.m
+        p, c = cls.bodies(q)
+        vp, vc = np.gradient(p, dt, axis=0), np.gradient(c, dt, axis=0)
+        return (0.5 * (m.carriage_mass + m.drive_mass) * (vc**2).sum((1, 2)) + rod_kinetic(m.rod_mass, vc, vp[:, None]).sum(1)
+                + 0.5 * m.effector_mass * (vp**2).sum(1))
+
+
+class Five:
+    geometry = FiveBarGeometry(80.0, 150.0, 200.0, 150.0, 200.0, -40.0, -190.0, 1, -1)
+    kin = FiveBar(geometry, np.array([np.radians(-60), np.radians(-60), 0.0]), np.array([np.radians(240), np.radians(240), 150.0]))
+    m = FiveBarMasses(proximal_inertia=(0.0011, 0.0017), elbow_mass=0.021, distal_mass=0.047, tool_mass=0.31,
+                      z_mass=2.3, z_carries="bed", rotor_inertia=0.0004)
+    centre, amplitude = np.array([np.radians(120.0), np.radians(50.0), 60.0]), np.array([np.radians(15.0), np.radians(18.0), 30.0])
+
+    @classmethod
+    def bodies(cls, q):
+        """Tool point (N, 2) and elbows B, D (N, 2, 2) in the linkage's plane, m."""
+        g = cls.geometry
+        a = np.array([g.origin_x, g.origin_y])
+        motors = np.stack([a, a + [g.base_length, 0.0]])
+        lengths = np.array([g.proximal_a, g.proximal_c])[:, None]
+        elbows = motors + lengths * np.stack([np.cos(q[:, :2]), np.sin(q[:, :2])], axis=2)
+        return cls.kin.forward(q)[:, :2] * 1e-3, elbows * 1e-3
+
+    @classmethod
+    def potential(cls, q):
+        return -G * cls.m.z_mass * q[:, 2] * 1e-3  # the bed goes down as the tool height grows
+
+    @classmethod
+    def kinetic(cls, q, dt):
+        m = cls.m
+        p, e = cls.bodies(q)
+        vp, ve, qd = (np.gradient(x, dt, axis=0) for x in (p, e, q))
+        return (0.5 * ((np.array(m.proximal_inertia) + m.rotor_inertia) * qd[:, :2] ** 2).sum(1)
+                + 0.5 * m.elbow_mass * (ve**2).sum((1, 2)) + rod_kinetic(m.distal_mass, ve, vp[:, None]).sum(1)
+                + 0.5 * m.tool_mass * (vp**2).sum(1) + 0.5 * m.z_mass * (qd[:, 2] * 1e-3) ** 2)
+
+
+MACHINES = {"rotary_delta": Rotary, "linear_delta": Linear, "five_bar": Five}
+
+
+def trajectory(machine, phases, freqs, duration, dt):
+    """Joints q(t) = centre + amplitude sin(2 pi f t + phase), with their exact qd and qdd, every dt s."""
+    t = np.arange(0.0, duration + dt / 2, dt)[:, None]
+    w = 2 * np.pi * np.asarray(freqs)
+    arg = w * t + np.asarray(phases)
+    a = machine.amplitude
+    return t[:, 0], machine.centre + a * np.sin(arg), a * w * np.cos(arg), -a * w**2 * np.sin(arg)
+
+
+def si_rates(machine, qd):
+    """Joint velocities in SI (rad/s, m/s) from joint units per second (rad, mm)."""
+    return qd * np.array([1.0 if k == "revolute" else 1e-3 for k in machine.kin.joint_kinds])
+
+
+def energy_balance(machine, phases, freqs, duration=0.4, dt=2e-5):
+    """(work done by the joints, change of kinetic + potential energy, work throughput), J, over a
+    trajectory: the work by Simpson's rule on tau . qd; the energies from positions only, at the
+    samples where central differences exist (all but the first and last)."""
+    t, q, qd, qdd = trajectory(machine, phases, freqs, duration, dt)
+    tau = machine.kin.inverse_dynamics(machine.m, q, qd, qdd)
+    power = np.einsum("nj,nj->n", tau, si_rates(machine, qd))[1:-1]
+    if len(power) % 2 == 0:
+        power = power[:-1]
+    n = len(power)
+    work = dt / 3 * (power[0] + power[-1] + 4 * power[1:-1:2].sum() + 2 * power[2:-1:2].sum())
+    energy = machine.kinetic(q, dt) + machine.potential(q)
+    return work, energy[n] - energy[1], dt * np.abs(power).sum()
+
+
+@pytest.mark.parametrize("name", sorted(MACHINES))
+def test_static_torques_are_the_gradient_of_the_potential_energy(name):
+    """At rest, tau = dV/dq: V from the bodies' heights by forward kinematics, its gradient by
+    central differences (joint steps of 1e-6 rad or 1e-4 mm)."""
+    machine = MACHINES[name]
+    rng = np.random.default_rng(7)
+    q = machine.centre + machine.amplitude * rng.uniform(-1, 1, (40, 3))
+    tau = machine.kin.inverse_dynamics(machine.m, q, np.zeros_like(q), np.zeros_like(q))
+    assert np.all(np.isfinite(tau))
+    grad = np.empty_like(q)
+    for j, kind in enumerate(machine.kin.joint_kinds):
+        h = 1e-6 if kind == "revolute" else 1e-4
+        step = np.zeros(3)
+        step[j] = h
+        # dV/dq per joint unit; a prismatic joint's unit is the mm, its force N = J/m
+        grad[:, j] = (machine.potential(q + step) - machine.potential(q - step)) / (2 * h) * (1 if kind == "revolute" else 1e3)
+    assert np.abs(tau - grad).max() < 1e-6 * max(1.0, np.abs(grad).max()), np.abs(tau - grad).max()
+
+
+@pytest.mark.parametrize("name", sorted(MACHINES))
+def test_work_of_the_joints_is_the_change_of_energy(name):
+    """Integral of tau . qd dt = change of kinetic + potential energy along a trajectory that
+    speeds up and slows down every joint (a dropped velocity term, a misplaced mass or a wrong
+    rod split each break it by far more than the tolerance)."""
+    machine = MACHINES[name]
+    work, change, throughput = energy_balance(machine, [0.3, 1.9, 4.0], [2.3, 1.7, 3.1])
+    assert throughput > 0.05
+    assert abs(work - change) < 1e-6 * throughput, (work, change, throughput)
+
+
+@settings(max_examples=12, deadline=None)
+@given(name=st.sampled_from(sorted(MACHINES)), phases=st.lists(st.floats(0, 6.3), min_size=3, max_size=3),
+       freqs=st.lists(st.floats(0.5, 4.0), min_size=3, max_size=3))
+def test_energy_balance_holds_on_any_trajectory(name, phases, freqs):
+    machine = MACHINES[name]
+    work, change, throughput = energy_balance(machine, phases, freqs, duration=0.3)
+    assert abs(work - change) < 1e-6 * throughput + 1e-9, (work, change, throughput)
+
+
+@pytest.mark.parametrize("name", sorted(MACHINES))
+def test_path_coefficients_give_the_torque_along_a_path(name):
+    """tau(q, q' sd, q' sdd + q'' sd^2) = A sdd + B sd^2 + C at any path speed sd and acceleration
+    sdd: the torque is linear in sdd and in sd^2, the form the planner's constraints take."""
+    machine = MACHINES[name]
+    rng = np.random.default_rng(3)
+    s = rng.uniform(0, 1, 200)[:, None]
+    k, phase = np.array([2.1, -1.3, 2.9]), np.array([0.4, 1.1, 2.0])
+    q = machine.centre + machine.amplitude * np.sin(k * s + phase)
+    dq = machine.amplitude * k * np.cos(k * s + phase)
+    ddq = -machine.amplitude * k**2 * np.sin(k * s + phase)
+    sd, sdd = rng.uniform(-3, 3, (200, 1)), rng.uniform(-40, 40, (200, 1))
+    a, b, c = path_coefficients(lambda *x: machine.kin.inverse_dynamics(machine.m, *x), q, dq, ddq)
+    direct = machine.kin.inverse_dynamics(machine.m, q, dq * sd, dq * sdd + ddq * sd**2)
+    assert np.all(np.isfinite(direct))
+    assert np.allclose(a * sdd + b * sd**2 + c, direct, rtol=1e-9, atol=1e-9 * np.abs(direct).max())
