@@ -215,3 +215,87 @@ def test_path_coefficients_give_the_torque_along_a_path(name):
     direct = machine.kin.inverse_dynamics(machine.m, q, dq * sd, dq * sdd + ddq * sd**2)
     assert np.all(np.isfinite(direct))
     assert np.allclose(a * sdd + b * sd**2 + c, direct, rtol=1e-9, atol=1e-9 * np.abs(direct).max())
+
+
+# ------------------------------------------------------------------------------- the printer file
+
+from deltaslice.errors import PrinterFileError  # noqa: E402
+from deltaslice.machine import load_printer  # noqa: E402
+from deltaslice.machine.dynamics import ActuatorCurves  # noqa: E402
+
+from conftest import PRINTER_DIR, printer  # noqa: E402
+
+ETITC_TEXT = (PRINTER_DIR / "delta_etitc.toml").read_text()
+
+
+def _load(tmp_path, text):
+    path = tmp_path / "p.toml"
+    path.write_text(text)
+    return load_printer(path)
+
+
+def test_etitc_masses_are_the_thesis_parts():
+    m = printer("delta_etitc").dynamics.masses
+    hardware = 2 * 0.025 + 2 * 0.00362 + 0.004  # two rod ends, two nuts, one axle at each end of a chain
+    assert m.elbow_mass == pytest.approx(hardware)
+    assert m.platform_mass == pytest.approx(0.085 + 0.5 + 3 * hardware)
+    assert m.forearm_mass == pytest.approx(2 * 0.040) and m.upper_arm_mass == pytest.approx(0.05793)
+    a = printer("delta_etitc").dynamics.actuators
+    assert a.stall == pytest.approx((0.20 * 9.807,) * 3, abs=5e-4) and np.degrees(a.no_load_speed[0]) == pytest.approx(60 / 0.2)
+
+
+def test_gravity_at_the_bed_centre_takes_28_percent_of_stall():
+    """The issue's figure: gravity alone takes 28-41 % of the 9805BB's stall near the bed."""
+    p = printer("delta_etitc")
+    q = p.kinematics().inverse(np.array([[0.0, 0.0, 0.5]]))
+    tau = p.joint_torques(q, 0 * q, 0 * q)
+    assert np.abs(tau / 1.961) == pytest.approx(np.full((1, 3), 0.281), abs=0.005)
+
+
+def test_a_printer_without_dynamics_data_has_none(tmp_path):
+    start = ETITC_TEXT.index("\n[dynamics]\n")
+    text = ETITC_TEXT[:start] + ETITC_TEXT[ETITC_TEXT.index("\n[sources]\n"):]
+    text = "\n".join(line for line in text.splitlines() if not line.startswith('"dynamics.'))
+    p = _load(tmp_path, text)
+    assert p.dynamics is None
+    with pytest.raises(ValueError, match="no \\[dynamics\\]"):
+        p.joint_torques(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("forearm_mass = 0.080", "forearm_mas = 0.080", "[dynamics] unknown key 'forearm_mas': did you mean 'forearm_mass'?"),
+    ("elbow_mass = 0.06124", "elbow_mass = -0.06", "[dynamics] elbow_mass = -0.06: expected a number >= 0"),
+    ("stall_torque = 1.961", "stall_torque = [1.961, 0.0, 1.961]", "[dynamics] stall_torque = 0.0: expected a number > 0"),
+    ('speed_torque_curve = "linear"', 'speed_torque_curve = "pullout"', "did you mean 'pull_out'?"),
+    ('speed_torque_curve = "linear"', 'speed_torque_curve = "pull_out"', "[dynamics] corner_speed missing"),
+    ('speed_torque_curve = "linear"', 'speed_torque_curve = "pull_out"\ncorner_speed = 300.0',
+     "[dynamics] corner_speed = [300.0, 300.0, 300.0]: expected a corner speed below no_load_speed"),
+    ('speed_torque_curve = "linear"', 'speed_torque_curve = "table"\ncurve_points = [[0.1, 1.0], [1.0, 0.0]]',
+     "[dynamics] curve_points = [[0.1, 1.0], [1.0, 0.0]]: expected a list of at least 2"),
+])
+def test_bad_dynamics_values_name_the_file_key_value_and_bound(tmp_path, old, new, message):
+    assert old in ETITC_TEXT
+    with pytest.raises(PrinterFileError) as err:
+        _load(tmp_path, ETITC_TEXT.replace(old, new))
+    assert message in str(err.value) and str(tmp_path / "p.toml") in str(err.value), str(err.value)
+
+
+def test_a_table_curve_loads(tmp_path):
+    text = ETITC_TEXT.replace('speed_torque_curve = "linear"',
+                              'speed_torque_curve = "table"\ncurve_points = [[0.0, 1.0], [0.5, 0.8], [1.0, 0.0]]')
+    a = _load(tmp_path, text).dynamics.actuators
+    v0 = a.no_load_speed[0]
+    assert a.driving_limit(np.array([[0.0, 0.25 * v0, 0.75 * v0]]))[0] == pytest.approx(1.961 * np.array([1.0, 0.9, 0.4]))
+
+
+def test_speed_torque_curves():
+    lin = ActuatorCurves("linear", (2.0, 1.0), (10.0, 4.0))
+    assert lin.driving_limit(np.array([[0.0, 0.0], [5.0, -2.0], [10.0, 4.0], [-30.0, 9.0]])) == pytest.approx(
+        np.array([[2.0, 1.0], [1.0, 0.5], [0.0, 0.0], [0.0, 0.0]]))
+    step = ActuatorCurves("pull_out", (2.0,), (10.0,), corner_speed=(2.0,))
+    assert step.driving_limit(np.array([[1.0], [2.0], [4.0], [-8.0], [10.0]]))[:, 0] == pytest.approx([2.0, 2.0, 1.0, 0.5, 0.0])
+    # driving (torque and speed of one sign) against the curve; braking against stall
+    speed, torque = np.array([[5.0, 5.0, 5.0, -5.0]]), np.array([[1.1, 0.9, -1.9, 1.9]])
+    two = ActuatorCurves("linear", (2.0,) * 4, (10.0,) * 4)
+    assert two.over_line(speed, torque).tolist() == [[True, False, False, False]]
+    assert two.available(speed, torque) == pytest.approx(np.array([[1.0, 1.0, 2.0, 2.0]]))
