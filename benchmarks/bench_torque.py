@@ -46,8 +46,11 @@ def star_prism(path: Path) -> Path:
 
 def compile_csv(part: Path, printer: str, mode: str, out: Path, workers: int) -> Path:
     if not out.exists():
-        subprocess.run([sys.executable, "-m", "deltaslice", "compile", str(part), "--printer", printer, "--speed-limit",
-                        mode, "-o", str(out), "--workers", str(workers)], check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+        run = subprocess.run([sys.executable, "-m", "deltaslice", "compile", str(part), "--printer", printer,
+                              "--speed-limit", mode, "-o", str(out), "--workers", str(workers)], cwd=ROOT,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        if run.returncode:
+            raise SystemExit(f"compile of {part.name} ({mode}) failed:\n{run.stderr[-2000:]}")
     return out
 
 

@@ -101,7 +101,7 @@ def read_dynamics(sec: Section, geometry: RotaryDeltaGeometry) -> RotaryDeltaMas
     return RotaryDeltaMasses(
         upper_arm_mass=arm,
         upper_arm_inertia=sec.getfloat("upper_arm_inertia", arm * (L1 * MM) ** 2 / 3, minval=0, maxval=100),
-        upper_arm_com=sec.getfloat("upper_arm_com", L1 / 2, minval=0, maxval=10 * L1),
+        upper_arm_com=sec.getfloat("upper_arm_com", L1 / 2, minval=0),
         elbow_mass=sec.getfloat("elbow_mass", 0.0, minval=0, maxval=100),
         forearm_mass=sec.getfloat("forearm_mass", minval=0, maxval=100),
         platform_mass=sec.getfloat("platform_mass", minval=0, maxval=1000) + sec.getfloat("tool_mass", 0.0, minval=0,
