@@ -27,8 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from deltaslice.machine import load_printer  # noqa: E402
+from deltaslice.machine.dynamics import ACCELERATION_WINDOW as WINDOW  # noqa: E402
+from deltaslice.machine.dynamics import sampled_torques  # noqa: E402
 
-WINDOW = 0.005  # s: accelerations averaged over this
 STAR = {"outer": 20.0, "inner": 8.0, "height": 10.0}  # mm: tests/test_planning_limits.py's star, as a prism
 
 
@@ -73,13 +74,7 @@ def read_csv(path: Path, n_joints: int):
 def read_back(printer, q: np.ndarray, rate: float) -> dict:
     """The torque figures of joints q (N, J) sampled at rate Hz."""
     dt = 1.0 / rate
-    qd = np.gradient(q, dt, axis=0)
-    second = np.zeros_like(q)
-    second[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt**2
-    n = max(1, int(round(WINDOW * rate)))
-    kernel = np.ones(n) / n
-    qdd = np.column_stack([np.convolve(second[:, j], kernel, mode="same") for j in range(q.shape[1])])
-    tau = printer.joint_torques(q, qd, qdd)
+    tau, qd = sampled_torques(printer, q, rate)
     gravity = printer.joint_torques(q, 0 * qd, 0 * qd)
     velocity = printer.joint_torques(q, qd, 0 * qd) - gravity
     act = printer.dynamics.actuators

@@ -299,3 +299,19 @@ def test_speed_torque_curves():
     two = ActuatorCurves("linear", (2.0,) * 4, (10.0,) * 4)
     assert two.over_line(speed, torque).tolist() == [[True, False, False, False]]
     assert two.available(speed, torque) == pytest.approx(np.array([[1.0, 1.0, 2.0, 2.0]]))
+
+
+def test_sampled_torques_read_back_the_exact_motion():
+    """Joints on a cubic in time, sampled at 1 kHz: the read-back (central differences, second
+    differences averaged over 5 ms) gives the model's torques at the exact q, qd, qdd (a cubic's
+    second differences are exact and its acceleration linear, which a centred mean keeps)."""
+    from deltaslice.machine.dynamics import sampled_torques
+
+    p = printer("delta_etitc")
+    t = np.arange(0.0, 0.2, 1e-3)[:, None]
+    b, c, d = np.array([0.5, -0.3, 0.2]), np.array([4.0, -2.0, 3.0]), np.array([-20.0, 30.0, 10.0])
+    q = np.radians(40.0) + b * t + c * t**2 + d * t**3
+    tau, qd = sampled_torques(p, q, 1000.0)
+    exact = p.joint_torques(q, b + 2 * c * t + 3 * d * t**2, 2 * c + 6 * d * t)
+    inner = slice(3, -3)
+    assert np.abs(tau[inner] - exact[inner]).max() < 1e-5 * np.abs(exact).max()

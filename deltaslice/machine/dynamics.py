@@ -114,3 +114,25 @@ def _read_points(sec: Section) -> tuple:
     if not ok or [float(x) for x in pts[0]] != [0.0, 1.0] or any(b[0] <= a[0] for a, b in zip(pts, pts[1:])):
         sec.fail("curve_points", pts, expected)
     return tuple((float(a), float(b)) for a, b in pts)
+
+
+ACCELERATION_WINDOW = 0.005  # s: sampled accelerations are averaged over this (the arms' inertia filters faster steps)
+
+
+def sampled_torques(printer, q, rate: float, window: float = ACCELERATION_WINDOW):
+    """Torques read back from sampled joints: q (N, J) joint units at ``rate`` Hz -> (tau (N, J) N m
+    or N, qd (N, J) units/s). Velocities by central differences; accelerations the second
+    differences averaged over ``window`` s (the mean acceleration over the window: a single second
+    difference at 1-10 kHz shows every step between the planner's stages, which no arm follows)."""
+    q = np.asarray(q, dtype=float)
+    dt = 1.0 / rate
+    if len(q) < 3:
+        zero = np.zeros_like(q)
+        return printer.joint_torques(q, zero, zero), zero
+    qd = np.gradient(q, dt, axis=0)
+    second = np.zeros_like(q)
+    second[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt**2
+    n = max(1, int(round(window * rate)))
+    box = np.ones(n) / n
+    qdd = np.column_stack([np.convolve(second[:, j], box, mode="same") for j in range(q.shape[1])])
+    return printer.joint_torques(q, qd, qdd), qd
