@@ -94,7 +94,7 @@ def read_back(printer, q: np.ndarray, rate: float) -> dict:
         "gravity": float(np.nanmax(np.abs(gravity) / stall)),
         "velocity_terms": float(np.nanmax(np.abs(velocity) / stall)),
         "where": p,
-        "angles": np.degrees(q[k]),
+        "joints": [np.degrees(v) if kind == "revolute" else v for v, kind in zip(q[k], printer.limits.kinds)],
         "nan": int(np.sum(~np.isfinite(tau).all(axis=1))),
     }
 
@@ -118,7 +118,7 @@ def main(argv=None):
         print(f"{printer.name}: stall {', '.join(f'{s:g}' for s in stall)} (N m or N); accelerations averaged over "
               f"{WINDOW * 1e3:g} ms")
         print("| plan | print time s | peak torque (x stall) | time any over stall | time any over speed-torque line "
-              "| of driving joint samples | gravity alone (x stall) | velocity terms alone (x stall) | peak at (x, y, z mm; joints deg) |")
+              "| of driving joint samples | gravity alone (x stall) | velocity terms alone (x stall) | peak at (x, y, z mm; joints deg or mm) |")
         print("|---|---|---|---|---|---|---|---|---|")
         for case in args.cases.split(","):
             part, mode = case.split(":")
@@ -128,7 +128,7 @@ def main(argv=None):
             rate, q = read_csv(csv, printer.n_joints)
             r = read_back(printer, q, rate)
             where = ", ".join(f"{v:.1f}" for v in r["where"])
-            angles = ", ".join(f"{v:.0f}" for v in r["angles"])
+            angles = ", ".join(f"{v:.0f}" for v in r["joints"])
             print(f"| {part}, {mode} | {r['duration']:.1f} | {r['peak']:.2f} ({r['peak_ratio']:.2f}x) "
                   f"| {100 * r['over_stall']:.1f} % | {100 * r['over_line']:.1f} % | {100 * r['over_line_driving']:.1f} % "
                   f"| {r['gravity']:.2f} | {r['velocity_terms']:.3f} | {where}; {angles} |", flush=True)
