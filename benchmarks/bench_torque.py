@@ -103,7 +103,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--printer", default="delta_etitc")
     ap.add_argument("--cases", default="cube:feed,cube:machine,star:machine",
-                    help="comma-separated part:mode, part cube or star, mode feed or machine")
+                    help="comma-separated part:mode, part cube, star or a mesh's path, mode feed or machine")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--keep", type=Path, default=None, help="directory to keep (and reuse) the compiled CSVs in")
     args = ap.parse_args(argv)
@@ -124,12 +124,13 @@ def main(argv=None):
             part, mode = case.split(":")
             if part == "star" and part not in parts:
                 parts["star"] = star_prism(work / "star10.stl")
-            csv = compile_csv(parts[part], args.printer, mode, work / f"{printer.name}_{part}_{mode}.csv", args.workers)
+            mesh = parts.get(part) or Path(part)
+            csv = compile_csv(mesh, args.printer, mode, work / f"{printer.name}_{mesh.stem}_{mode}.csv", args.workers)
             rate, q = read_csv(csv, printer.n_joints)
             r = read_back(printer, q, rate)
             where = ", ".join(f"{v:.1f}" for v in r["where"])
             angles = ", ".join(f"{v:.0f}" for v in r["joints"])
-            print(f"| {part}, {mode} | {r['duration']:.1f} | {r['peak']:.2f} ({r['peak_ratio']:.2f}x) "
+            print(f"| {mesh.stem if part not in parts else part}, {mode} | {r['duration']:.1f} | {r['peak']:.2f} ({r['peak_ratio']:.2f}x) "
                   f"| {100 * r['over_stall']:.1f} % | {100 * r['over_line']:.1f} % | {100 * r['over_line_driving']:.1f} % "
                   f"| {r['gravity']:.2f} | {r['velocity_terms']:.3f} | {where}; {angles} |", flush=True)
             if r["nan"]:

@@ -315,3 +315,16 @@ def test_sampled_torques_read_back_the_exact_motion():
     exact = p.joint_torques(q, b + 2 * c * t + 3 * d * t**2, 2 * c + 6 * d * t)
     inner = slice(3, -3)
     assert np.abs(tau[inner] - exact[inner]).max() < 1e-5 * np.abs(exact).max()
+
+
+def test_a_family_without_a_model_refuses_a_dynamics_table():
+    import tomllib
+
+    from deltaslice.machine import printer_from_dict
+
+    data = tomllib.loads((PRINTER_DIR / "linear_kossel.toml").read_text())
+    data["kinematics"] = {"family": "cartesian"}
+    with pytest.raises(PrinterFileError, match=r"x.toml: \[dynamics\] .*the cartesian family has no dynamics model"):
+        printer_from_dict(data, "x.toml")
+    del data["dynamics"]
+    assert printer_from_dict(data, "x.toml").dynamics is None

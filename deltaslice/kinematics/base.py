@@ -17,6 +17,11 @@ limits. Everything is vectorised over N points:
 * ``reachable(points (N,3)) -> (N,) bool``: real inverse, joint limits and any
   family-specific limit (ball-joint tilt), and not near a singularity.
 
+A family with a dynamics model also has ``read_dynamics(section, geometry)`` (its masses from the
+printer file's ``[dynamics]`` table, a frozen dataclass) and ``inverse_dynamics(masses, q, qd, qdd)
+-> (N,J)`` joint torques (N m) or forces (N) from joint positions, velocities and accelerations
+(N,J) in joint units; :func:`path_coefficients` splits them along a path (see the notes below).
+
 Points are in the bed frame: x, y on the bed with the origin at its centre, z up
 from the bed surface, tool tip. Hot loops get masks, never exceptions.
 """

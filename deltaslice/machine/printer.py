@@ -70,6 +70,14 @@ class Printer:
             raise ValueError(f"{self.name} has no [dynamics] table")
         return self.kinematics_.inverse_dynamics(self.dynamics.masses, q, qd, qdd)
 
+    def torque_path_coefficients(self, q, dq, ddq):
+        """The joint torques along a path q(s) as ``A sdd + B sd^2 + C`` (the form of the planner's
+        acceleration constraint): q, dq = dq/ds, ddq = d2q/ds2 (N, J) -> (A, B, C), each (N, J) N m
+        or N. ValueError where the file has no ``[dynamics]``."""
+        from ..kinematics.base import path_coefficients
+
+        return path_coefficients(self.joint_torques, q, dq, ddq)
+
     def joint_from_sensor(self, joint: int, readings) -> np.ndarray:
         """Joint values (joint units) of raw sensor readings of one joint, interpolated
         piecewise-linearly in ``sensor_table`` and extrapolated along its end segments.
