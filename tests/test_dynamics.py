@@ -328,3 +328,15 @@ def test_a_family_without_a_model_refuses_a_dynamics_table():
         printer_from_dict(data, "x.toml")
     del data["dynamics"]
     assert printer_from_dict(data, "x.toml").dynamics is None
+
+
+def test_torques_read_back_in_blocks_are_those_of_the_whole_array():
+    from deltaslice.machine.dynamics import sampled_torques
+
+    p = printer("delta_etitc")
+    t = np.arange(0.0, 0.3, 1e-3)[:, None]
+    q = np.radians(40.0) + 0.3 * np.sin(np.array([7.0, 11.0, 13.0]) * t)
+    whole = sampled_torques(p, q, 1000.0)
+    for block in (1, 7, 64):
+        parts = sampled_torques(p, q, 1000.0, block=block)
+        assert all(np.array_equal(a, b) for a, b in zip(parts, whole)), block

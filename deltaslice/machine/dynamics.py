@@ -117,22 +117,41 @@ def _read_points(sec: Section) -> tuple:
 
 
 ACCELERATION_WINDOW = 0.005  # s: sampled accelerations are averaged over this (the arms' inertia filters faster steps)
+BLOCK = 65536  # samples per evaluation of the model (its (N, 3, 3) temporaries: a long 10 kHz print holds millions)
 
 
-def sampled_torques(printer, q, rate: float, window: float = ACCELERATION_WINDOW):
-    """Torques read back from sampled joints: q (N, J) joint units at ``rate`` Hz -> (tau (N, J) N m
-    or N, qd (N, J) units/s). Velocities by central differences; accelerations the second
-    differences averaged over ``window`` s (the mean acceleration over the window: a single second
-    difference at 1-10 kHz shows every step between the planner's stages, which no arm follows)."""
+def torque_blocks(printer, q, rate: float, window: float = ACCELERATION_WINDOW, block: int = BLOCK):
+    """Torques read back from sampled joints, a block at a time: q (N, J) joint units at ``rate`` Hz
+    -> yields (start, tau (n, J) N m or N, qd (n, J) units/s) for rows start..start + n. Velocities
+    by central differences; accelerations the second differences averaged over ``window`` s (the
+    mean acceleration over the window: a single second difference at 1-10 kHz shows every step
+    between the planner's stages, which no arm follows). Each block is differenced with a margin of
+    its neighbours' samples, so the blocks give what the whole array would."""
     q = np.asarray(q, dtype=float)
-    dt = 1.0 / rate
-    if len(q) < 3:
+    N = len(q)
+    if N < 3:
         zero = np.zeros_like(q)
-        return printer.joint_torques(q, zero, zero), zero
-    qd = np.gradient(q, dt, axis=0)
-    second = np.zeros_like(q)
-    second[1:-1] = (q[2:] - 2 * q[1:-1] + q[:-2]) / dt**2
+        yield 0, printer.joint_torques(q, zero, zero), zero
+        return
+    dt = 1.0 / rate
     n = max(1, int(round(window * rate)))
     box = np.ones(n) / n
-    qdd = np.column_stack([np.convolve(second[:, j], box, mode="same") for j in range(q.shape[1])])
-    return printer.joint_torques(q, qd, qdd), qd
+    halo = n + 2
+    for a in range(0, N, block):
+        b = min(N, a + block)
+        lo, hi = max(0, a - halo), min(N, b + halo)
+        x = q[lo:hi]
+        qd = np.gradient(x, dt, axis=0)
+        second = np.zeros_like(x)
+        second[1:-1] = (x[2:] - 2 * x[1:-1] + x[:-2]) / dt**2
+        qdd = np.column_stack([np.convolve(second[:, j], box, mode="same") for j in range(q.shape[1])])
+        # np.gradient is one-sided and the second differences zero at the slice's ends: the whole
+        # array's ends are those; a block's inner ends fall in the margin, cut off here
+        rows = slice(a - lo, b - lo)
+        yield a, printer.joint_torques(x[rows], qd[rows], qdd[rows]), qd[rows]
+
+
+def sampled_torques(printer, q, rate: float, window: float = ACCELERATION_WINDOW, block: int = BLOCK):
+    """:func:`torque_blocks` joined: (tau (N, J), qd (N, J))."""
+    parts = list(torque_blocks(printer, q, rate, window, block))
+    return np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
