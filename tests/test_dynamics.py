@@ -340,3 +340,21 @@ def test_torques_read_back_in_blocks_are_those_of_the_whole_array():
     for block in (1, 7, 64):
         parts = sampled_torques(p, q, 1000.0, block=block)
         assert all(np.array_equal(a, b) for a, b in zip(parts, whole)), block
+
+
+@settings(max_examples=30, deadline=None)
+@given(name=st.sampled_from(sorted(MACHINES)), u=st.lists(st.floats(-1, 1), min_size=3, max_size=3))
+def test_the_mass_matrix_is_symmetric_and_positive_definite(name, u):
+    """M(q), column j the torques of a unit acceleration of joint j at rest less gravity, is a
+    kinetic energy's Hessian (in SI joint units): symmetric, positive definite. A force projected
+    through another Jacobian than the one its acceleration came from breaks the symmetry."""
+    machine = MACHINES[name]
+    q = (machine.centre + machine.amplitude * np.array(u))[None]
+    si = np.array([1.0 if k == "revolute" else 1e-3 for k in machine.kin.joint_kinds])
+    zero = np.zeros_like(q)
+    g = machine.kin.inverse_dynamics(machine.m, q, zero, zero)[0]
+    # a unit SI acceleration of joint j: 1 rad/s^2 or 1 m/s^2 (1000 mm/s^2); the torques are SI already
+    M = np.column_stack([machine.kin.inverse_dynamics(machine.m, q, zero, np.eye(3)[j][None] / si)[0] - g
+                         for j in range(3)])
+    assert np.allclose(M, M.T, rtol=1e-9, atol=1e-12 * np.abs(M).max())
+    assert np.linalg.eigvalsh(0.5 * (M + M.T)).min() > 0
