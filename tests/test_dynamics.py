@@ -358,3 +358,20 @@ def test_the_mass_matrix_is_symmetric_and_positive_definite(name, u):
                          for j in range(3)])
     assert np.allclose(M, M.T, rtol=1e-9, atol=1e-12 * np.abs(M).max())
     assert np.linalg.eigvalsh(0.5 * (M + M.T)).min() > 0
+
+
+def test_the_compiled_torque_coefficients_are_the_reference():
+    """RotaryDelta.torque_coefficients (compiled) against path_coefficients of inverse_dynamics
+    (numpy; the model the energy checks hold), along a curve over the ETITC's bed."""
+    p = printer("delta_etitc")
+    kin, m = p.kinematics(), p.dynamics.masses
+    s = np.linspace(0, 1, 400)[:, None]
+    points = np.column_stack([60 * np.cos(7 * s) * s, 50 * np.sin(5 * s), 1 + 100 * s**2])
+    q = kin.inverse(points)
+    rng = np.random.default_rng(5)
+    dq, ddq = rng.normal(size=q.shape), rng.normal(scale=10, size=q.shape)
+    ref = path_coefficients(lambda *x: kin.inverse_dynamics(m, *x), q, dq, ddq)
+    fast = kin.torque_coefficients(m, points, q, dq, ddq)
+    for a, b in zip(fast, ref):
+        assert np.all(np.isfinite(b))
+        assert np.abs(a - b).max() < 1e-9 * np.abs(b).max()
