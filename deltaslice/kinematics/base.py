@@ -269,13 +269,8 @@ class Kinematics:
 # terms included.
 
 GRAVITY = 9.80665  # m/s^2, standard gravity; the bed frame's z is up
-MM = 1e-3  # m per mm: positions and Jacobians are in mm, the dynamics in SI
-
-
-def joint_scale(kinds) -> np.ndarray:
-    """(J,) factor taking a point Jacobian column in mm per joint unit to SI: m/rad for a revolute
-    joint (its torque comes out in N m), m/m for a prismatic one (mm/mm; its force in N)."""
-    return np.array([MM if k == "revolute" else 1.0 for k in kinds])
+MM = 1e-3  # m per mm: positions and Jacobians are in mm, the dynamics in SI (a revolute joint's
+# Jacobian column times MM is m/rad, its torque N m; a prismatic one's is mm/mm, its force N)
 
 
 def closure_motion(d, de, dde, qd, qdd):

@@ -185,7 +185,7 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
     return s
 
 
-def _read_dynamics(sec: Section, module, geometry) -> Dynamics:
+def _read_dynamics(sec: Section, module, geometry) -> Dynamics | None:
     """``[dynamics]``: the family's masses (its module's ``read_dynamics``) and the actuators' curves."""
     reader = getattr(module, "read_dynamics", None)
     masses = None
