@@ -128,7 +128,18 @@ class Five:
                 + 0.5 * m.tool_mass * (vp**2).sum(1) + 0.5 * m.z_mass * (qd[:, 2] * 1e-3) ** 2)
 
 
-MACHINES = {"rotary_delta": Rotary, "linear_delta": Linear, "five_bar": Five}
+class FiveHead(Five):
+    """The five-bar whose lead screw lifts the head (linkage and all) instead of the bed."""
+
+    m = FiveBarMasses(proximal_inertia=(0.0011, 0.0017), elbow_mass=0.021, distal_mass=0.047, tool_mass=0.31,
+                      z_mass=1.7, z_carries="head", rotor_inertia=0.0004)
+
+    @classmethod
+    def potential(cls, q):
+        return G * cls.m.z_mass * q[:, 2] * 1e-3
+
+
+MACHINES = {"rotary_delta": Rotary, "linear_delta": Linear, "five_bar": Five, "five_bar_head": FiveHead}
 
 
 def trajectory(machine, phases, freqs, duration, dt):
