@@ -386,3 +386,22 @@ def test_the_compiled_torque_coefficients_are_the_reference():
     for a, b in zip(fast, ref):
         assert np.all(np.isfinite(b))
         assert np.abs(a - b).max() < 1e-9 * np.abs(b).max()
+
+
+@pytest.mark.parametrize("name", ["delta_etitc", "delta_ucb", "fivebar_atlas", "linear_kossel"])
+def test_every_printer_gives_its_path_coefficients(name):
+    """Printer.torque_path_coefficients (the family's torque_coefficients: compiled for the rotary
+    delta, the numpy default elsewhere) is the model's torque along a path at any sd, sdd."""
+    p = printer(name)
+    kin = p.kinematics()
+    s = np.linspace(0, 1, 50)[:, None]
+    points = np.column_stack([20 * np.cos(5 * s), 15 * np.sin(3 * s), 5 + 20 * s])
+    h = 1e-4
+    q, qp, qm = kin.inverse(points), kin.inverse(points + h), kin.inverse(points - h)  # a path along (1, 1, 1)
+    dq, ddq = (qp - qm) / (2 * h), (qp - 2 * q + qm) / h**2
+    a, b, c = p.torque_path_coefficients(q, dq, ddq, points)
+    sd, sdd = 37.0, -450.0
+    direct = p.joint_torques(q, dq * sd, dq * sdd + ddq * sd**2)
+    assert np.all(np.isfinite(direct))
+    assert np.abs(a * sdd + b * sd**2 + c - direct).max() < 1e-9 * np.abs(direct).max()
+    assert np.allclose(p.torque_path_coefficients(q, dq, ddq)[2], c, rtol=1e-9, atol=1e-12)

@@ -182,6 +182,13 @@ class Kinematics:
         out1[bad] = out2[bad] = np.nan
         return int(np.flatnonzero(bad)[0]) if bad.any() else -1
 
+    def torque_coefficients(self, masses, points, q, dq, ddq):
+        """The joint torques along a path as ``A sdd + B sd^2 + C`` (N m or N), (A, B, C) each
+        (N,J), at points (N,3) mm with q = inverse(points), dq = dq/ds, ddq = d2q/ds2 (N,J): by
+        default :func:`path_coefficients` of the family's ``inverse_dynamics``; a family may compile
+        it (the rotary delta)."""
+        return path_coefficients(lambda *x: self.inverse_dynamics(masses, *x), q, dq, ddq)
+
     def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Family-specific limits beyond joint positions (default: none). (N,) bool."""
         return np.ones(len(points), dtype=bool)

@@ -70,13 +70,16 @@ class Printer:
             raise ValueError(f"{self.name} has no [dynamics] table")
         return self.kinematics_.inverse_dynamics(self.dynamics.masses, q, qd, qdd)
 
-    def torque_path_coefficients(self, q, dq, ddq):
+    def torque_path_coefficients(self, q, dq, ddq, points=None):
         """The joint torques along a path q(s) as ``A sdd + B sd^2 + C`` (the form of the planner's
-        acceleration constraint): q, dq = dq/ds, ddq = d2q/ds2 (N, J) -> (A, B, C), each (N, J) N m
-        or N. ValueError where the file has no ``[dynamics]``."""
-        from ..kinematics.base import path_coefficients
-
-        return path_coefficients(self.joint_torques, q, dq, ddq)
+        acceleration constraint): q, dq = dq/ds, ddq = d2q/ds2 (N, J), points (N, 3) mm the tool
+        tips at q (forward kinematics when not given) -> (A, B, C), each (N, J) N m or N, from the
+        family's ``torque_coefficients``. ValueError where the file has no ``[dynamics]``."""
+        if self.dynamics is None:
+            raise ValueError(f"{self.name} has no [dynamics] table")
+        kin = self.kinematics_
+        points = kin.forward(q) if points is None else points
+        return kin.torque_coefficients(self.dynamics.masses, points, q, dq, ddq)
 
     def joint_from_sensor(self, joint: int, readings) -> np.ndarray:
         """Joint values (joint units) of raw sensor readings of one joint, interpolated
