@@ -6,15 +6,21 @@ its own closed form, not the model's three-point split)."""
 
 from __future__ import annotations
 
+import tomllib
+
 import numpy as np
 import pytest
+from conftest import PRINTER_DIR, printer
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from deltaslice.errors import PrinterFileError
 from deltaslice.kinematics.base import path_coefficients
 from deltaslice.kinematics.five_bar import FiveBar, FiveBarGeometry, FiveBarMasses
 from deltaslice.kinematics.linear_delta import LinearDelta, LinearDeltaGeometry, LinearDeltaMasses
 from deltaslice.kinematics.rotary_delta import RotaryDelta, RotaryDeltaGeometry, RotaryDeltaMasses
+from deltaslice.machine import load_printer, printer_from_dict
+from deltaslice.machine.dynamics import ActuatorCurves, sampled_torques
 
 G = 9.80665
 ANG = np.radians([0.0, 120.0, 240.0])
@@ -230,12 +236,6 @@ def test_path_coefficients_give_the_torque_along_a_path(name):
 
 # ------------------------------------------------------------------------------- the printer file
 
-from deltaslice.errors import PrinterFileError  # noqa: E402
-from deltaslice.machine import load_printer  # noqa: E402
-from deltaslice.machine.dynamics import ActuatorCurves  # noqa: E402
-
-from conftest import PRINTER_DIR, printer  # noqa: E402
-
 ETITC_TEXT = (PRINTER_DIR / "delta_etitc.toml").read_text()
 
 
@@ -316,8 +316,6 @@ def test_sampled_torques_read_back_the_exact_motion():
     """Joints on a cubic in time, sampled at 1 kHz: the read-back (central differences, second
     differences averaged over 5 ms) gives the model's torques at the exact q, qd, qdd (a cubic's
     second differences are exact and its acceleration linear, which a centred mean keeps)."""
-    from deltaslice.machine.dynamics import sampled_torques
-
     p = printer("delta_etitc")
     t = np.arange(0.0, 0.2, 1e-3)[:, None]
     b, c, d = np.array([0.5, -0.3, 0.2]), np.array([4.0, -2.0, 3.0]), np.array([-20.0, 30.0, 10.0])
@@ -329,10 +327,6 @@ def test_sampled_torques_read_back_the_exact_motion():
 
 
 def test_a_family_without_a_model_refuses_a_dynamics_table():
-    import tomllib
-
-    from deltaslice.machine import printer_from_dict
-
     data = tomllib.loads((PRINTER_DIR / "linear_kossel.toml").read_text())
     data["kinematics"] = {"family": "cartesian"}
     with pytest.raises(PrinterFileError, match=r"x.toml: \[dynamics\] .*the cartesian family has no dynamics model"):
@@ -342,8 +336,6 @@ def test_a_family_without_a_model_refuses_a_dynamics_table():
 
 
 def test_torques_read_back_in_blocks_are_those_of_the_whole_array():
-    from deltaslice.machine.dynamics import sampled_torques
-
     p = printer("delta_etitc")
     t = np.arange(0.0, 0.3, 1e-3)[:, None]
     q = np.radians(40.0) + 0.3 * np.sin(np.array([7.0, 11.0, 13.0]) * t)
