@@ -363,10 +363,11 @@ def test_the_mass_matrix_is_symmetric_and_positive_definite(name, u):
     assert np.linalg.eigvalsh(0.5 * (M + M.T)).min() > 0
 
 
-def test_the_compiled_torque_coefficients_are_the_reference():
-    """RotaryDelta.torque_coefficients (compiled) against path_coefficients of inverse_dynamics
-    (numpy; the model the energy checks hold), along a curve over the ETITC's bed."""
-    p = printer("delta_etitc")
+@pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel", "fivebar_atlas"])
+def test_the_compiled_torque_coefficients_are_the_reference(name):
+    """A family's compiled torque_coefficients against path_coefficients of its inverse_dynamics
+    (numpy; the model the energy checks hold), along a curve over the printer's bed."""
+    p = printer(name)
     kin, m = p.kinematics(), p.dynamics.masses
     s = np.linspace(0, 1, 400)[:, None]
     points = np.column_stack([60 * np.cos(7 * s) * s, 50 * np.sin(5 * s), 1 + 100 * s**2])
@@ -375,6 +376,7 @@ def test_the_compiled_torque_coefficients_are_the_reference():
     dq, ddq = rng.normal(size=q.shape), rng.normal(scale=10, size=q.shape)
     ref = path_coefficients(lambda *x: kin.inverse_dynamics(m, *x), q, dq, ddq)
     fast = kin.torque_coefficients(m, points, q, dq, ddq)
+    assert type(kin).torque_coefficients is not type(kin).__mro__[1].torque_coefficients  # its own, compiled
     for a, b in zip(fast, ref):
         assert np.all(np.isfinite(b))
         assert np.abs(a - b).max() < 1e-9 * np.abs(b).max()

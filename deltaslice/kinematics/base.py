@@ -185,8 +185,8 @@ class Kinematics:
     def torque_coefficients(self, masses, points, q, dq, ddq):
         """The joint torques along a path as ``A sdd + B sd^2 + C`` (N m or N), (A, B, C) each
         (N,J), at points (N,3) mm with q = inverse(points), dq = dq/ds, ddq = d2q/ds2 (N,J): by
-        default :func:`path_coefficients` of the family's ``inverse_dynamics``; a family may compile
-        it (the rotary delta)."""
+        default :func:`path_coefficients` of the family's ``inverse_dynamics`` (the reference a family's
+        compiled form is tested against)."""
         return path_coefficients(lambda *x: self.inverse_dynamics(masses, *x), q, dq, ddq)
 
     def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
