@@ -121,7 +121,7 @@ DOCS = {
     # dynamics: the actuators (every family)
     ("dynamics", "stall_torque"): ("N m (N)", "Each actuator's torque at rest, at the joint (a linear joint's force): stall for a DC motor or servo, pull-out at low speed for a stepper.", None),
     ("dynamics", "no_load_speed"): (JOINT + "/s", "Joint speed at which the actuator gives no torque any more (a servo's rated 60 deg time: 60 / t).", None),
-    ("dynamics", "speed_torque_curve"): ("", "Shape of the torque available while the actuator drives: `linear` from stall to none at no_load_speed (hobby servo, DC gear motor, Dynamixel), `pull_out` (stepper: stall_torque up to corner_speed, then falling as corner_speed / speed, none from no_load_speed), `table` (curve_points). Braking, an actuator is held to its stall torque.", None),
+    ("dynamics", "speed_torque_curve"): ("", "Shape of the torque available while the actuator drives: `linear` from stall to none at no_load_speed (hobby servo, DC gear motor, Dynamixel), `pull_out` (stepper: stall_torque up to corner_speed, then falling as corner_speed / speed, none from no_load_speed), `table` (curve_points). Braking, an actuator is held to its stall torque.", "`pull_out` for `actuator = \"stepper\"`, else `linear`"),
     ("dynamics", "corner_speed"): (JOINT + "/s", "`pull_out` only: the speed up to which a stepper keeps its low-speed pull-out torque.", None),
     ("dynamics", "curve_points"): ("fractions", "`table` only: `[[speed / no_load_speed, torque / stall_torque], ...]` from `[0, 1]`, speeds increasing; linear between points, none beyond the last.", None),
     # dynamics: rotary delta

@@ -399,3 +399,10 @@ def test_every_printer_gives_its_path_coefficients(name):
     assert np.all(np.isfinite(direct))
     assert np.abs(a * sdd + b * sd**2 + c - direct).max() < 1e-9 * np.abs(direct).max()
     assert np.allclose(p.torque_path_coefficients(q, dq, ddq)[2], c, rtol=1e-9, atol=1e-12)
+
+
+def test_a_stepper_defaults_to_a_pull_out_curve(tmp_path):
+    text = (PRINTER_DIR / "linear_kossel.toml").read_text().replace('speed_torque_curve = "pull_out"\n', "")
+    assert _load(tmp_path, text).dynamics.actuators.curve == "pull_out"
+    with pytest.raises(PrinterFileError, match=r"\[dynamics\] corner_speed missing"):
+        _load(tmp_path, text.replace("corner_speed = 133.0\n", ""))

@@ -78,14 +78,16 @@ class Dynamics:
     actuators: ActuatorCurves
 
 
-def read_actuators(sec: Section, kinds: tuple[str, ...]) -> ActuatorCurves:
+def read_actuators(sec: Section, kinds: tuple[str, ...], actuator: str | None = None) -> ActuatorCurves:
     """The actuator keys of ``[dynamics]`` for joints of ``kinds`` (revolute speeds deg/s in the
-    file, rad/s inside)."""
+    file, rad/s inside); the curve defaults to the ``[joints] actuator``'s: ``pull_out`` for a
+    stepper, ``linear`` for the others (DC motors behind gears)."""
     n = len(kinds)
     scale = [math.radians(1.0) if k == "revolute" else 1.0 for k in kinds]
     stall = sec.getfloats("stall_torque", n, above=0, maxval=1e6)
     v0 = sec.getfloats("no_load_speed", n, above=0)
-    curve = sec.getstr("speed_torque_curve", "linear", choices=CURVES, required=False)
+    curve = sec.getstr("speed_torque_curve", "pull_out" if actuator == "stepper" else "linear", choices=CURVES,
+                       required=False)
     corner: tuple = ()
     points: tuple = ()
     if curve == "pull_out":

@@ -185,7 +185,7 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
     return s
 
 
-def _read_dynamics(sec: Section, module, geometry) -> Dynamics | None:
+def _read_dynamics(sec: Section, module, geometry, actuator) -> Dynamics | None:
     """``[dynamics]``: the family's masses (its module's ``read_dynamics``) and the actuators' curves."""
     reader = getattr(module, "read_dynamics", None)
     masses = None
@@ -196,7 +196,7 @@ def _read_dynamics(sec: Section, module, geometry) -> Dynamics | None:
         masses = sec._soft(lambda: reader(sec, geometry), None)
     else:
         sec.used.update(sec.data)  # the geometry's problems are reported; the masses need it
-    actuators = read_actuators(sec, module.KINEMATICS.joint_kinds)
+    actuators = read_actuators(sec, module.KINEMATICS.joint_kinds, actuator)
     return None if masses is None else Dynamics(masses=masses, actuators=actuators)
 
 
@@ -353,7 +353,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     dynamics = None
     if "dynamics" in data:
         dsec = section("dynamics")
-        dynamics = read(dsec, _read_dynamics, module, geometry) if module is not None else None
+        dynamics = read(dsec, _read_dynamics, module, geometry, actuator) if module is not None else None
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
