@@ -15,7 +15,8 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import GRAVITY, MM, Kinematics, check_out, closure_motion, lower_sphere_intersection, point_forces, rows3, solve_rows
+from .base import (GRAVITY, MM, Kinematics, check_out, closure_motion, lower_sphere_intersection, point_forces, rows3,
+                   solve_rows)
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 TOWERS = np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1)
@@ -212,9 +213,10 @@ def _carriage_forces(p, q, towers, tool, params, x, y, gravity, work, tau):
     """tau (3,) N of :meth:`LinearDelta.inverse_dynamics` at the tool point p (3,) mm and carriage
     heights q (3,) mm with velocities x (mm/s), accelerations y (mm/s^2); gravity 1.0 or 0.0. The
     rods d_i = effector joint - carriage i, the carriages' rate e' = z: D a = g y - |v - z x|^2 with
-    g_i = d_i.z, v = D^-1 (g x). work: (6, 3) scratch."""
+    g_i = d_i.z, v = D^-1 (g x). work: (7, 3) scratch."""
     d = work[0:3]
     inv = work[3:6]
+    fz = work[6]
     for i in range(3):
         d[i, 0], d[i, 1], d[i, 2] = p[0] - towers[i, 0], p[1] - towers[i, 1], p[2] + tool - q[i]
     for k in range(3):
@@ -240,7 +242,6 @@ def _carriage_forces(p, q, towers, tool, params, x, y, gravity, work, tau):
     f0 = (m_eff + rod) * a0 * MM
     f1 = (m_eff + rod) * a1 * MM
     f2 = (m_eff + rod / 2) * (a2 * MM + lift)
-    fz = np.empty(3)
     for i in range(3):
         fmid_z = (2 * rod / 3) * (0.5 * (y[i] + a2) * MM + lift)
         f2 += 0.5 * fmid_z
@@ -254,7 +255,7 @@ def _carriage_forces(p, q, towers, tool, params, x, y, gravity, work, tau):
 def _torque_coefficients_kernel(points, q, dq, ddq, towers, tool, params, out):
     """out[0], out[1], out[2] (N,3): A, B, C of :meth:`LinearDelta.torque_coefficients`."""
     zero = np.zeros(3)
-    work = np.empty((6, 3))
+    work = np.empty((7, 3))
     for n in range(q.shape[0]):
         _carriage_forces(points[n], q[n], towers, tool, params, zero, dq[n], 0.0, work, out[0, n])
         _carriage_forces(points[n], q[n], towers, tool, params, dq[n], ddq[n], 0.0, work, out[1, n])
