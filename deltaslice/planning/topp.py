@@ -589,7 +589,7 @@ def plan_run(kin, printer, spec: RunSpec, speed_limit: str, tolerance: float | N
         amount = float(spec.e.sum())
         if amount == 0:
             return []
-        limits = printer.limits
+        limits = printer.planned_limits()
         q = kin.inverse(spec.points[-1:])[0]
         return [FilamentPiece(q, amount, float(limits.velocity[-1]), float(limits.acceleration[-1]), spec.layer, kind=kind)]
     try:
