@@ -22,23 +22,25 @@ from .topp import RunSpec, plan_lines, plan_run
 CHECK_SAMPLES = 48
 
 
-def _ruckig_limits(printer, n: int) -> tuple:
+def _ruckig_limits(printer, n: int, slower: float = 1.0) -> tuple:
     """ruckig's velocity, acceleration and jerk limits of the first n joints (lists of floats):
     the planned limits; joints without a jerk limit in the printer file get a stiff default (50 x
-    their acceleration per s)."""
+    their acceleration per s). slower: the move's time stretched by this factor (>= 1): velocity,
+    acceleration and jerk divided by it, its square and its cube, so the move keeps its path."""
     lim = printer.planned_limits()
     acc = lim.acceleration[:n]
     given = np.isfinite(lim.jerk[:n]) & (np.nan_to_num(lim.jerk[:n]) > 0)
     jerk = np.where(given, lim.jerk[:n], 50.0 * acc)
-    return list(map(float, lim.velocity[:n])), list(map(float, acc)), list(map(float, jerk))
+    return (list(map(float, lim.velocity[:n] / slower)), list(map(float, acc / slower**2)),
+            list(map(float, jerk / slower**3)))
 
 
 class _JointMoves:
     """ruckig's calculator, input and output made once for many rest-to-rest moves of one printer
     (a batch of travels): making and filling them took three times ruckig's calculation of a move."""
 
-    def __init__(self, printer, n: int):
-        vel, acc, jerk = _ruckig_limits(printer, n)
+    def __init__(self, printer, n: int, slower: float = 1.0):
+        vel, acc, jerk = _ruckig_limits(printer, n, slower)
         self.n = n
         self.otg, self.inp, self.traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
         inp = self.inp
@@ -62,9 +64,29 @@ class _JointMoves:
         return JointMovePiece(profile, traj, np.asarray(q0, float), np.asarray(q1, float), layer)
 
 
-def _ruckig_move(printer, q0, q1, layer):
-    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone."""
-    return _JointMoves(printer, len(q0)).move(q0, q1, layer)
+def _ruckig_move(printer, q0, q1, layer, slower: float = 1.0):
+    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone;
+    slower: see :func:`_ruckig_limits`."""
+    return _JointMoves(printer, len(q0), slower).move(q0, q1, layer)
+
+
+SPEED_SAMPLES = 4096  # a joint move's tool speed measured at this many instants
+SPEED_SLACK = 1.02  # and held 2 % under the feed: the largest difference between instants is below the peak
+
+
+def _within_feed(kin, printer, q0, q1, feed: float):
+    """The jerk-limited joint-space move from q0 to q1 stretched in time so that its tool point
+    (forward kinematics) goes no faster than ``feed`` mm/s (the path is the same)."""
+    joint, slower = _ruckig_move(printer, q0, q1, layer=0), 1.0
+    for _ in range(4):
+        t = np.linspace(0.0, joint.duration, SPEED_SAMPLES)
+        p = kin.forward(joint.sample(kin, t)[0])
+        top = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1))) / max(t[1] - t[0], 1e-12)
+        if top * SPEED_SLACK <= feed:
+            return joint
+        slower *= top * SPEED_SLACK / feed
+        joint = _ruckig_move(printer, q0, q1, layer=0, slower=slower)
+    return joint
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
@@ -240,10 +262,10 @@ def from_rest(kin, printer, point, speed_limit, *, feed=None) -> list:
     to the approach point ``[planning] approach_height`` above it (lower where the machine
     cannot reach so high), then vertically down onto it at ``approach_speed`` (whatever the
     speed limit). The move to the approach point never goes below the lower of the rest pose
-    and the approach point: a jerk-limited joint-space move (ruckig) under the machine speed
-    limit where its tool point stays so, else a straight line (or two: a vertical one at the
-    rest pose, or at the approach point, and a level one) at ``feed`` mm/s (default: the
-    printer's travel speed) under the feed speed limit."""
+    and the approach point: a jerk-limited joint-space move (ruckig) where its tool point stays
+    so (under the feed speed limit stretched in time so that the tool goes no faster than
+    ``feed`` mm/s, default: the printer's travel speed), else a straight line (or two: a
+    vertical one at the rest pose, or at the approach point, and a level one) at ``feed``."""
     return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=False, top=-np.inf, feed=feed)
 
 
@@ -272,11 +294,13 @@ def _rest_link(kin, printer, point, speed_limit, *, to_rest, top, feed):
     above = _approach_point(kin, planning, point, top)
     z_min = min(float(above[2]), float(p_rest[2]))
     link = None
-    if speed_limit == "machine":
-        q_above = kin.inverse(above[None])[0]
-        joint = _ruckig_move(printer, *((q_above, q_rest) if to_rest else (q_rest, q_above)), layer=0)
-        if joint_move_clear(kin, joint, z_min):
-            link = [joint]
+    q_above = kin.inverse(above[None])[0]
+    ends = (q_above, q_rest) if to_rest else (q_rest, q_above)
+    joint = _ruckig_move(printer, *ends, layer=0)
+    if joint_move_clear(kin, joint, z_min):
+        # the feed speed limit keeps the path and stretches the move in time
+        link = [joint if speed_limit == "machine" else
+                _within_feed(kin, printer, *ends, feed or printer.slicing.travel_speed)]
     if link is None:
         for via in ([], [[p_rest[0], p_rest[1], above[2]]], [[above[0], above[1], p_rest[2]]]):
             pts = np.array([p_rest, *via, above])
