@@ -77,7 +77,7 @@ def check_reachable(toolpath: Toolpath, printer, hint: bool = True) -> None:
 LASER_ROLES = (int(Role.LASER), int(Role.LASER_DYNAMIC))
 
 
-def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> Toolpath:
+def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> tuple[Toolpath, float]:
     """The toolpath as the machine runs it, between its approach and its park.
 
     The moves before the first working move (the input's own way to the start: lifts, travels
@@ -87,9 +87,11 @@ def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> Toolpath:
     push or pull (a prime) becomes one zero-length move at that point, their events happen
     before it. end: add the events that switch the tool's heaters, fan and laser off
     (``tool.off_events``, value 0) after the last move. A toolpath with no working move keeps
-    its moves."""
+    its moves. Returns (the toolpath, the fastest feed of the moves up to its first working
+    move, mm/s: what the approach may go at)."""
     work = toolpath.working | np.isin(toolpath.role, LASER_ROLES)
     k = int(np.argmax(work)) if work.any() else 0
+    lead_feed = float(toolpath.feed[: k + 1].max())
     events = toolpath.events
     if k:
         lead = float(toolpath.e[:k].sum())
@@ -108,7 +110,7 @@ def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> Toolpath:
                             toolpath.layer_z, events)
     if end:
         toolpath = toolpath.with_events(np.concatenate([toolpath.events, end_events(printer, len(toolpath))]))
-    return toolpath
+    return toolpath, lead_feed
 
 
 def end_events(printer, index: int) -> np.ndarray:
@@ -117,9 +119,18 @@ def end_events(printer, index: int) -> np.ndarray:
     return make_events([(index, int(EventKind[name.upper()]), 0.0) for name in printer.tool.off_events])
 
 
+def _counting_dropped(progress, dropped: int, total: int):
+    """``progress`` (callable(done, total) or None) called in the moves of the toolpath given to
+    :func:`plan`, counting the ``dropped`` moves :func:`job_toolpath` replaced as done."""
+    if progress is None or dropped == 0:
+        return progress
+    return lambda done, _n: progress(done + dropped, total)
+
+
 def _link_feed(printer, fastest: float) -> float:
     """The feed (mm/s) of the moves from the rest pose and back to it under the feed speed limit:
-    the printer's travel speed, no faster than the fastest feed the toolpath asks for."""
+    the printer's travel speed, no faster than ``fastest``: the fastest feed the toolpath asks
+    for before its first extrusion (from rest), in all (back to rest)."""
     return float(min(printer.slicing.travel_speed, fastest))
 
 
@@ -257,16 +268,17 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     _check_tool(toolpath, printer)
     kin = printer.kinematics()
-    toolpath = job_toolpath(toolpath, printer)
-    feed = _link_feed(printer, toolpath.feed.max())
+    moves = len(toolpath)
+    toolpath, lead_feed = job_toolpath(toolpath, printer)
     top = _printed_top(toolpath)
 
     def rest_links():
         """Check every point's reach, then plan the moves from the rest pose and back to it (every
         trajectory starts at the machine's rest pose and parks there at the end)."""
         check_reachable(toolpath, printer)
-        return (from_rest(kin, printer, toolpath.start, speed_limit, feed=feed),
-                to_rest(kin, printer, toolpath.xyz[-1], speed_limit, top=top, feed=feed))
+        return (from_rest(kin, printer, toolpath.start, speed_limit, feed=_link_feed(printer, lead_feed)),
+                to_rest(kin, printer, toolpath.xyz[-1], speed_limit, top=top,
+                        feed=_link_feed(printer, toolpath.feed.max())))
 
     if planner == "trapezoid":
         from .trapezoid import _moves, plan_safe
@@ -281,7 +293,8 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         return traj
     if spool is None:
         spool = len(toolpath) > SPOOL_MOVES
-    return _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, rest_links, spool)
+    return _plan_toppra(toolpath, printer, speed_limit, workers, _counting_dropped(progress, moves - len(toolpath), moves),
+                        solver, rest_links, spool)
 
 
 def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed", workers=None, progress=None,
@@ -329,14 +342,17 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
             seen["last"] = tp.xyz[-1]
             yield tp
 
-    stream = checked(_job_chunks(chunks, printer))
+    lead = {"dropped": 0}
+    stream = checked(_job_chunks(chunks, printer, lead))
+    if progress is not None:
+        report = progress
+        progress = lambda done, total: report(done + lead["dropped"], total)  # noqa: E731
     first = next(stream, None)
     if first is None:
         raise DeltasliceError("the toolpath has no moves: nothing to plan")
     kin = printer.kinematics()
     pieces = PieceSpool()
-    # the approach's feed from the first stretch's feeds: the fastest of the print is no slower
-    pieces.extend(from_rest(kin, printer, first.start, speed_limit, feed=_link_feed(printer, first.feed.max())))
+    pieces.extend(from_rest(kin, printer, first.start, speed_limit, feed=_link_feed(printer, lead["feed"])))
     laser = printer.tool.channel_kind == "laser"
     job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream), laser), pieces, CHUNK_MAX, moves,
                                       False, printer, speed_limit, workers, progress, solver)
@@ -347,11 +363,13 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
     return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, np.concatenate(events), seen["moves"])
 
 
-def _job_chunks(chunks, printer):
+def _job_chunks(chunks, printer, lead: dict):
     """:func:`job_toolpath` (without its end events) of a toolpath handed over in chunks: the
     chunks before the first working move are held and joined to the one that has it, which is
     handed on from that move; the chunks after it pass as they are (not checked here: anything
-    that is not a Toolpath goes on to :func:`plan_stream`'s check)."""
+    that is not a Toolpath goes on to :func:`plan_stream`'s check). ``lead["feed"]`` is set to
+    job_toolpath's fastest feed before the first working move once that chunk is handed on, and
+    ``lead["dropped"]`` to the moves it replaced (less its prime move), for progress."""
     held = None
     for tp in chunks:
         if held is False or not isinstance(tp, Toolpath):
@@ -359,9 +377,12 @@ def _job_chunks(chunks, printer):
             continue
         held = tp if held is None else held.then(tp)
         if (held.working | np.isin(held.role, LASER_ROLES)).any():
-            yield job_toolpath(held, printer, end=False)
+            job, lead["feed"] = job_toolpath(held, printer, end=False)
+            lead["dropped"] = len(held) - len(job)
+            yield job
             held = False
     if held:
+        lead["feed"] = float(held.feed.max())
         yield held
 
 
