@@ -104,7 +104,7 @@ DOCS = {
     ("slicing", "infill_speed"): ("mm/s", "Feed of sparse infill.", None),
     ("slicing", "solid_infill_speed"): ("mm/s", "Feed of solid infill.", "infill_speed"),
     ("slicing", "first_layer_speed"): ("mm/s", "Feed of every printing move of the first layer.", None),
-    ("slicing", "travel_speed"): ("mm/s", "Feed of travels (the planner may go slower, never faster).", None),
+    ("slicing", "travel_speed"): ("mm/s", "Feed of travels that have none: deltaslice's own slice, a G-code before its first F. Under `--speed-limit feed` no travel goes faster than its feed (the planner may go slower), and the moves from and back to the rest pose no faster than this speed or the input's fastest feed, whichever is lower; `machine` ignores it.", None),
     ("slicing", "perimeter_width"): ("mm", "Extrusion width of perimeters.", "1.125 x nozzle_diameter"),
     ("slicing", "infill_width"): ("mm", "Extrusion width of infill.", "1.125 x nozzle_diameter"),
     ("slicing", "first_layer_width"): ("mm", "Extrusion width on the first layer.", "1.2 x nozzle_diameter"),
