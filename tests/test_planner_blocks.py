@@ -926,14 +926,21 @@ def _reference_path_inputs(poly, tol, speed_limit):
     """_path_inputs with numpy alone, one run, as before _path_inputs_many (cf0ef8f)."""
     path, stop_at = _reference_blend(poly.points, tol)
     e_ratio = (poly.e / np.linalg.norm(np.diff(poly.points, axis=0), axis=1))[path.segment]
-    cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
+    jump = np.zeros(len(e_ratio), dtype=bool)
+    jump[1:] = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
+    # between the stops at a width change, the stretch's mean filament per mm (since issue 48)
+    lengths = np.diff(path.piece_start)
+    stretch = np.cumsum(np.concatenate([[True], jump[1:]])) - 1
+    total = np.bincount(stretch, weights=lengths)
+    mean = np.bincount(stretch, weights=e_ratio * lengths) / np.where(total > 0, total, 1.0)
+    e_ratio = np.where(total[stretch] > 0, mean[stretch], e_ratio)
+    cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * lengths)])
     extruder = bool(np.any(poly.e != 0))
     seg_feed = poly.feed if speed_limit == "feed" else np.full(len(poly.feed), np.inf)
     prev = np.maximum(path.segment - 1, 0)
     piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev]), seg_feed[path.segment])
     if extruder and len(path.kind) > 1:
-        jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
-        stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
+        stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump[1:]]])
     return path, e_ratio, cum_e, extruder, piece_feed, stop_at
 
 
