@@ -88,6 +88,14 @@ def test_a_gcode_job_comes_down_onto_its_first_point_from_above(name, speed_limi
         _check_start_and_end(traj, p, first_z)
 
 
+def test_a_job_that_never_extrudes_comes_down_onto_its_first_point():
+    p = printer("linear_kossel")
+    tp = parse_gcode("G90\nG0 X10 Y5 Z3 F3000\nG0 X-10 Y5\nG0 X-10 Y-5\n", printer=p)
+    for speed_limit in ("feed", "machine"):
+        _t, xyz, _e, _tl = _tool(plan(tp, p, speed_limit=speed_limit, workers=1), p)
+        assert xyz[:, 2].min() >= 3.0 - 1e-6
+
+
 @pytest.mark.parametrize("name", ["delta_etitc", "linear_kossel"])
 def test_a_sliced_part_comes_down_onto_its_first_layer_and_ends_with_its_heaters_off(name, tmp_path):
     import trimesh

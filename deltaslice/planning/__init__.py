@@ -87,7 +87,7 @@ def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> tuple[Toolpat
     push or pull (a prime) becomes one zero-length move at that point, their events happen
     before it. end: add the events that switch the tool's heaters, fan and laser off
     (``tool.off_events``, value 0) after the last move. A toolpath with no working move keeps
-    its moves. Returns (the toolpath, the fastest feed of the moves up to its first working
+    its moves but starts at its first point (the approach comes down onto it). Returns (the toolpath, the fastest feed of the moves up to its first working
     move, mm/s: what the approach may go at)."""
     work = toolpath.working | np.isin(toolpath.role, LASER_ROLES)
     k = int(np.argmax(work)) if work.any() else 0
@@ -108,6 +108,9 @@ def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> tuple[Toolpat
         toolpath = Toolpath(point, col("xyz", point), col("feed", toolpath.feed[one][0]), col("e", lead),
                             col("tool", 0.0), col("role", int(Role.RETRACT)), col("layer", toolpath.layer[one][0]),
                             toolpath.layer_z, events)
+    elif not work.any() and len(toolpath):
+        toolpath = Toolpath(toolpath.xyz[0], toolpath.xyz, toolpath.feed, toolpath.e, toolpath.tool, toolpath.role,
+                            toolpath.layer, toolpath.layer_z, events)
     if end:
         toolpath = toolpath.with_events(np.concatenate([toolpath.events, end_events(printer, len(toolpath))]))
     return toolpath, lead_feed
@@ -382,8 +385,8 @@ def _job_chunks(chunks, printer, lead: dict):
             yield job
             held = False
     if held:
-        lead["feed"] = float(held.feed.max())
-        yield held
+        job, lead["feed"] = job_toolpath(held, printer, end=False)
+        yield job
 
 
 def _stream_jobs(chunks, laser: bool):
