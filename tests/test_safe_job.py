@@ -225,3 +225,13 @@ def test_a_small_change_of_width_does_not_step_the_filament_speed(rate):
     acc = np.abs(np.diff(e, 2)) * rate**2
     assert acc.max() <= p.planned_limits().acceleration[-1] * 1.0005, acc.max() / p.limits.acceleration[-1]
     assert e[-1] == pytest.approx(tp.e.sum(), abs=1e-9)
+
+
+def test_a_prime_before_the_first_extrusion_is_pushed_at_the_first_point():
+    p = printer("linear_kossel")
+    tp = parse_gcode("G90\nM83\nG1 Z0.3 F600\nG1 E1.5 F1800\nG1 X5 Y0 F3000\nG1 X10 Y0 E0.5 F1200\n", printer=p)
+    _t, xyz, e, _tl = _tool(plan(tp, p, workers=1), p)
+    assert e[-1] == pytest.approx(2.0, abs=1e-9)
+    pushing = np.flatnonzero(np.diff(e) > 1e-9) + 1
+    first = pushing[e[pushing] <= 1.5 + 1e-9]  # the prime's samples
+    assert len(first) and np.allclose(xyz[first], [5.0, 0.0, 0.3], atol=1e-6)

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
 from ..pool import resolve_workers, start_pool
-from ..toolpath import EVENT_DTYPE, WAIT_KINDS, EventKind, Role, Toolpath, make_events
+from ..toolpath import WAIT_KINDS, EventKind, Role, Toolpath, make_events
 from .pieces import Piece, PieceBatch
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, iter_run_parts, plan_runs
@@ -87,26 +87,27 @@ def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> tuple[Toolpat
     push or pull (a prime) becomes one zero-length move at that point, their events happen
     before it. end: add the events that switch the tool's heaters, fan and laser off
     (``tool.off_events``, value 0) after the last move. A toolpath with no working move keeps
-    its moves but starts at its first point (the approach comes down onto it). Returns (the toolpath, the fastest feed of the moves up to its first working
-    move, mm/s: what the approach may go at)."""
+    its moves but starts at its first point (the approach comes down onto it). Returns (the
+    toolpath, the fastest feed of the moves up to its first working move, mm/s: what the
+    approach may go at)."""
     work = toolpath.working | np.isin(toolpath.role, LASER_ROLES)
     k = int(np.argmax(work)) if work.any() else 0
     lead_feed = float(toolpath.feed[: k + 1].max())
     events = toolpath.events
     if k:
-        lead = float(toolpath.e[:k].sum())
-        prime = int(abs(lead) > 1e-12)
+        primed = float(toolpath.e[:k].sum())
+        prime = int(abs(primed) > 1e-12)  # the zero-length move pushing it, or none
         point = toolpath.xyz[k - 1]
-        one = slice(k, k + 1)
 
         def col(name, first):
-            return np.concatenate([np.asarray([first] * prime, getattr(toolpath, name).dtype).reshape(-1, *getattr(
-                toolpath, name).shape[1:]), getattr(toolpath, name)[k:]])
+            """Column ``name``: the prime move's value ``first`` (if any), then moves k.. ."""
+            values = getattr(toolpath, name)
+            return np.concatenate([np.full((prime, *values.shape[1:]), first, values.dtype), values[k:]])
 
         events = events.copy()
         events["index"] = np.where(events["index"] < k, 0, events["index"] - k + prime)
-        toolpath = Toolpath(point, col("xyz", point), col("feed", toolpath.feed[one][0]), col("e", lead),
-                            col("tool", 0.0), col("role", int(Role.RETRACT)), col("layer", toolpath.layer[one][0]),
+        toolpath = Toolpath(point, col("xyz", point), col("feed", toolpath.feed[k]), col("e", primed),
+                            col("tool", 0.0), col("role", int(Role.RETRACT)), col("layer", toolpath.layer[k]),
                             toolpath.layer_z, events)
     elif not work.any() and len(toolpath):
         toolpath = Toolpath(toolpath.xyz[0], toolpath.xyz, toolpath.feed, toolpath.e, toolpath.tool, toolpath.role,
