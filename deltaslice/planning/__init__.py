@@ -272,14 +272,16 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     _check_tool(toolpath, printer)
     kin = printer.kinematics()
-    moves = len(toolpath)
+    given, moves = toolpath, len(toolpath)
     toolpath, lead_feed = job_toolpath(toolpath, printer)
     top = _printed_top(toolpath)
 
     def rest_links():
-        """Check every point's reach, then plan the moves from the rest pose and back to it (every
-        trajectory starts at the machine's rest pose and parks there at the end)."""
-        check_reachable(toolpath, printer)
+        """Check every point's reach (of the toolpath as given: its points hold the job's, and an
+        error names its layers and says whether centring it would help), then plan the moves from
+        the rest pose and back to it (every trajectory starts at the machine's rest pose and parks
+        there at the end)."""
+        check_reachable(given, printer)
         return (from_rest(kin, printer, toolpath.start, speed_limit, feed=_link_feed(printer, lead_feed)),
                 to_rest(kin, printer, toolpath.xyz[-1], speed_limit, top=top,
                         feed=_link_feed(printer, toolpath.feed.max())))
