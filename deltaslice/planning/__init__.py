@@ -87,7 +87,8 @@ def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> tuple[Toolpat
     push or pull (a prime) becomes one zero-length move at that point, their events happen
     before it. end: add the events that switch the tool's heaters, fan and laser off
     (``tool.off_events``, value 0) after the last move. A toolpath with no working move keeps
-    its moves but starts at its first point (the approach comes down onto it). Returns (the
+    its moves but starts at its first point (the approach comes down onto it) where a later move
+    still moves. Returns (the
     toolpath, the fastest feed of the moves up to its first working move, mm/s: what the
     approach may go at)."""
     work = toolpath.working | np.isin(toolpath.role, LASER_ROLES)
@@ -109,7 +110,7 @@ def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> tuple[Toolpat
         toolpath = Toolpath(point, col("xyz", point), col("feed", toolpath.feed[k]), col("e", primed),
                             col("tool", 0.0), col("role", int(Role.RETRACT)), col("layer", toolpath.layer[k]),
                             toolpath.layer_z, events)
-    elif not work.any() and len(toolpath):
+    elif not work.any() and ((toolpath.lengths[1:] > 1e-9) | (toolpath.e[1:] != 0)).any():
         toolpath = Toolpath(toolpath.xyz[0], toolpath.xyz, toolpath.feed, toolpath.e, toolpath.tool, toolpath.role,
                             toolpath.layer, toolpath.layer_z, events)
     if end:
