@@ -16,7 +16,7 @@ from deltaslice.verify import verify_samples
 
 from conftest import printer
 
-FAMILIES = ("delta_etitc", "linear_kossel", "delta_ucb", "fivebar_atlas")
+FAMILIES = ("delta_etitc", "delta_uady", "linear_kossel", "delta_ucb", "fivebar_atlas")
 
 # the issue's case: a Z move from the bed centre, a travel, then a fast extruding square
 FAST = """G90
