@@ -71,22 +71,22 @@ def _ruckig_move(printer, q0, q1, layer, slower: float = 1.0):
 
 
 SPEED_SAMPLES = 4096  # a joint move's tool speed measured at this many instants
-SPEED_SLACK = 1.02  # and held 2 % under the feed: the largest difference between instants is below the peak
+SPEED_SLACK = 1.02  # and held 2 % under the feed: chords between those instants fall short of the peak
 
 
 def _within_feed(kin, printer, q0, q1, feed: float):
     """The jerk-limited joint-space move from q0 to q1 stretched in time so that its tool point
     (forward kinematics) goes no faster than ``feed`` mm/s (the path is the same)."""
     joint, slower = _ruckig_move(printer, q0, q1, layer=0), 1.0
-    for _ in range(4):
+    for _ in range(8):
         t = np.linspace(0.0, joint.duration, SPEED_SAMPLES)
         p = kin.forward(joint.sample(kin, t)[0])
         top = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1))) / max(t[1] - t[0], 1e-12)
-        if top * SPEED_SLACK <= feed:
+        if top * SPEED_SLACK <= feed * (1 + 1e-6):
             return joint
-        slower *= top * SPEED_SLACK / feed
+        slower *= top * SPEED_SLACK / feed * (1 + 1e-5)  # a hair more: the same path, its time rounded
         joint = _ruckig_move(printer, q0, q1, layer=0, slower=slower)
-    return joint
+    raise PlanningError(f"{printer.name}: a move from or to the rest pose could not be slowed to {feed:g} mm/s")
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
