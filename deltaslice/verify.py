@@ -16,7 +16,8 @@ Checks, over every sample:
   replayed path (forward kinematics of the samples) from the toolpath polyline,
   for the working samples (tool on), against blend tolerance + quantisation. A
   stream has no extruder on/off state: its working samples are those where the
-  filament count rises, with gaps of up to 50 ms inside a run filled.
+  filament count rises, with gaps of up to 50 ms inside a run filled where they are no
+  more than three times the gaps beside them (a short travel between two runs is not).
 
 Velocities and accelerations are finite differences over a window of ``w``
 samples: ``v = (q[i+w] - q[i]) / (t[i+w] - t[i])``, accelerations from two
@@ -47,6 +48,7 @@ MARGIN = TOLERANCE  # shown in the report; the thresholds are Limits.sampled_che
 CSV_RESOLUTION = 1e-10  # the CSV's 10 decimals (rounding error 5e-11)
 MAX_LISTED = 20
 GAP_FILL = 0.05  # s: a stream's extruder count rises every few samples; gaps this short inside a run are working
+GAP_RATIO = 3  # ... and no longer than this many times the gaps beside them (a short travel's pause is far longer)
 PATH_SLACK = 1e-3  # mm: chords of the resampled toolpath, forward kinematics round-off
 
 
@@ -503,12 +505,22 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
 
 
 def _close_gaps(mask, k):
-    """Fill runs of False no longer than k samples that have True on both sides (vectorised)."""
-    n = len(mask)
-    pos = np.arange(n)
-    prev = np.maximum.accumulate(np.where(mask, pos, -(10**12)))
-    nxt = np.minimum.accumulate(np.where(mask, pos, 10**12)[::-1])[::-1]
-    return mask | ((nxt - prev) <= k + 1)
+    """Fill the runs of False between two True samples that are no longer than k samples and no
+    more than GAP_RATIO times the longer of the gaps beside them (at least one sample): the
+    pauses of a count that rises every few samples, not a travel between two runs (its count
+    stands still many times longer than it paused while extruding). mask: (n,) bool."""
+    rise = np.flatnonzero(mask)
+    if len(rise) < 2:
+        return mask
+    gap = np.diff(rise) - 1  # False samples between consecutive True ones
+    beside = np.maximum(np.concatenate([[0], gap[:-1]]), np.concatenate([gap[1:], [0]]))
+    fill = (gap > 0) & (gap <= k) & (gap <= GAP_RATIO * np.maximum(beside, 1))
+    out = mask.copy()
+    starts, lengths = rise[:-1][fill] + 1, gap[fill]
+    # every filled sample: its gap's first sample plus its offset in the gap
+    offsets = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    out[np.repeat(starts, lengths) + offsets] = True
+    return out
 
 
 def _fracs(k):

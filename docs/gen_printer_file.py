@@ -105,7 +105,7 @@ DOCS = {
     ("slicing", "infill_speed"): ("mm/s", "Feed of sparse infill.", None),
     ("slicing", "solid_infill_speed"): ("mm/s", "Feed of solid infill.", "infill_speed"),
     ("slicing", "first_layer_speed"): ("mm/s", "Feed of every printing move of the first layer.", None),
-    ("slicing", "travel_speed"): ("mm/s", "Feed of travels (the planner may go slower, never faster).", None),
+    ("slicing", "travel_speed"): ("mm/s", "Feed of travels that have none: deltaslice's own slice, a G-code before its first F. Under `--speed-limit feed` no travel goes faster than its feed (the planner may go slower), and the moves from and back to the rest pose no faster than this speed or the input's fastest feed, whichever is lower; `machine` ignores it.", None),
     ("slicing", "perimeter_width"): ("mm", "Extrusion width of perimeters.", "1.125 x nozzle_diameter"),
     ("slicing", "infill_width"): ("mm", "Extrusion width of infill.", "1.125 x nozzle_diameter"),
     ("slicing", "first_layer_width"): ("mm", "Extrusion width on the first layer.", "1.2 x nozzle_diameter"),
@@ -154,6 +154,8 @@ DOCS = {
     ("planning", "limit_margin"): ("fraction", "Share of every limit the planner keeps in reserve.", None),
     ("planning", "travel_lift"): ("mm", "Clearance over the printed part of a lifted joint-space travel.", None),
     ("planning", "singularity_limit"): ("", "Largest Jacobian condition number allowed: poses beyond it count as unreachable.", None),
+    ("planning", "approach_height"): ("mm", "Height above the first point from which every job comes down onto it, and above the printed part to which it lifts at the end (lower where the machine cannot reach so high). Default: Marlin's Z_CLEARANCE_BETWEEN_PROBES.", None),
+    ("planning", "approach_speed"): ("mm/s", "Speed of that vertical descent and lift, in both speed limits. Default: Marlin's Z homing feed (HOMING_FEEDRATE_MM_M, 4*60 mm/min).", None),
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",

@@ -134,7 +134,10 @@ def test_vector_power_follows_speed_and_verify_passes(tmp_path):
     feed = pr.slicing.perimeter_speed
     expected = 0.8 * np.clip(v / feed, 0, 1)
     assert np.corrcoef(s.tool[burn], v[burn])[0, 1] > 0.9
-    err = np.abs(s.tool[burn] - expected[burn])
+    # the central difference's window within the burn: at a burn's last sample the next piece
+    # (a travel, now a straight line that starts at full acceleration) is in it
+    inside = burn & np.concatenate([[False], burn[:-1]]) & np.concatenate([burn[1:], [False]])
+    err = np.abs(s.tool[inside] - expected[inside])
     # central differences over 2 ms smear the steps of the path acceleration at the corners' short stages
     assert np.percentile(err, 99) < 0.02 and err.max() < 0.1
     assert (v[burn] < 0.5 * feed).any()  # the corners do slow the tool: the test sees a real range

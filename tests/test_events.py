@@ -144,8 +144,13 @@ M104 S0
     for planner in ("toppra", "trapezoid"):
         traj = plan(tp, etitc, planner=planner, workers=1)
         times = [t for t, _k, _v in traj.events]
-        assert [k for _t, k, _v in traj.events] == [1, 5, 2, 1]
-        assert times[0] == 0.0 and times[-1] == pytest.approx(traj.duration)
+        # every job ends with its heaters and fan set to 0 (after the file's own M104 S0), where
+        # its last move ends, before the tool lifts clear and parks
+        assert [k for _t, k, _v in traj.events] == [1, 5, 2, 1, 1, 3, 5]
+        assert [v for _t, _k, v in traj.events][-4:] == [0.0, 0.0, 0.0, 0.0]
+        assert times[0] == 0.0 and 0 < times[-1] < traj.duration and len(set(times[-4:])) == 1
+        kin = etitc.kinematics()
+        assert np.allclose(kin.forward(traj.sample_at(np.array([times[-1]])).q[:, :3])[0], [0, 0, 0.5], atol=1e-6)
         assert times == sorted(times)
         if planner == "toppra":
             # the wait is where a piece starts: the machine is at rest there
@@ -167,10 +172,15 @@ def test_sliced_part_carries_heater_events_to_csv_and_stream(tmp_path):
     for out in (tmp_path / "box.csv", tmp_path / "box.dsl"):
         compile_part(part, kossel, output=str(out), workers=1)
         meta, s = read_output(out)
-        assert meta["events"] == ((0, 3, 60.0), (0, 1, 200.0), (0, 4, 60.0), (0, 2, 200.0))
-    etitc = printer("delta_etitc")  # an unheated bed: hot-end events only
+        # heated at rest, then hot end, bed and fan off where the last move ends (before the park)
+        ends = meta["events"][4:]
+        assert meta["events"][:4] == ((0, 3, 60.0), (0, 1, 200.0), (0, 4, 60.0), (0, 2, 200.0))
+        assert [(k, v) for _i, k, v in ends] == [(1, 0.0), (3, 0.0), (5, 0.0)]
+        assert len({i for i, _k, _v in ends}) == 1 and 0 < ends[0][0] < len(s.t) - 1
+    etitc = printer("delta_etitc")  # an unheated bed: hot-end events only at the start
     compile_part(part, etitc, output=str(tmp_path / "e.csv"), workers=1)
-    assert read_output(tmp_path / "e.csv")[0]["events"] == ((0, 1, 200.0), (0, 2, 200.0))
+    assert read_output(tmp_path / "e.csv")[0]["events"][:2] == ((0, 1, 200.0), (0, 2, 200.0))
+    assert [(k, v) for _i, k, v in read_output(tmp_path / "e.csv")[0]["events"][2:]] == [(1, 0.0), (3, 0.0), (5, 0.0)]
 
 
 @pytest.mark.parametrize("sizes", [(100,), (511, 2), (513,), (700, 1), (1234, 5000)])

@@ -189,8 +189,12 @@ def test_mega_heaters_hold_the_first_sample_until_hot(build, atlas_stream):
     assert at(t0 - 0.2 * CYCLES_PER_US * 1e6, 1) < hot - 2, at(t0 - 0.2 * CYCLES_PER_US * 1e6, 1)
     assert t0 > 1.0 * CYCLES_PER_US * 1e6  # seconds of waiting (the model: ~3.9 s), not milliseconds
     # while the part plays, bang-bang holds the hot end near its set point (the model heats at
-    # 50 C/s, the player reads the thermistors every 100 ms: measured 197.1-206.3 C)
-    play = (K[:, 0] > t0) & (K[:, 0] < T[-1, 1])
+    # 50 C/s, the player reads the thermistors every 100 ms: measured 197.1-206.3 C); the part ends
+    # where the job's end sets the hot end to 0, before the tool lifts clear and parks
+    off = [int(i) for i, v in re.findall(r"^# event i=(\d+) kind=hotend_set value=([\d.]+)$", text.getvalue(), re.M)
+           if float(v) == 0]
+    assert off and 0 < off[-1] < len(T)
+    play = (K[:, 0] > t0) & (K[:, 0] < T[off[-1], 1])
     assert np.abs(K[play, 1] / 10 - hot).max() < 10, (K[play, 1].min(), K[play, 1].max())
     assert ((H[:, 0] == 0) & (H[:, 1] > t0)).sum() >= 4  # it switched while playing
     # meanwhile the board says "# heating" about once a second (deltaslice send's timeout is 10 s)

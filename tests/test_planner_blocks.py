@@ -168,22 +168,27 @@ def test_travel_planner_pieces_clear_the_part_and_join():
     p = printer("fivebar_atlas")
     kin = p.kinematics()
     a, b = np.array([-30.0, -20.0, 2.0]), np.array([35.0, 25.0, 2.0])
-    pieces = travel.plan_travel(kin, p, a, b, layer=5, printed_top=2.0, retract=-1.0, unretract=1.0,
-                                speed_limit="feed", feed=2.0)  # a crawl: the joint-space move must win
-    kinds = [type(x).__name__ for x in pieces]
-    assert kinds[0] == "FilamentPiece" and kinds[-1] == "FilamentPiece", kinds
-    moves = [x for x in pieces if isinstance(x, JointMovePiece)]
-    assert moves, f"expected a ruckig joint-space travel, got {kinds}"
-    for x, y in zip(pieces[:-1], pieces[1:]):
-        assert np.abs(x.q_end - y.q_start).max() < 1e-9
-    assert np.allclose(kin.forward(pieces[0].q_start[None])[0], a, atol=1e-9)
-    assert np.allclose(kin.forward(pieces[-1].q_end[None])[0], b, atol=1e-9)
-    lift = p.tool.travel_lift(p.planning)
-    for m in moves:  # densely: the planner's own check samples 48 points
-        q, _, _ = m.sample(kin, np.linspace(0, m.duration, 4000))
-        z = kin.forward(q)[:, 2]
-        assert z.min() >= 2.0 + 0.5 * lift - 1e-6
-        assert kin.reachable(kin.forward(q)).all()
+    for speed_limit in ("feed", "machine"):
+        pieces = travel.plan_travel(kin, p, a, b, layer=5, printed_top=2.0, retract=-1.0, unretract=1.0,
+                                    speed_limit=speed_limit, feed=2.0)
+        kinds = [type(x).__name__ for x in pieces]
+        assert kinds[0] == "FilamentPiece" and kinds[-1] == "FilamentPiece", kinds
+        for x, y in zip(pieces[:-1], pieces[1:]):
+            assert np.abs(x.q_end - y.q_start).max() < 1e-9
+        assert np.allclose(kin.forward(pieces[0].q_start[None])[0], a, atol=1e-9)
+        assert np.allclose(kin.forward(pieces[-1].q_end[None])[0], b, atol=1e-9)
+        lift = p.tool.travel_lift(p.planning)
+        for m in pieces[1:-1]:  # densely: the planner's own check samples 48 points
+            q, _, _ = m.sample(kin, np.linspace(0, m.duration, 4000))
+            xyz = kin.forward(q)
+            assert xyz[:, 2].min() >= 2.0 - 1e-6 and kin.reachable(xyz).all()
+            if isinstance(m, JointMovePiece):
+                assert xyz[:, 2].min() >= 2.0 + 0.5 * lift - 1e-6
+        if speed_limit == "feed":  # a crawl: a joint-space move, whose tool speed follows the joints, is never taken
+            assert not any(isinstance(x, JointMovePiece) for x in pieces), kinds
+            q, _, _ = pieces[1].sample(kin, np.linspace(0, pieces[1].duration, 4000))
+            speed = np.linalg.norm(np.diff(kin.forward(q), axis=0), axis=1) / (pieces[1].duration / 3999)
+            assert speed.max() <= 2.0 * 1.001
     # Straight candidates are toppra runs of kind "travel", never relabelled copies.
     straight = travel.plan_travel(kin, p, a, b, layer=5, printed_top=2.0, retract=0.0, unretract=0.0,
                                   speed_limit="feed", feed=500.0)
@@ -567,16 +572,18 @@ def test_travels_planned_together_are_each_planned_alone():
             b = a + [1.0, 0.5, 0.0]  # short: the straight move only
         jobs.append(dict(a=a, b=b, layer=k, printed_top=float(a[2]), retract=-0.8 * (k % 2), unretract=0.8 * (k % 2),
                          via=via, feed=float(rng.choice([5.0, 150.0]))))
-    together = travel.plan_travels(kin, p, jobs, speed_limit="feed")
-    kinds = set()
-    for job, got in zip(jobs, together):
-        alone = travel.plan_travel(kin, p, speed_limit="feed", **job)
-        assert [type(x).__name__ for x in got] == [type(x).__name__ for x in alone]
-        kinds.update(type(x).__name__ for x in got)
-        for x, y in zip(got, alone):
-            assert x.duration == pytest.approx(y.duration, rel=1e-9, abs=1e-12)
-            assert np.allclose(x.q_start, y.q_start, atol=1e-12) and np.allclose(x.q_end, y.q_end, atol=1e-12)
-    assert kinds == {"FilamentPiece", "RunPiece", "JointMovePiece"}, kinds
+    for speed_limit in ("feed", "machine"):
+        together = travel.plan_travels(kin, p, jobs, speed_limit=speed_limit)
+        kinds = set()
+        for job, got in zip(jobs, together):
+            alone = travel.plan_travel(kin, p, speed_limit=speed_limit, **job)
+            assert [type(x).__name__ for x in got] == [type(x).__name__ for x in alone]
+            kinds.update(type(x).__name__ for x in got)
+            for x, y in zip(got, alone):
+                assert x.duration == pytest.approx(y.duration, rel=1e-9, abs=1e-12)
+                assert np.allclose(x.q_start, y.q_start, atol=1e-12) and np.allclose(x.q_end, y.q_end, atol=1e-12)
+        # no joint-space travel under the feed limit; under the machine's, straight lines were faster here
+        assert {"FilamentPiece", "RunPiece"} <= kinds and (speed_limit == "machine" or "JointMovePiece" not in kinds)
     # a travel that does not move has no motion piece: its retract and unretract, or nothing
     for k in (3, 10):
         assert [type(x).__name__ for x in together[k]] == (["FilamentPiece"] * 2 if k % 2 else []), k
@@ -919,14 +926,21 @@ def _reference_path_inputs(poly, tol, speed_limit):
     """_path_inputs with numpy alone, one run, as before _path_inputs_many (cf0ef8f)."""
     path, stop_at = _reference_blend(poly.points, tol)
     e_ratio = (poly.e / np.linalg.norm(np.diff(poly.points, axis=0), axis=1))[path.segment]
-    cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * np.diff(path.piece_start))])
+    jump = np.zeros(len(e_ratio), dtype=bool)
+    jump[1:] = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
+    # between the stops at a width change, the stretch's mean filament per mm (since issue 48)
+    lengths = np.diff(path.piece_start)
+    stretch = np.cumsum(np.concatenate([[True], jump[1:]])) - 1
+    total = np.bincount(stretch, weights=lengths)
+    mean = np.bincount(stretch, weights=e_ratio * lengths) / np.where(total > 0, total, 1.0)
+    e_ratio = np.where(total[stretch] > 0, mean[stretch], e_ratio)
+    cum_e = np.concatenate([[0.0], np.cumsum(e_ratio * lengths)])
     extruder = bool(np.any(poly.e != 0))
     seg_feed = poly.feed if speed_limit == "feed" else np.full(len(poly.feed), np.inf)
     prev = np.maximum(path.segment - 1, 0)
     piece_feed = np.where(path.kind == 1, np.minimum(seg_feed[path.segment], seg_feed[prev]), seg_feed[path.segment])
     if extruder and len(path.kind) > 1:
-        jump = np.abs(np.diff(e_ratio)) > 0.01 * np.maximum(np.abs(e_ratio[1:]), np.abs(e_ratio[:-1]))
-        stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump]])
+        stop_at = np.concatenate([stop_at, path.piece_start[1:-1][jump[1:]]])
     return path, e_ratio, cum_e, extruder, piece_feed, stop_at
 
 

@@ -144,7 +144,7 @@ def test_prusaslicer_defaults_filament_warning_and_centring(prusa_defaults, tmp_
         compile_part(prusa_defaults, etitc, output=str(out), center=True, workers=1)
         meta, s = read_output(out)
         got = [v for _i, k, v in meta["events"] if k in (1, 2)]
-        assert got == temps and temps[0] > 150
+        assert got == temps + [0.0] and temps[0] > 150  # and every job's end sets the hot end to 0
         wait = [i for i, k, _v in meta["events"] if k == 2][0]
         assert wait < len(s) // 2  # the wait comes before the print, not at the end
 
@@ -180,4 +180,5 @@ def test_grbl_laser_job_fires_the_laser(tmp_path):
     on = d.tool > 0
     assert d.tool.max() == pytest.approx(0.9, abs=1e-6) and (d.tool <= 0.9 + 1e-9).all()
     assert len(set(np.round(d.tool[on], 6))) > 7
-    assert [(k, v) for _i, k, v in meta["events"]] == [(6, 3.0), (6, 0.0)]  # laser mode M3, then M5
+    # laser mode M3, then M5, then every job's end: laser mode 0 and the fan off
+    assert [(k, v) for _i, k, v in meta["events"]] == [(6, 3.0), (6, 0.0), (6, 0.0), (5, 0.0)]

@@ -207,6 +207,9 @@ def _read_planning(sec: Section) -> PlanningSettings:
         limit_margin=sec.getfloat("limit_margin", 0.01, minval=0, maxval=0.5),
         travel_lift=sec.getfloat("travel_lift", 1.0, minval=0),
         singularity_limit=sec.getfloat("singularity_limit", 50.0, above=1),
+        # Marlin's Z_CLEARANCE_BETWEEN_PROBES (5 mm) and its Z homing feed (HOMING_FEEDRATE_MM_M, 4*60 mm/min)
+        approach_height=sec.getfloat("approach_height", 5.0, minval=0, maxval=100),
+        approach_speed=sec.getfloat("approach_speed", 4.0, above=0, maxval=100),
     )
 
 

@@ -60,11 +60,15 @@ class SlicingSettings:
 @dataclass(frozen=True)
 class PlanningSettings:
     """Planner settings: output sample rate (Hz), corner blend tolerance (mm), the
-    fraction of each limit kept in reserve (``limit_margin``), travel lift (mm) and the
-    Jacobian condition number beyond which a pose counts as singular."""
+    fraction of each limit kept in reserve (``limit_margin``), travel lift (mm), the
+    Jacobian condition number beyond which a pose counts as singular, and the job's
+    approach: the height (mm) above the first point (and above the printed part at the
+    end) the tool comes down from and lifts to, and the speed of that vertical move (mm/s)."""
 
     output_rate: float
     blend_tolerance: float
     limit_margin: float
     travel_lift: float
     singularity_limit: float
+    approach_height: float = 5.0
+    approach_speed: float = 4.0

@@ -33,6 +33,8 @@ class Extruder:
     channel_kind = "extruder"
     channel_name = "filament"
     channel_unit = "mm"
+    #: Events (EventKind names) set to 0 when every job ends: heaters and part fan off.
+    off_events = ("hotend_set", "bed_set", "fan")
 
     @property
     def filament_area(self) -> float:
@@ -89,6 +91,7 @@ class Laser:
     channel_kind = "laser"
     channel_name = "laser"
     channel_unit = "0..1"
+    off_events = ("laser_mode", "fan")  # M5 and the air assist off when every job ends
     retract_min_travel = 0.0  # a laser never retracts: every travel lifts
 
     @property

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import DeltasliceError, UnreachableError
 from ..pool import resolve_workers, start_pool
-from ..toolpath import WAIT_KINDS, Role, Toolpath
+from ..toolpath import WAIT_KINDS, EventKind, Role, Toolpath, make_events
 from .pieces import Piece, PieceBatch
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, iter_run_parts, plan_runs
@@ -76,6 +76,76 @@ def check_reachable(toolpath: Toolpath, printer, hint: bool = True) -> None:
 
 
 LASER_ROLES = (int(Role.LASER), int(Role.LASER_DYNAMIC))
+
+
+def job_toolpath(toolpath: Toolpath, printer, end: bool = True) -> tuple[Toolpath, float]:
+    """The toolpath as the machine runs it, between its approach and its park.
+
+    The moves before the first working move (the input's own way to the start: lifts, travels
+    from wherever its reader assumed the tool was, which for a G-code is the bed centre) are
+    replaced by the machine's approach (:func:`.travel.from_rest`), which comes down vertically
+    onto the first working move's start: the toolpath starts there. The filament those moves
+    push or pull (a prime) becomes one zero-length move at that point, their events happen
+    before it. end: add the events that switch the tool's heaters, fan and laser off
+    (``tool.off_events``, value 0) after the last move. A toolpath with no working move keeps
+    its moves but starts at its first point (the approach comes down onto it) where a later move
+    still moves. Returns (the
+    toolpath, the fastest feed of the moves up to its first working move, mm/s: what the
+    approach may go at)."""
+    work = toolpath.working | np.isin(toolpath.role, LASER_ROLES)
+    k = int(np.argmax(work)) if work.any() else 0
+    lead_feed = float(toolpath.feed[: k + 1].max())
+    events = toolpath.events
+    if k:
+        primed = float(toolpath.e[:k].sum())
+        prime = int(abs(primed) > 1e-12)  # the zero-length move pushing it, or none
+        point = toolpath.xyz[k - 1]
+
+        def col(name, first):
+            """Column ``name``: the prime move's value ``first`` (if any), then moves k.. ."""
+            values = getattr(toolpath, name)
+            return np.concatenate([np.full((prime, *values.shape[1:]), first, values.dtype), values[k:]])
+
+        events = events.copy()
+        events["index"] = np.where(events["index"] < k, 0, events["index"] - k + prime)
+        toolpath = Toolpath(point, col("xyz", point), col("feed", toolpath.feed[k]), col("e", primed),
+                            col("tool", 0.0), col("role", int(Role.RETRACT)), col("layer", toolpath.layer[k]),
+                            toolpath.layer_z, events)
+    elif not work.any() and ((toolpath.lengths[1:] > 1e-9) | (toolpath.e[1:] != 0)).any():
+        toolpath = Toolpath(toolpath.xyz[0], toolpath.xyz, toolpath.feed, toolpath.e, toolpath.tool, toolpath.role,
+                            toolpath.layer, toolpath.layer_z, events)
+    if end:
+        toolpath = toolpath.with_events(np.concatenate([toolpath.events, end_events(printer, len(toolpath))]))
+    return toolpath, lead_feed
+
+
+def end_events(printer, index: int) -> np.ndarray:
+    """The events that end every job (its tool's heaters, fan and laser set to 0) before move
+    ``index`` (the toolpath's length: after its last move), an EVENT_DTYPE array."""
+    return make_events([(index, int(EventKind[name.upper()]), 0.0) for name in printer.tool.off_events])
+
+
+def _counting_dropped(progress, dropped: int, total: int):
+    """``progress`` (callable(done, total) or None) called in the moves of the toolpath given to
+    :func:`plan`, counting the ``dropped`` moves :func:`job_toolpath` replaced as done."""
+    if progress is None or dropped == 0:
+        return progress
+    return lambda done, _n: progress(done + dropped, total)
+
+
+def _link_feed(printer, fastest: float) -> float:
+    """The feed (mm/s) of the moves from the rest pose and back to it under the feed speed limit:
+    the printer's travel speed, no faster than ``fastest``: the fastest feed the toolpath asks
+    for before its first extrusion (from rest), in all (back to rest)."""
+    return float(min(printer.slicing.travel_speed, fastest))
+
+
+def _printed_top(toolpath: Toolpath) -> float:
+    """The highest point of the toolpath's working moves (all moves where none works), mm: what
+    the tool lifts clear of at the end."""
+    work = toolpath.working | np.isin(toolpath.role, LASER_ROLES)
+    ends = toolpath.xyz[work] if work.any() else toolpath.xyz
+    return float(max(ends[:, 2].max(initial=-np.inf), toolpath.start[2]))
 
 
 def _check_tool(toolpath: Toolpath, printer) -> None:
@@ -204,12 +274,19 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     _check_tool(toolpath, printer)
     kin = printer.kinematics()
+    given, moves = toolpath, len(toolpath)
+    toolpath, lead_feed = job_toolpath(toolpath, printer)
+    top = _printed_top(toolpath)
 
     def rest_links():
-        """Check every point's reach, then plan the moves from the rest pose and back to it (every
-        trajectory starts at the machine's rest pose and parks there at the end)."""
-        check_reachable(toolpath, printer)
-        return from_rest(kin, printer, toolpath.start, speed_limit), to_rest(kin, printer, toolpath.xyz[-1], speed_limit)
+        """Check every point's reach (of the toolpath as given: its points hold the job's, and an
+        error names its layers and says whether centring it would help), then plan the moves from
+        the rest pose and back to it (every trajectory starts at the machine's rest pose and parks
+        there at the end)."""
+        check_reachable(given, printer)
+        return (from_rest(kin, printer, toolpath.start, speed_limit, feed=_link_feed(printer, lead_feed)),
+                to_rest(kin, printer, toolpath.xyz[-1], speed_limit, top=top,
+                        feed=_link_feed(printer, toolpath.feed.max())))
 
     if planner == "trapezoid":
         from .trapezoid import _moves, plan_safe
@@ -220,11 +297,12 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
         kept_before = np.concatenate([[0], np.cumsum(_moves(toolpath, printer)[-1])])
         times = traj.pieces[len(head)].t0[np.minimum(kept_before[toolpath.events["index"]], len(traj.pieces[len(head)].t0) - 1)]
         traj.events = _at_rest(toolpath.events["index"], len(toolpath), _event_times(toolpath.events, times),
-                               sum(p.duration for p in head), traj.duration)
+                               sum(p.duration for p in head), traj.duration - sum(p.duration for p in tail))
         return traj
     if spool is None:
         spool = len(toolpath) > SPOOL_MOVES
-    return _plan_toppra(toolpath, printer, speed_limit, workers, progress, solver, rest_links, spool)
+    return _plan_toppra(toolpath, printer, speed_limit, workers, _counting_dropped(progress, moves - len(toolpath), moves),
+                        solver, rest_links, spool)
 
 
 def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed", workers=None, progress=None,
@@ -248,7 +326,7 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
     _check_options("plan_stream", printer, speed_limit, "toppra", solver, workers, progress)
     if moves is not None and (not isinstance(moves, (int, np.integer)) or moves < 0):
         raise DeltasliceError(f"plan_stream: moves = {moves!r}: expected a count of moves or None")
-    seen = {"moves": 0, "last": None, "motion": False}
+    seen = {"moves": 0, "last": None, "motion": False, "top": -np.inf, "feed": 0.0}
     events = []
 
     def checked(chunks):
@@ -263,6 +341,8 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
             _check_tool(tp, printer)
             check_reachable(tp, printer, hint=False)
             seen["motion"] = seen["motion"] or bool(((tp.lengths > 1e-9) | (tp.e != 0)).any())
+            seen["top"] = max(seen["top"], _printed_top(tp))
+            seen["feed"] = max(seen["feed"], float(tp.feed.max()))
             ev = tp.events.copy()
             ev["index"] += seen["moves"]
             events.append(ev)
@@ -270,20 +350,48 @@ def plan_stream(chunks, printer, *, moves: int | None = None, speed_limit="feed"
             seen["last"] = tp.xyz[-1]
             yield tp
 
-    stream = checked(chunks)
+    lead = {"dropped": 0}
+    stream = checked(_job_chunks(chunks, printer, lead))
+    if progress is not None:
+        report = progress
+        progress = lambda done, total: report(done + lead["dropped"], total)  # noqa: E731
     first = next(stream, None)
     if first is None:
         raise DeltasliceError("the toolpath has no moves: nothing to plan")
     kin = printer.kinematics()
     pieces = PieceSpool()
-    pieces.extend(from_rest(kin, printer, first.start, speed_limit))
+    pieces.extend(from_rest(kin, printer, first.start, speed_limit, feed=_link_feed(printer, lead["feed"])))
     laser = printer.tool.channel_kind == "laser"
     job_start, job_piece = _plan_jobs(_stream_jobs(itertools.chain([first], stream), laser), pieces, CHUNK_MAX, moves,
                                       False, printer, speed_limit, workers, progress, solver)
     if not seen["motion"]:
         raise DeltasliceError(f"the toolpath's {seen['moves']} move(s) have zero length and no extrusion: nothing to plan")
-    tail = to_rest(kin, printer, seen["last"], speed_limit)
+    tail = to_rest(kin, printer, seen["last"], speed_limit, top=seen["top"], feed=_link_feed(printer, seen["feed"]))
+    events.append(end_events(printer, seen["moves"]))
     return _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, np.concatenate(events), seen["moves"])
+
+
+def _job_chunks(chunks, printer, lead: dict):
+    """:func:`job_toolpath` (without its end events) of a toolpath handed over in chunks: the
+    chunks before the first working move are held and joined to the one that has it, which is
+    handed on from that move; the chunks after it pass as they are (not checked here: anything
+    that is not a Toolpath goes on to :func:`plan_stream`'s check). ``lead["feed"]`` is set to
+    job_toolpath's fastest feed before the first working move once that chunk is handed on, and
+    ``lead["dropped"]`` to the moves it replaced (less its prime move), for progress."""
+    held = None
+    for tp in chunks:
+        if held is False or not isinstance(tp, Toolpath):
+            yield tp
+            continue
+        held = tp if held is None else held.then(tp)
+        if (held.working | np.isin(held.role, LASER_ROLES)).any():
+            job, lead["feed"] = job_toolpath(held, printer, end=False)
+            lead["dropped"] = len(held) - len(job)
+            yield job
+            held = False
+    if held:
+        job, lead["feed"] = job_toolpath(held, printer, end=False)
+        yield job
 
 
 def _stream_jobs(chunks, laser: bool):
@@ -361,13 +469,14 @@ def _check_options(caller, printer, speed_limit, planner, solver, workers, progr
         raise DeltasliceError(f"{caller}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
 
 
-def _at_rest(index: np.ndarray, n: int, events: tuple, offset: float, duration: float) -> tuple:
+def _at_rest(index: np.ndarray, n: int, events: tuple, offset: float, end: float) -> tuple:
     """Events timed within the toolpath's own motion, moved onto the whole trajectory: those
     before the first move happen at t = 0, at the rest pose (a heater warms up and a wait holds
-    there, not over the bed); those after the last move at the end, parked; the rest shift by
+    there, not over the bed); those after the last move at ``end`` (s), the last move's end,
+    before the tool lifts clear and parks (heaters, fan and laser off first); the rest shift by
     ``offset`` (s). index: (m,) the events' move indices; n: the toolpath's moves."""
     return tuple(
-        (0.0 if i == 0 else duration if i >= n else t + offset, k, v)
+        (0.0 if i == 0 else end if i >= n else t + offset, k, v)
         for (t, k, v), i in zip(events, index.tolist())
     )
 
@@ -577,8 +686,9 @@ def _trajectory(printer, pieces, tail, speed_limit, job_start, job_piece, events
     piece_at = np.append(job_piece, len(pieces) - len(tail))
     ev = events["index"]
     k = piece_at[np.searchsorted(moves, ev, side="right") - 1]
-    times = np.where(ev >= n_moves, traj.duration, traj.starts[np.minimum(k, len(pieces))])
-    traj.events = _at_rest(ev, n_moves, _event_times(events, times), 0.0, traj.duration)
+    parked = traj.duration - sum(p.duration for p in tail)  # the last move's end, before the lift and park
+    times = np.where(ev >= n_moves, parked, traj.starts[np.minimum(k, len(pieces))])
+    traj.events = _at_rest(ev, n_moves, _event_times(events, times), 0.0, parked)
     return traj
 
 

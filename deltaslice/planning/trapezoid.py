@@ -53,12 +53,13 @@ def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> Trapezoi
     a = np.full(n, float(accel))
     # Firmware caps every move so the extruder stays within its max feed rate (Marlin's
     # max_feedrate E); here that is the hot end's volumetric limit (a laser's e is zero).
-    tool_v, tool_a = printer.limits.velocity[-1], printer.limits.acceleration[-1]
+    # the tool channel keeps the margin the planner keeps on every channel
+    tool_v, tool_a = printer.planned_limits().velocity[-1], printer.planned_limits().acceleration[-1]
     with np.errstate(divide="ignore"):
         ratio = np.where(length > 0, np.abs(e) / np.where(length > 0, length, 1), 0.0)
         top = np.minimum(top, np.where(ratio > 0, tool_v / ratio, np.inf))
     if fil.any():  # retracts at rest: only extruders have them
-        top = np.where(fil, printer.tool.retract_speed, top)
+        top = np.where(fil, min(printer.tool.retract_speed, printer.planned_limits().tool_velocity_limits()[1]), top)
         a = np.where(fil, tool_a, a)
     L = np.where(fil, np.abs(e), length)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import ruckig
 
-from ..errors import PlanningError
+from ..errors import DeltasliceError, PlanningError
 from .pieces import FilamentPiece, JointMovePiece
 from .ruckig_profile import RuckigProfile, positions_many
 from .topp import RunSpec, plan_lines, plan_run
@@ -22,23 +22,25 @@ from .topp import RunSpec, plan_lines, plan_run
 CHECK_SAMPLES = 48
 
 
-def _ruckig_limits(printer, n: int) -> tuple:
+def _ruckig_limits(printer, n: int, slower: float = 1.0) -> tuple:
     """ruckig's velocity, acceleration and jerk limits of the first n joints (lists of floats):
     the planned limits; joints without a jerk limit in the printer file get a stiff default (50 x
-    their acceleration per s)."""
+    their acceleration per s). slower: the move's time stretched by this factor (>= 1): velocity,
+    acceleration and jerk divided by it, its square and its cube, so the move keeps its path."""
     lim = printer.planned_limits()
     acc = lim.acceleration[:n]
     given = np.isfinite(lim.jerk[:n]) & (np.nan_to_num(lim.jerk[:n]) > 0)
     jerk = np.where(given, lim.jerk[:n], 50.0 * acc)
-    return list(map(float, lim.velocity[:n])), list(map(float, acc)), list(map(float, jerk))
+    return (list(map(float, lim.velocity[:n] / slower)), list(map(float, acc / slower**2)),
+            list(map(float, jerk / slower**3)))
 
 
 class _JointMoves:
     """ruckig's calculator, input and output made once for many rest-to-rest moves of one printer
     (a batch of travels): making and filling them took three times ruckig's calculation of a move."""
 
-    def __init__(self, printer, n: int):
-        vel, acc, jerk = _ruckig_limits(printer, n)
+    def __init__(self, printer, n: int, slower: float = 1.0):
+        vel, acc, jerk = _ruckig_limits(printer, n, slower)
         self.n = n
         self.otg, self.inp, self.traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
         inp = self.inp
@@ -62,9 +64,29 @@ class _JointMoves:
         return JointMovePiece(profile, traj, np.asarray(q0, float), np.asarray(q1, float), layer)
 
 
-def _ruckig_move(printer, q0, q1, layer):
-    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone."""
-    return _JointMoves(printer, len(q0)).move(q0, q1, layer)
+def _ruckig_move(printer, q0, q1, layer, slower: float = 1.0):
+    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone;
+    slower: see :func:`_ruckig_limits`."""
+    return _JointMoves(printer, len(q0), slower).move(q0, q1, layer)
+
+
+SPEED_SAMPLES = 4096  # a joint move's tool speed measured at this many instants
+SPEED_SLACK = 1.02  # and held 2 % under the feed: chords between those instants fall short of the peak
+
+
+def _within_feed(kin, printer, q0, q1, feed: float):
+    """The jerk-limited joint-space move from q0 to q1 stretched in time so that its tool point
+    (forward kinematics) goes no faster than ``feed`` mm/s (the path is the same)."""
+    joint, slower = _ruckig_move(printer, q0, q1, layer=0), 1.0
+    for _ in range(8):
+        t = np.linspace(0.0, joint.duration, SPEED_SAMPLES)
+        p = kin.forward(joint.sample(kin, t)[0])
+        top = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1))) / max(t[1] - t[0], 1e-12)
+        if top * SPEED_SLACK <= feed * (1 + 1e-6):
+            return joint
+        slower *= top * SPEED_SLACK / feed * (1 + 1e-5)  # a hair more: the same path, its time rounded
+        joint = _ruckig_move(printer, q0, q1, layer=0, slower=slower)
+    raise PlanningError(f"{printer.name}: a move from or to the rest pose could not be slowed to {feed:g} mm/s")
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
@@ -151,7 +173,9 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     short = (step < tool.retract_min_travel) & (retract == 0)  # the ends' distance, measured above
     cands = []  # (travel, joint move, its own travel's time)
     joint_moves = _JointMoves(printer, q.shape[2])
-    for n in np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2))):
+    # A joint-space move's tool speed follows the joints, not a feed: only the machine speed limit takes it.
+    lifted = moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2)) & (speed_limit == "machine")
+    for n in np.flatnonzero(lifted):
         joint = joint_moves.move(q[2, n], q[3, n], layers[n])
         # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
         # travel, its clearance check and its lift and lower moves need not be planned.
@@ -171,17 +195,25 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
         cand = moves[r] + [joint] + moves[len(cands) + r]
         if sum(p.duration for p in cand) < own_time:
             best[n] = cand
-    acc = float(printer.limits.acceleration[-1])
+    # retracts keep the margin the joints keep: the planned limits of the tool channel
+    planned = printer.planned_limits()
+    acc = float(planned.acceleration[-1])
     out = []
     for n, job in enumerate(jobs):
         pieces = []
         if job["retract"] < 0:
-            pieces.append(FilamentPiece(q[0, n], job["retract"], tool.retract_speed, acc, layers[n]))
+            pieces.append(FilamentPiece(q[0, n], job["retract"], _retract_speed(printer), acc, layers[n]))
         pieces.extend(best[n])
         if job["unretract"] > 0:
-            pieces.append(FilamentPiece(q[1, n], job["unretract"], tool.retract_speed, acc, layers[n]))
+            pieces.append(FilamentPiece(q[1, n], job["unretract"], _retract_speed(printer), acc, layers[n]))
         out.append(pieces)
     return out
+
+
+def _retract_speed(printer) -> float:
+    """A retract's filament speed, mm/s: the tool's retract speed within the channel's planned idle limit
+    (only an extruder retracts)."""
+    return min(float(printer.tool.retract_speed), printer.planned_limits().tool_velocity_limits()[1])
 
 
 def _own_polyline(a, b, via) -> np.ndarray:
@@ -225,35 +257,64 @@ def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None,
     return plan_run(kin, printer, spec, speed_limit, tolerance, kind="travel", solver=solver)
 
 
-def from_rest(kin, printer, point, speed_limit) -> list:
-    """Pieces from the printer's rest pose to ``point`` (3,) mm: a jerk-limited joint-space move
-    (ruckig) to the point lifted by the tool's travel lift, then straight down. Where the
-    joint-space move would leave the reachable volume or dip under the bed, a straight move."""
-    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=False)
+def from_rest(kin, printer, point, speed_limit, *, feed=None) -> list:
+    """Pieces from the printer's rest pose onto ``point`` (3,) mm, the job's first working point:
+    to the approach point ``[planning] approach_height`` above it (lower where the machine
+    cannot reach so high), then vertically down onto it at ``approach_speed`` (whatever the
+    speed limit). The move to the approach point never goes below the lower of the rest pose
+    and the approach point: a jerk-limited joint-space move (ruckig) where its tool point stays
+    so (under the feed speed limit stretched in time so that the tool goes no faster than
+    ``feed`` mm/s, default: the printer's travel speed), else a straight line (or two: a
+    vertical one at the rest pose, or at the approach point, and a level one) at ``feed``."""
+    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=False, top=-np.inf, feed=feed)
 
 
-def to_rest(kin, printer, point, speed_limit) -> list:
-    """Pieces from ``point`` (3,) mm back to the rest pose: straight up by the travel lift, then
-    the joint-space move (the mirror of :func:`from_rest`)."""
-    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=True)
+def to_rest(kin, printer, point, speed_limit, *, top=-np.inf, feed=None) -> list:
+    """Pieces from ``point`` (3,) mm, the job's last, back to the rest pose: vertically up at
+    ``approach_speed`` to ``approach_height`` above the higher of the point and ``top`` (mm, the
+    printed part's top), then to the rest pose (the mirror of :func:`from_rest`)."""
+    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=True, top=top, feed=feed)
 
 
-def _rest_link(kin, printer, point, speed_limit, *, to_rest):
+def _approach_point(kin, planning, point, top) -> np.ndarray:
+    """(3,) mm: the point approach_height above the higher of ``point`` and ``top``, or the
+    highest reachable one below it on the vertical through ``point`` (``point`` itself at worst)."""
+    clear = max(float(point[2]), float(top)) + planning.approach_height
+    heights = np.linspace(clear, point[2], 33)
+    cands = np.repeat(point[None], len(heights), axis=0)
+    cands[:, 2] = heights
+    ok = kin.reachable(cands)
+    return cands[int(np.argmax(ok))] if ok.any() else point
+
+
+def _rest_link(kin, printer, point, speed_limit, *, to_rest, top, feed):
+    planning = printer.planning
     q_rest = np.asarray(printer.rest_pose, float)
     p_rest = kin.forward(q_rest[None])[0]
-    lift = printer.tool.travel_lift(printer.planning)
-    above = np.array([point[0], point[1], point[2] + lift])
-    if lift <= 0 or not kin.reachable(above[None])[0]:
-        above = point
+    above = _approach_point(kin, planning, point, top)
+    z_min = min(float(above[2]), float(p_rest[2]))
+    link = None
     q_above = kin.inverse(above[None])[0]
     ends = (q_above, q_rest) if to_rest else (q_rest, q_above)
     joint = _ruckig_move(printer, *ends, layer=0)
-    if joint_move_clear(kin, joint, min(0.0, point[2])):
-        link = [joint]
-    else:
-        pts = np.array([above, p_rest] if to_rest else [p_rest, above])
-        link = _cartesian(kin, printer, pts, 0, speed_limit)
+    if joint_move_clear(kin, joint, z_min):
+        # the feed speed limit keeps the path and stretches the move in time
+        link = [joint if speed_limit == "machine" else
+                _within_feed(kin, printer, *ends, feed or printer.slicing.travel_speed)]
+    if link is None:
+        for via in ([], [[p_rest[0], p_rest[1], above[2]]], [[above[0], above[1], p_rest[2]]]):
+            pts = np.array([p_rest, *via, above])
+            try:
+                link = _cartesian(kin, printer, pts[::-1] if to_rest else pts, 0, speed_limit, feed=feed)
+                break
+            except DeltasliceError:
+                continue
+        else:
+            raise PlanningError(f"{printer.name}: no straight way from the rest pose to x = {above[0]:.2f}, "
+                                f"y = {above[1]:.2f}, z = {above[2]:.2f} mm above the job's "
+                                f"{'last' if to_rest else 'first'} point stays within reach")
     if np.array_equal(above, point):
         return link
-    vertical = _cartesian(kin, printer, np.array([point, above] if to_rest else [above, point]), 0, speed_limit)
+    pts = np.array([point, above] if to_rest else [above, point])
+    vertical = _cartesian(kin, printer, pts, 0, "feed", feed=planning.approach_speed)
     return vertical + link if to_rest else link + vertical
