@@ -1,0 +1,246 @@
+"""``deltaslice play`` on pseudo-terminals standing in for a Dynamixel bus and the laser board:
+every packet on the bus is a protocol 1.0 SYNC_WRITE with a valid checksum, torque on before
+the first goal, the goals paced in real time (first to last within 10 % of the job's duration)
+and equal to the stream's counts at the time each packet arrives within 1 count; the laser's
+duty goes to the second port (its frames checked, off at every stop), and pause, abort and a
+board's error each stop it cleanly."""
+
+from __future__ import annotations
+
+import os
+import select
+import subprocess
+import sys
+import threading
+import time
+import tty
+
+import numpy as np
+import pytest
+from trajectories import ROOT, blocks, printer, realistic
+
+from deltaslice.pipeline import read_counts, write_samples
+from deltaslice.play import BUSES, decimation, laser_duty, laser_frame
+
+pytest.importorskip("dynamixel_sdk", reason="dynamixel-sdk is a dependency (pyproject.toml)")
+
+SECONDS = 3.0
+
+
+def checksum_ok(packet: bytes) -> bool:
+    """Protocol 1.0 (ROBOTIS e-Manual): CHECKSUM = ~(ID + LENGTH + INSTRUCTION + params) & 0xFF."""
+    return (~sum(packet[2:-1]) & 0xFF) == packet[-1]
+
+
+def split_packets(data: bytes, times: list[float]) -> list[tuple[float, bytes]]:
+    """FF FF ID LENGTH ... packets with the arrival time of their last byte."""
+    out, k = [], 0
+    while k < len(data):
+        assert data[k:k + 2] == b"\xff\xff", (k, data[k:k + 8].hex())
+        end = k + 4 + data[k + 3]
+        assert end <= len(data), "a packet cut short"
+        out.append((times[end - 1], data[k:end]))
+        k = end
+    return out
+
+
+class Pty:
+    """A pseudo-terminal pair: the program opens ``name``; this side records what arrives, with times."""
+
+    def __init__(self):
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.name = os.ttyname(self.slave)
+        self.data, self.times = bytearray(), []
+        self.stop = False
+        self.on_byte = None
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self):
+        while not self.stop:
+            if not select.select([self.master], [], [], 0.05)[0]:
+                continue
+            try:
+                chunk = os.read(self.master, 4096)
+            except OSError:
+                continue
+            now = time.monotonic()
+            for b in chunk:
+                self.data.append(b)
+                self.times.append(now)
+                if self.on_byte:
+                    self.on_byte(b)
+
+    def close(self):
+        self.stop = True
+        self.thread.join()
+        os.close(self.master)
+        os.close(self.slave)
+
+
+class LaserBoard(Pty):
+    """What uno_laser_player.c answers: its banner to a query, ``OK`` to the end frame; or an
+    ``ERR`` line after ``fail_after`` frames."""
+
+    def __init__(self, fail_after=None):
+        super().__init__()
+        self.frames: list[tuple[float, int, int]] = []
+        self.pending = bytearray()
+        self.fail_after = fail_after
+        self.on_byte = self._byte
+
+    def _byte(self, b):
+        self.pending.append(b)
+        if len(self.pending) < 3:
+            return
+        kind, value, check = self.pending
+        self.pending.clear()
+        assert check == (~(kind + value) & 0xFF), (kind, value, check)
+        self.frames.append((time.monotonic(), kind, value))
+        if kind == ord("Q"):
+            os.write(self.master, b"LASER 250\n")
+        elif kind == ord("E"):
+            os.write(self.master, f"OK {len(self.frames)}\n".encode())
+        elif self.fail_after is not None and len(self.frames) == self.fail_after:
+            os.write(self.master, b"ERR bad frame\n")
+
+
+@pytest.fixture(scope="module")
+def espe_stream(tmp_path_factory):
+    """Three seconds of an ESPE engraving: the joints moving, the power varying, M5 for a while."""
+    p = printer("delta_espe_laser")
+    s, _ = realistic("delta_espe_laser", layers=1)
+    n = int(SECONDS * p.planning.output_rate)
+    s = s.__class__(s.t[:n], s.q[:n], s.e[:n], s.tool[:n])
+    path = tmp_path_factory.mktemp("play") / "espe.dsl"
+    write_samples(blocks(s, 1000), p, path, fmt="stream", rate=p.planning.output_rate,
+                  events=[(0, 6, 4.0), (1800, 6, 0.0), (2200, 6, 4.0)])
+    return path
+
+
+def run_play(stream, bus, laser=None, *args, timeout=60):
+    cmd = [sys.executable, "-m", "deltaslice", "play", str(stream), "--dynamixel", bus.name, "--quiet", *args]
+    if laser is not None:
+        cmd += ["--laser", laser.name]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT, stdin=subprocess.DEVNULL)
+    time.sleep(0.1)  # the readers take the last bytes
+    return r
+
+
+def test_play_paces_goal_packets_and_the_laser(espe_stream):
+    header, counts = read_counts(espe_stream)
+    rate = header.rate
+    bus, laser = Pty(), LaserBoard()
+    try:
+        r = run_play(espe_stream, bus, laser)
+    finally:
+        bus.close()
+        laser.close()
+    assert r.returncode == 0, r.stderr
+    assert "played 3000 samples" in r.stdout, r.stdout
+    packets = split_packets(bytes(bus.data), bus.times)
+    assert all(checksum_ok(p) for _, p in packets)
+    assert all(p[2] == 0xFE and p[4] == 0x83 for _, p in packets)  # SYNC_WRITE to the broadcast ID
+    # the rest pose as goal, torque on for IDs 1, 2, 3, then the paced goals
+    first, torque, paced = packets[0], packets[1], packets[2:]
+    assert torque[1][5:7] == bytes([24, 1]) and list(torque[1][7:13]) == [1, 1, 2, 1, 3, 1]
+    goals = np.array([[int.from_bytes(p[8 + 3 * s:10 + 3 * s], "little") for s in range(3)] for _, p in paced])
+    assert all(p[5:7] == bytes([30, 2]) and list(p[7::3][:3]) == [1, 2, 3] for _, p in [first, *paced])
+    assert np.array_equal(goals[0], counts[0, :3]) and np.array_equal(goals[-1], counts[-1, :3])
+    assert decimation(BUSES[1], 3, 1_000_000, rate) == 1
+    t = np.array([t for t, _ in paced]) - paced[0][0]
+    duration = (len(counts) - 1) / rate
+    assert abs(t[-1] - duration) <= 0.1 * duration, (t[-1], duration)
+    # each packet's goals are the stream's counts at the time it arrived, within 1 count
+    j = np.clip(np.rint(t * rate).astype(int), 0, len(counts) - 1)
+    err = np.abs(goals - counts[j, :3])
+    assert err.max() <= 1, (err.max(), int(np.argmax(err.max(axis=1))))
+    assert len(paced) > 0.8 * len(counts)  # about every sample of a 1 kHz stream went out
+    lateness = (t - j / rate) * 1e3
+    print(f"\npackets {len(paced)}, first to last {t[-1]:.4f} s for {duration:.3f} s; "
+          f"arrival minus due time: median {np.median(lateness):.3f} ms, p99 {np.percentile(lateness, 99):.3f} ms, "
+          f"max {lateness.max():.3f} ms; {r.stdout.strip()}")
+    # the laser: a query, then duties, then off and the end
+    frames = laser.frames
+    assert frames[0][1] == ord("Q") and frames[-1][1:] == (ord("E"), 0) and frames[-2][1:] == (ord("L"), 0)
+    duty = laser_duty(counts, [(0, 6, 4.0), (1800, 6, 0.0), (2200, 6, 4.0)], 3)
+    assert (duty > 0).any() and (duty[1800:2200] == 0).all() and (counts[1800:2200, 3] > 0).any()
+    sets = [(tm, v) for tm, k, v in frames[1:-2] if k == ord("L")]
+    start = paced[0][0]
+    for tm, v in sets[1:]:  # (the first is the off before torque goes on)
+        s = int(np.clip(round((tm - start) * rate), 0, len(counts) - 1))
+        assert v in duty[max(0, s - 3):s + 4], (tm - start, v)
+    seen = {v for _, v in sets}
+    assert seen == set(np.unique(duty))  # every power the stream holds (on, off) went out
+
+
+def test_checksum_and_frames():
+    # the e-Manual's example: torque on for ID 1 is FF FF 01 04 03 18 01 DE
+    assert checksum_ok(bytes.fromhex("FFFF0104031801DE"))
+    assert laser_frame(ord("L"), 200) == bytes([76, 200, ~(76 + 200) & 0xFF])
+    # 57600 baud: a 17-byte packet takes 2.95 ms, so every third 1 kHz sample
+    assert decimation(BUSES[1], 3, 57_600, 1000.0) == 3
+    assert decimation(BUSES[1], 3, 1_000_000, 1000.0, min_interval=0.0045) == 5
+
+
+def test_a_laser_board_error_stops_playback_with_the_laser_off(espe_stream):
+    bus, laser = Pty(), LaserBoard(fail_after=20)
+    try:
+        r = run_play(espe_stream, bus, laser, "--release")
+    finally:
+        bus.close()
+        laser.close()
+    assert r.returncode == 1 and "the laser board stopped: bad frame" in r.stderr, r.stderr
+    assert r.stderr.count("\n") == 1  # one line, no traceback
+    assert [k for _, k, _ in laser.frames[-2:]] == [ord("L"), ord("E")] and laser.frames[-2][2] == 0
+    packets = split_packets(bytes(bus.data), bus.times)
+    assert packets[-1][1][5:7] == bytes([24, 1]) and list(packets[-1][1][7:13]) == [1, 0, 2, 0, 3, 0]  # torque off
+
+
+def test_pause_resume_and_abort_from_the_keys(espe_stream):
+    from deltaslice.play import play
+
+    header, counts = read_counts(espe_stream)
+
+    class Script:
+        """p at 0.5 s, r at 1.0 s, q at 1.5 s of wall time."""
+
+        def __init__(self):
+            self.t0 = time.monotonic()
+            self.plan = [(0.5, "p"), (1.0, "r"), (1.5, "q")]
+
+        def poll(self):
+            if self.plan and time.monotonic() - self.t0 >= self.plan[0][0]:
+                return self.plan.pop(0)[1]
+            return ""
+
+    import serial
+    from deltaslice.errors import PlayError
+    from deltaslice.play import open_bus
+
+    bus, laser = Pty(), LaserBoard()
+    port = open_bus(bus.name, 1_000_000)
+    lport = serial.Serial(laser.name, 115200, timeout=0.05)
+    try:
+        with pytest.raises(PlayError, match="aborted at sample .*: laser off, servos holding their goal"):
+            play(counts, [], rate=header.rate, n_joints=3, bus_port=port, baud=1_000_000, ids=[1, 2, 3],
+                 laser_port=lport, keys=Script())
+        time.sleep(0.1)
+    finally:
+        port.closePort()
+        lport.close()
+        bus.close()
+        laser.close()
+    paced = split_packets(bytes(bus.data), bus.times)[2:]
+    t = np.array([tm for tm, _ in paced])
+    gaps = np.diff(t)
+    assert 0.4 < gaps.max() < 0.6  # no goal while paused
+    # the timeline stopped while paused: about 1 s of samples (one packet each) in 1.5 s, and
+    # the goals resume where they stopped
+    assert 800 < len(paced) < 1250, len(paced)
+    g = np.array([[int.from_bytes(p[8 + 3 * s:10 + 3 * s], "little") for s in range(3)] for _, p in paced])
+    assert np.abs(g[np.argmax(gaps) + 1] - g[np.argmax(gaps)]).max() <= 1
+    during = [v for tm, kind, v in laser.frames if kind == ord("L") and t[np.argmax(gaps)] + 0.05 < tm < t[np.argmax(gaps) + 1] - 0.05]
+    assert during and set(during) == {0}  # the keep-alive holds the laser off while paused
+    assert laser.frames[-1][1] == ord("E")
