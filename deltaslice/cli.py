@@ -378,7 +378,8 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
 
 @main.command("send")
 @click.argument("stream", type=click.Path(dir_okay=False))
-@click.option("--port", required=True, metavar="DEVICE", help="Serial port of the board (e.g. /dev/ttyACM0, COM3).")
+@click.option("--port", required=True, metavar="DEVICE",
+              help="Serial port of the board (e.g. /dev/ttyACM0, COM3), or a URL such as socket://HOST:PORT.")
 @click.option("--baud", type=click.IntRange(min=1), default=115200, show_default=True, help="Baud rate the player uses.")
 @click.option("--timeout", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
               help="Seconds without a byte from the board before giving up (heaters may take a while).")

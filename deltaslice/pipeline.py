@@ -594,7 +594,8 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     except ImportError:
         raise SendError("deltaslice send needs pyserial (pip install pyserial)") from None
     try:
-        port = serial.Serial(str(port_name), baudrate=int(baud), timeout=0.2)
+        # a device, or a URL pyserial opens (socket://host:port: a board behind a TCP bridge, or QEMU's UART)
+        port = serial.serial_for_url(str(port_name), baudrate=int(baud), timeout=0.2)
     except (serial.SerialException, ValueError, OSError) as exc:
         raise SendError(f"{port_name}: cannot open the serial port: {exc}") from None
     with port:
