@@ -22,7 +22,12 @@ from trajectories import ROOT, blocks, printer, realistic
 from deltaslice.pipeline import read_counts, write_samples
 from deltaslice.play import BUSES, decimation, laser_duty, laser_frame
 
-pytest.importorskip("dynamixel_sdk", reason="dynamixel-sdk is a dependency (pyproject.toml)")
+try:
+    import dynamixel_sdk  # noqa: F401
+except ImportError:
+    if os.environ.get("CI"):
+        pytest.fail("dynamixel-sdk missing under CI: it is a dependency in pyproject.toml", pytrace=False)
+    pytest.skip("dynamixel-sdk not installed (pip install dynamixel-sdk)", allow_module_level=True)
 
 SECONDS = 3.0
 
