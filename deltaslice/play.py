@@ -26,6 +26,7 @@ torque goes off. ``p`` pauses (laser off, goals held, the timeline stopped), ``r
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import select
@@ -42,6 +43,7 @@ LASER_BAUD = 115200
 LASER_SET, LASER_END, LASER_QUERY = ord("L"), ord("E"), ord("Q")
 LASER_READY_WAIT = 5.0  # s: an Uno resets when its port opens; its bootloader takes up to ~2 s
 EVENT_LASER_MODE = 6
+REALTIME_PRIORITY = 20  # SCHED_FIFO: above every ordinary process, below the kernel's interrupt threads (50)
 
 
 @dataclass(frozen=True)
@@ -95,8 +97,9 @@ def laser_duty(counts: np.ndarray, events, n_joints: int) -> np.ndarray:
 @dataclass
 class PlayResult:
     """samples: the last sample sent + 1; packets: SYNC_WRITEs sent; seconds: from the first
-    packet to the last, pauses excluded; late: each packet's write time after its sample was
-    due (s); stopped: "end", "abort" or "interrupt"."""
+    packet to the last, pauses included; late: each packet's write, done, after the time it was
+    meant for (s): the PC's jitter; skipped: packets not sent because the player woke after the
+    next one was due (the sample due then went instead); stopped: "end", "abort" or "interrupt"."""
 
     samples: int
     total: int
@@ -106,13 +109,16 @@ class PlayResult:
     late: np.ndarray = field(repr=False)
     laser_frames: int = 0
     stopped: str = "end"
+    skipped: int = 0
+    realtime: bool = False
 
     def timing(self) -> str:
         if not len(self.late):
             return "no packets"
         ms = self.late * 1e3
-        return (f"packet lateness median {np.median(ms):.3f} ms, 99th percentile {np.percentile(ms, 99):.3f} ms, "
-                f"max {ms.max():.3f} ms")
+        return (f"packets written after their time: median {np.median(ms):.3f} ms, 99th percentile "
+                f"{np.percentile(ms, 99):.3f} ms, max {ms.max():.3f} ms; {self.skipped} skipped (woke after the next was due); "
+                f"{'real-time priority' if self.realtime else 'ordinary priority (no permission for real-time)'}")
 
 
 class Keys:
@@ -247,12 +253,14 @@ class _Servos:
 
 def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, baud: int, ids, protocol: int = 1,
          laser_port=None, laser_name: str = "laser", release: bool = False, min_interval: float = 0.0, keys=None,
-         clock=time.monotonic, sleep=time.sleep, progress=None, name: str = "stream") -> PlayResult:
+         clock=time.monotonic, sleep=time.sleep, progress=None, realtime: bool = True,
+         name: str = "stream") -> PlayResult:
     """Play ``counts`` (n, C) in real time on an open ``dynamixel_sdk.PortHandler`` and, if
     given, an open serial port to the laser board (``write``, ``read``, ``in_waiting``).
 
     keys: an object whose ``poll()`` returns the keys pressed since ("p" pause, "r" resume, "q"
-    abort), or None. progress: ``progress(sample, total)`` now and then. Raises
+    abort), or None. progress: ``progress(sample, total)`` now and then. realtime: play at
+    SCHED_FIFO where allowed (:func:`_realtime`). Raises
     :class:`PlayError` after the clean stop on an error or an abort (``.interrupted`` on Ctrl-C)."""
     bus = BUSES[protocol]
     ids = list(ids)
@@ -270,67 +278,70 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
     n, period = len(counts), 1.0 / rate
     servos = _Servos(bus_port, bus, ids)
     laser = _Laser(laser_port, laser_name, clock) if laser_port is not None else None
-    sent_at, late = [], []
+    sent_at, late, skipped = [], [], 0
     i = -1
     stopped, paused_at = "end", None
-    try:
-        if laser is not None:
-            laser.handshake()
-            laser.set(0)
-        servos.goal(joints[0])  # the rest pose before torque: enabling it then does not jump
-        servos.torque(True)
-        t0 = clock()
-        nxt = 0
-        while True:
-            pressed = keys.poll() if keys is not None else ""
-            if "q" in pressed:
-                stopped = "abort"
-                break
-            if paused_at is None and "p" in pressed:
-                paused_at = clock()
-                if laser is not None:
-                    laser.set(0)
-            elif paused_at is not None and "r" in pressed:
-                t0 += clock() - paused_at
-                paused_at = None
+    with _realtime(realtime) as got_rt:  # the stop below too: the laser goes off promptly
+        try:
             if laser is not None:
-                laser.lines()
-            if paused_at is not None:
+                laser.handshake()
+                laser.set(0)
+            servos.goal(joints[0])  # the rest pose before torque: enabling it then does not jump
+            servos.torque(True)
+            t0 = clock()
+            nxt = 0
+            while True:
+                pressed = keys.poll() if keys is not None else ""
+                if "q" in pressed:
+                    stopped = "abort"
+                    break
+                if paused_at is None and "p" in pressed:
+                    paused_at = clock()
+                    if laser is not None:
+                        laser.set(0)
+                elif paused_at is not None and "r" in pressed:
+                    t0 += clock() - paused_at
+                    paused_at = None
                 if laser is not None:
-                    laser.set(0)
-                sleep(0.02)
-                continue
-            now = clock()
-            due = t0 + nxt * period
-            if now < due:
-                # short naps: the keys and the laser's keep-alive are served while waiting
-                sleep(min(due - now, 0.02))
-                continue
-            i = min(n - 1, max(nxt, int((now - t0) / period) // k * k))  # late: the sample due now
-            if laser is not None:
-                laser.set(int(duty[i]))
-            servos.goal(joints[i])
-            done = clock()
-            sent_at.append(done)
-            late.append(done - (t0 + i * period))
-            if progress is not None and (i // k) % 256 == 0:
-                progress(i, n)
-            if i == n - 1:
-                break
-            nxt = min(n - 1, (i // k + 1) * k)
-    except KeyboardInterrupt:
-        stopped = "interrupt"
-    except PlayError:
+                    laser.lines()
+                if paused_at is not None:
+                    if laser is not None:
+                        laser.set(0)
+                    sleep(0.02)
+                    continue
+                now = clock()
+                due = t0 + nxt * period
+                if now < due:
+                    # short naps: the keys and the laser's keep-alive are served while waiting
+                    sleep(min(due - now, 0.02))
+                    continue
+                i = min(n - 1, max(nxt, int((now - t0) / period) // k * k))  # late: the sample due now
+                if laser is not None:
+                    laser.set(int(duty[i]))
+                servos.goal(joints[i])
+                done = clock()
+                sent_at.append(done)
+                late.append(done - due)
+                skipped += (i - nxt) // k
+                if progress is not None and (i // k) % 256 == 0:
+                    progress(i, n)
+                if i == n - 1:
+                    break
+                nxt = min(n - 1, (i // k + 1) * k)
+        except KeyboardInterrupt:
+            stopped = "interrupt"
+        except PlayError:
+            _stop(laser, servos, release)
+            raise
+        except Exception as exc:  # the serial layer's own errors (a pulled adapter), as one line
+            _stop(laser, servos, release)
+            raise PlayError(f"{name}: stopped at sample {max(i, 0)} of {n}: {exc}") from None
         _stop(laser, servos, release)
-        raise
-    except Exception as exc:  # the serial layer's own errors (a pulled adapter), as one line
-        _stop(laser, servos, release)
-        raise PlayError(f"{name}: stopped at sample {max(i, 0)} of {n}: {exc}") from None
-    _stop(laser, servos, release)
     if progress is not None:
         progress(max(i, 0), n)
     seconds = sent_at[-1] - sent_at[0] if len(sent_at) > 1 else 0.0
-    result = PlayResult(max(i, 0) + 1, n, len(sent_at), k, seconds, np.array(late), laser.frames if laser else 0, stopped)
+    result = PlayResult(max(i, 0) + 1, n, len(sent_at), k, seconds, np.array(late), laser.frames if laser else 0, stopped,
+                        skipped, got_rt)
     if stopped != "end":
         hold = "torque off" if release else "servos holding their goal"
         how = "interrupted (Ctrl-C)" if stopped == "interrupt" else "aborted"
@@ -339,6 +350,26 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
         err.interrupted = stopped == "interrupt"
         raise err
     return result
+
+
+@contextlib.contextmanager
+def _realtime(wanted: bool):
+    """The calling thread at SCHED_FIFO while it plays, where the system allows it (root, or an
+    rtprio limit): measured here, on 2 cores shared with other jobs, it takes the packets written
+    more than a sample period late from a quarter of them to none. Yields whether it got it."""
+    if not wanted or not hasattr(os, "sched_setscheduler"):
+        yield False
+        return
+    try:
+        before = os.sched_getscheduler(0), os.sched_getparam(0)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+    except OSError:
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        os.sched_setscheduler(0, before[0], before[1])
 
 
 def _stop(laser, servos, release: bool) -> None:

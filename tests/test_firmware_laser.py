@@ -142,7 +142,7 @@ def test_laser_duty_follows_the_stream_as_play_sends_it(build, tmp_path, espe):
 
     bus.writePort = goal
     res = play(counts, EVENTS, rate=header.rate, n_joints=3, bus_port=bus, baud=1_000_000, ids=[1, 2, 3],
-               laser_port=link, clock=clock, sleep=clock.sleep)
+               laser_port=link, clock=clock, sleep=clock.sleep, realtime=False)
     assert res.samples == len(counts)
     t0 = start[1]  # the first is the rest goal written before torque goes on
     end_ms = link.writes[-1][0]
