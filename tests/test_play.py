@@ -79,7 +79,7 @@ class Pty:
                 self.data.append(b)
                 self.times.append(now)
                 if self.on_byte:
-                    self.on_byte(b)
+                    self.on_byte(b, now)
 
     def close(self):
         self.stop = True
@@ -99,14 +99,14 @@ class LaserBoard(Pty):
         self.fail_after = fail_after
         self.on_byte = self._byte
 
-    def _byte(self, b):
+    def _byte(self, b, now):
         self.pending.append(b)
         if len(self.pending) < 3:
             return
         kind, value, check = self.pending
         self.pending.clear()
         assert check == (~(kind + value) & 0xFF), (kind, value, check)
-        self.frames.append((time.monotonic(), kind, value))
+        self.frames.append((now, kind, value))  # the time of the read that brought it
         if kind == ord("Q"):
             os.write(self.master, b"LASER 250\n")
         elif kind == ord("E"):
@@ -161,13 +161,18 @@ def test_play_paces_goal_packets_and_the_laser(espe_stream):
     t = np.array([t for t, _ in paced]) - paced[0][0]
     duration = (len(counts) - 1) / rate
     assert abs(t[-1] - duration) <= 0.1 * duration, (t[-1], duration)
-    # each packet's goals are the stream's counts at the time it arrived, within 1 count: the
-    # sample due then, or one of the 3 before it (this reader may see a packet a few ms after it
-    # was written: a process on a loaded machine, even at real-time priority)
+    # each packet's goals are the stream's counts at the time it arrived, within 1 count. The
+    # reader stamps the packets of one read with one time: when it lagged (a process on a loaded
+    # virtual machine, even at real-time priority, now and then stalls for 100 ms), a read holds
+    # packets written since the read before, so each is held to the samples due from 3 ms before
+    # that read to its own
     j = np.rint(t * rate).astype(int)
-    err = np.min([np.abs(goals - counts[np.clip(j - d, 0, len(counts) - 1), :3]).max(axis=1) for d in range(4)],
-                 axis=0)
-    assert err.max() <= 1, (err.max(), int(np.argmax(err)))
+    reads = np.unique(t, return_inverse=True)[1]
+    since = np.concatenate([[0], np.rint(np.unique(t) * rate).astype(int)[:-1]])[reads] - 3
+    err = np.array([np.abs(goals[k] - counts[np.clip(np.arange(since[k], j[k] + 1), 0, len(counts) - 1), :3])
+                    .max(axis=1).min() for k in range(len(goals))])
+    bad = int(np.argmax(err))
+    assert err.max() <= 1, (err.max(), bad, j[bad], since[bad], goals[bad])
     exact = np.abs(goals - counts[np.clip(j, 0, len(counts) - 1), :3]).max(axis=1) <= 1
     # a 1 kHz stream: a packet per sample, less the wake-ups that came after the next sample was due
     # (on this 2-vCPU virtual machine shared with other jobs: all but 0-10 %; the machine itself
@@ -183,9 +188,12 @@ def test_play_paces_goal_packets_and_the_laser(espe_stream):
     assert (duty > 0).any() and (duty[1800:2200] == 0).all() and (counts[1800:2200, 3] > 0).any()
     sets = [(tm, v) for tm, k, v in frames[1:-2] if k == ord("L")]
     start = paced[0][0]
+    reads = sorted({tm for tm, _ in sets})
     for tm, v in sets[1:]:  # (the first is the off before torque goes on)
-        s = int(np.clip(round((tm - start) * rate), 0, len(counts) - 1))
-        assert v in duty[max(0, s - 3):s + 4], (tm - start, v)
+        # as the goals: the samples due from 3 ms before the read before this frame's, to its own
+        before = reads[max(0, reads.index(tm) - 1)]
+        lo, hi = (int(np.clip(round((x - start) * rate), 0, len(counts) - 1)) for x in (before, tm))
+        assert v in duty[max(0, lo - 3):hi + 2], (tm - start, v)
     seen = {v for _, v in sets}
     assert seen == set(np.unique(duty))  # every power the stream holds (on, off) went out
 
