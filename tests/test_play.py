@@ -267,3 +267,47 @@ def test_pause_resume_and_abort_from_the_keys(espe_stream):
     during = [v for tm, kind, v in laser.frames if kind == ord("L") and t[np.argmax(gaps)] + 0.05 < tm < t[np.argmax(gaps) + 1] - 0.05]
     assert during and set(during) == {0}  # the keep-alive holds the laser off while paused
     assert laser.frames[-1][1] == ord("E")
+
+
+def crc16_dxl2(data: bytes) -> int:
+    """Protocol 2.0's CRC (ROBOTIS e-Manual): CRC-16, polynomial 0x8005, initial 0, not reflected."""
+    crc = 0
+    for b in data:
+        crc ^= b << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+def test_protocol_2_packets_for_x_series(espe_stream):
+    """Protocol 2.0 (X series: torque enable at 64, 4-byte goal positions at 116): every packet a
+    broadcast SYNC_WRITE whose CRC is right, the goals the stream's counts."""
+    from deltaslice.play import play
+
+    header, counts = read_counts(espe_stream)
+    counts = counts[:200]
+    written = []
+
+    class Port:  # what dynamixel_sdk's packet layer uses of a PortHandler
+        is_using = False
+
+        def clearPort(self):
+            pass
+
+        def writePort(self, packet):
+            written.append(bytes(packet))
+            return len(packet)
+
+        def getPortName(self):
+            return "bus"
+
+    play(counts, [], rate=header.rate, n_joints=3, bus_port=Port(), baud=1_000_000, ids=[1, 2, 3], protocol=2,
+         realtime=False)
+    for p in written:
+        assert p[:4] == b"\xff\xff\xfd\x00" and p[4] == 0xFE and p[7] == 0x83
+        assert int.from_bytes(p[5:7], "little") == len(p) - 7
+        assert int.from_bytes(p[-2:], "little") == crc16_dxl2(p[:-2])
+    assert written[1][8:10] == (64).to_bytes(2, "little") and written[1][12::2][:3] == bytes([1, 2, 3])
+    goals = [[int.from_bytes(p[13 + 5 * s:17 + 5 * s], "little") for s in range(3)] for p in written[2:]]
+    assert all(p[8:10] == (116).to_bytes(2, "little") for p in written[2:])
+    assert goals[0] == list(counts[0, :3]) and goals[-1] == list(counts[-1, :3]) and len(goals) > 150
