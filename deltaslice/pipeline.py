@@ -599,8 +599,11 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     except (serial.SerialException, ValueError, OSError) as exc:
         raise SendError(f"{port_name}: cannot open the serial port: {exc}") from None
     with port:
-        return send_stream(data, port, timeout=timeout, name=str(stream_path),
-                           progress=stderr_progress(progress, "sending", unit="B"))
+        try:
+            return send_stream(data, port, timeout=timeout, name=str(stream_path),
+                               progress=stderr_progress(progress, "sending", unit="B"))
+        except (serial.SerialException, OSError) as exc:  # unplugged, or the far end closed
+            raise SendError(f"{port_name}: the link to the board failed: {exc}") from None
 
 
 def play_file(stream_path, bus_port, *, baud=1_000_000, ids=None, protocol=1, laser_port=None, release=False,

@@ -16,6 +16,7 @@ void board_uart_write(uint8_t b);
 int32_t board_encoder(int joint);            /* the joint's quadrature count, zeroed at power-up */
 void board_motor(int joint, int32_t duty);   /* -255..255: PWM duty, the sign is the direction */
 void board_wait_sample(uint32_t period_us);  /* until the next sample tick */
+int board_tick_missed(void);                 /* a tick came while no sample was ready (the bytes are late) */
 void board_log(const char *line);            /* a line for the developer (not the stream's UART) */
 void board_exit(int failed);                 /* the motors are off: stop here */
 

@@ -70,6 +70,8 @@ static char *put_int(char *s, int32_t v)
     return s;
 }
 
+static uint32_t held; /* control periods run on the last setpoints while the bytes were late */
+
 static void stop(const char *message)
 {
     char line[16];
@@ -84,6 +86,10 @@ static void stop(const char *message)
         board_log("\n");
         board_exit(1);
     }
+    board_log("# held ");
+    *put_int(line, (int32_t)held) = 0;
+    board_log(line);
+    board_log(" periods (late bytes)\n");
     *put_int(line, (int32_t)player.sample_index) = 0;
     serial_puts("OK ");
     serial_puts(line);
@@ -91,12 +97,32 @@ static void stop(const char *message)
     board_exit(0);
 }
 
+static dc_pid pid[JOINTS];
+static int32_t setpoint[JOINTS];
+static uint32_t period_us = 1000;
+
+/* One control period at the next tick: each joint's PID from its setpoint and its counter. */
+static char *control(char *s)
+{
+    int j;
+    board_wait_sample(period_us);
+    for (j = 0; j < JOINTS; j++) {
+        int32_t pos = board_encoder(j), duty = dc_pid_step(&pid[j], setpoint[j], pos);
+        board_motor(j, duty);
+        *s++ = ' ';
+        s = put_int(s, setpoint[j]);
+        *s++ = ' ';
+        s = put_int(s, pos);
+        *s++ = ' ';
+        s = put_int(s, duty);
+    }
+    return s;
+}
+
 int main(void)
 {
     int32_t counts[DSL_MAX_CHANNELS], origin[JOINTS];
-    dc_pid pid[JOINTS];
     dc_pid_gains gains = DC_PID_UADY_GAINS;
-    uint32_t period_us = 1000;
     int started = 0, j;
     char line[16 + 3 * JOINTS * 13], *s;
 
@@ -121,6 +147,12 @@ int main(void)
         }
         r = dsl_next(&player, counts);
         if (r == DSL_DONE || r == DSL_ERROR) stop(0);
+        if (r == DSL_AGAIN && player.sample_index && board_tick_missed()) {
+            /* the bytes are late and a tick has come: hold the last setpoints, the loop closed */
+            control(line);
+            held++;
+            continue;
+        }
         if (r != DSL_SAMPLE) continue; /* DSL_EVENT: no heaters on this machine; DSL_AGAIN: more bytes */
         if (player.sample_index == 1) {
             /* the first sample is the rest pose, where the counters were zeroed */
@@ -129,18 +161,8 @@ int main(void)
                 dc_pid_init(&pid[j], gains);
             }
         }
-        board_wait_sample(period_us);
-        s = put_int(line, (int32_t)(player.sample_index - 1));
-        for (j = 0; j < JOINTS; j++) {
-            int32_t sp = counts[j] - origin[j], pos = board_encoder(j), duty = dc_pid_step(&pid[j], sp, pos);
-            board_motor(j, duty);
-            *s++ = ' ';
-            s = put_int(s, sp);
-            *s++ = ' ';
-            s = put_int(s, pos);
-            *s++ = ' ';
-            s = put_int(s, duty);
-        }
+        for (j = 0; j < JOINTS; j++) setpoint[j] = counts[j] - origin[j];
+        s = control(put_int(line, (int32_t)(player.sample_index - 1)));
         *s++ = '\n';
         *s = 0;
         board_log(line);
