@@ -311,3 +311,45 @@ def test_protocol_2_packets_for_x_series(espe_stream):
     goals = [[int.from_bytes(p[13 + 5 * s:17 + 5 * s], "little") for s in range(3)] for p in written[2:]]
     assert all(p[8:10] == (116).to_bytes(2, "little") for p in written[2:])
     assert goals[0] == list(counts[0, :3]) and goals[-1] == list(counts[-1, :3]) and len(goals) > 150
+
+
+def test_ctrl_c_stops_with_the_laser_off(espe_stream):
+    import signal
+
+    bus, laser = Pty(), LaserBoard()
+    cmd = [sys.executable, "-m", "deltaslice", "play", str(espe_stream), "--dynamixel", bus.name, "--laser", laser.name,
+           "--quiet"]
+    try:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                                stdin=subprocess.DEVNULL)
+        deadline = time.monotonic() + 30
+        while len(bus.data) < 17 * 200 and time.monotonic() < deadline:  # playing
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+        time.sleep(0.1)
+    finally:
+        bus.close()
+        laser.close()
+    assert proc.returncode == 130, err
+    assert err.count("\n") == 1 and "interrupted (Ctrl-C) at sample" in err and "laser off, servos holding" in err, err
+    assert [(k, v) for _, k, v in laser.frames[-2:]] == [(ord("L"), 0), (ord("E"), 0)]
+    packets = split_packets(bytes(bus.data), bus.times)
+    assert packets[-1][1][5] == 30  # the last packet a goal: torque stays on (held)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--dynamixel", "/dev/nonexistent-bus"], "/dev/nonexistent-bus: cannot open the Dynamixel bus"),
+    (["--dynamixel", "BUS", "--ids", "1,2"], "3 joints in the stream, 2 servo IDs given"),
+    (["--dynamixel", "BUS", "--protocol", "1", "--printer", "delta_etitc"], "stream compiled for printer"),
+])
+def test_play_errors_are_one_line(espe_stream, args, message):
+    bus = Pty()
+    try:
+        r = subprocess.run([sys.executable, "-m", "deltaslice", "play", str(espe_stream), "--quiet",
+                            *[bus.name if a == "BUS" else a for a in args]], capture_output=True, text=True, cwd=ROOT,
+                           timeout=60, stdin=subprocess.DEVNULL)
+    finally:
+        bus.close()
+    assert r.returncode == 1 and message in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert not bus.data  # nothing reached the bus
