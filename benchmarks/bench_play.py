@@ -52,10 +52,10 @@ def run(counts, rate, realtime: bool) -> str:
         os.waitpid(child, 0)
         os.close(master)
     ms = r.late * 1e3
-    return (f"{'real-time' if r.realtime else 'ordinary '} {r.packets} packets of {len(counts)} samples in {r.seconds:.3f} s "
-            f"(job {(len(counts) - 1) / rate:.3f} s); late median {np.median(ms):.3f} ms, p99 {np.percentile(ms, 99):.3f}, "
-            f"p99.9 {np.percentile(ms, 99.9):.3f}, max {ms.max():.1f}; over 1 ms {(ms > 1).sum()}, over 10 ms "
-            f"{(ms > 10).sum()}; skipped {r.skipped}; load {os.getloadavg()[0]:.1f}")
+    return (f"{'real-time' if r.realtime else 'ordinary '} {r.packets} packets of {len(counts)} samples in "
+            f"{r.seconds:.3f} s (job {(len(counts) - 1) / rate:.3f} s); late median {np.median(ms):.3f} ms, "
+            f"p99 {np.percentile(ms, 99):.3f}, p99.9 {np.percentile(ms, 99.9):.3f}, max {ms.max():.1f}; "
+            f"over 1 ms {(ms > 1).sum()}, over 10 ms {(ms > 10).sum()}; skipped {r.skipped}; load {os.getloadavg()[0]:.1f}")
 
 
 def main():
@@ -78,10 +78,10 @@ def main():
         nbytes = BUSES[proto].packet_bytes(3)
         for baud in (1_000_000, 57_600):
             us = bus_seconds(nbytes, baud) * 1e6
+            k = decimation(BUSES[proto], 3, baud, header.rate)
             print(f"protocol {proto}.0, 3 servos: {nbytes} bytes, {us:.0f} us at {baud} baud: at most "
-                  f"{1e6 / us:.0f} packets/s, every {decimation(BUSES[proto], 3, baud, header.rate)} sample(s) at "
-                  f"{header.rate:g} Hz ({us * header.rate / 1e4 / decimation(BUSES[proto], 3, baud, header.rate):.0f} % "
-                  "of the bus)")
+                  f"{1e6 / us:.0f} packets/s, every {k} sample(s) at {header.rate:g} Hz "
+                  f"({us * header.rate / 1e4 / k:.0f} % of the bus)")
 
 
 if __name__ == "__main__":

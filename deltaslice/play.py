@@ -117,7 +117,8 @@ class PlayResult:
             return "no packets"
         ms = self.late * 1e3
         return (f"packets written after their time: median {np.median(ms):.3f} ms, 99th percentile "
-                f"{np.percentile(ms, 99):.3f} ms, max {ms.max():.3f} ms; {self.skipped} skipped (woke after the next was due); "
+                f"{np.percentile(ms, 99):.3f} ms, max {ms.max():.3f} ms; {self.skipped} skipped (woke after the "
+                "next was due); "
                 f"{'real-time priority' if self.realtime else 'ordinary priority (no permission for real-time)'}")
 
 
@@ -340,8 +341,8 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
     if progress is not None:
         progress(max(i, 0), n)
     seconds = sent_at[-1] - sent_at[0] if len(sent_at) > 1 else 0.0
-    result = PlayResult(max(i, 0) + 1, n, len(sent_at), k, seconds, np.array(late), laser.frames if laser else 0, stopped,
-                        skipped, got_rt)
+    result = PlayResult(max(i, 0) + 1, n, len(sent_at), k, seconds, np.array(late),
+                        laser.frames if laser else 0, stopped, skipped, got_rt)
     if stopped != "end":
         hold = "torque off" if release else "servos holding their goal"
         how = "interrupted (Ctrl-C)" if stopped == "interrupt" else "aborted"

@@ -179,7 +179,8 @@ def test_laser_off_on_a_host_time_out_and_stays_off(build, tmp_path):
     assert (duty[(t > 12) & (t < 355)] == 200).all()
     assert (duty[t > 362] == 0).all()  # 250 ms after the last frame (110 ms)
     errs = [(ms, ln) for ms, ln in lines if ln.startswith("ERR")]
-    assert errs[0][1] == "ERR host silent: laser off until reset" and 360 < errs[0][0] < 364.5, errs  # (the line ends 3.3 ms after it starts)
+    # (the line ends 3.3 ms after it starts)
+    assert errs[0][1] == "ERR host silent: laser off until reset" and 360 < errs[0][0] < 364.5, errs
     assert len(errs) == 3 and all(ln == errs[0][1] for _, ln in errs)  # to every later frame, the query too
 
 

@@ -264,7 +264,8 @@ def test_pause_resume_and_abort_from_the_keys(espe_stream):
     assert 800 < len(paced) < 1250, len(paced)
     g = np.array([[int.from_bytes(p[8 + 3 * s:10 + 3 * s], "little") for s in range(3)] for _, p in paced])
     assert np.abs(g[np.argmax(gaps) + 1] - g[np.argmax(gaps)]).max() <= 1
-    during = [v for tm, kind, v in laser.frames if kind == ord("L") and t[np.argmax(gaps)] + 0.05 < tm < t[np.argmax(gaps) + 1] - 0.05]
+    hole = t[np.argmax(gaps)] + 0.05, t[np.argmax(gaps) + 1] - 0.05
+    during = [v for tm, kind, v in laser.frames if kind == ord("L") and hole[0] < tm < hole[1]]
     assert during and set(during) == {0}  # the keep-alive holds the laser off while paused
     assert laser.frames[-1][1] == ord("E")
 
