@@ -314,6 +314,8 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
                 due = t0 + nxt * period
                 if now < due:
                     # short naps: the keys and the laser's keep-alive are served while waiting
+                    if laser is not None:
+                        laser.set(max(laser.duty, 0))
                     sleep(min(due - now, 0.02))
                     continue
                 i = min(n - 1, max(nxt, int((now - t0) / period) // k * k))  # late: the sample due now

@@ -192,3 +192,14 @@ def test_laser_off_on_a_damaged_frame(build, tmp_path):
     assert (duty[(t > 12) & (t < 49)] == 100).all() and (duty[t > 52] == 0).all()
     errs = [ln for _, ln in lines if ln.startswith("ERR")]
     assert errs == ["ERR bad frame (check byte): laser off until reset"] * 3
+
+
+def test_play_keeps_the_laser_alive_between_sparse_packets(espe):
+    # packets 300 ms apart (--interval 300): the board's 250 ms time-out still never fires
+    header, counts = espe
+    clock = Clock()
+    link = LaserLink(clock)
+    play(counts, EVENTS, rate=header.rate, n_joints=3, bus_port=FakeBus(), baud=1_000_000, ids=[1, 2, 3],
+         laser_port=link, clock=clock, sleep=clock.sleep, realtime=False, min_interval=0.3)
+    times = np.array([ms for ms, data in link.writes if data[:1] in (b"L", b"E")])
+    assert times[-1] - times[0] > 2900 and np.diff(times).max() <= 0.25 * 250 + 20, np.diff(times).max()
