@@ -346,30 +346,107 @@ def test_gap_line_down_a_straight_slot_is_straight():
     np.testing.assert_allclose(w, 0.3, atol=1e-6)
 
 
-@settings(max_examples=60, deadline=None)
-@example([(0, 0, 10, 10, True), (2, 2, 3, 3, False)])  # a hole
-@example([(0, 0, 10, 10, True), (2, 2, 6, 6, False), (4, 4, 2, 2, True), (-5, 12, 3, 3, True)])  # an island in a hole
-@example([(0, 0, 10, 10, True), (1, 1, 2, 2, False), (5, 5, 2, 3, False), (3, 3, 2, 2, False)])  # holes touching
-@given(st.lists(st.tuples(st.integers(-20, 20), st.integers(-20, 20), st.integers(1, 15), st.integers(1, 15),
-                          st.booleans()), min_size=1, max_size=12))
-def test_to_shapely_is_the_cross_section(boxes):
-    """to_shapely (each part of manifold3d's decompose, its outline first, then its holes) against
-    the even-odd overlay of all the contours it replaced: the same region, valid, of the same
-    area, for rectangles added and cut in turn (holes, islands in holes, touching corners)."""
-    import shapely
-    from manifold3d import CrossSection, OpType
+_BOXES = st.lists(st.tuples(st.integers(-20, 20), st.integers(-20, 20), st.integers(1, 15), st.integers(1, 15),
+                            st.booleans()), min_size=1, max_size=12)
+# regions that touch themselves at a point: Clipper2 keeps each as one ring through the pinch
+_PINCHES = [
+    [(0, 1, 1, 1, True), (1, 0, 1, 1, True)],  # two squares meeting at a corner
+    [(1, 3, 3, 3, True), (1, 2, 2, 2, False), (3, 4, 3, 3, False)],  # cut down to two squares at a corner
+    [(1, 1, 2, 2, True), (0, 2, 1, 1, True), (1, 2, 1, 3, False)],  # a square hanging from a notch's corner
+    [(0, 0, 1, 1, True), (2, 0, 1, 1, True), (1, 1, 1, 1, True), (0, 2, 1, 1, True), (2, 2, 1, 1, True)],  # checkers
+]
 
-    from deltaslice.slicing.gapfill import to_shapely
+
+def _region(boxes):
+    from manifold3d import CrossSection
 
     region = CrossSection()
     for x, y, w, h, add in boxes:
         box = CrossSection.square([w, h]).translate([x, y])
         region = region + box if add else region - box
+    return region
+
+
+def _with_examples(cases):
+    def wrap(f):
+        for case in cases:
+            f = example(case)(f)
+        return f
+    return wrap
+
+
+@settings(max_examples=60, deadline=None)
+@example([(0, 0, 10, 10, True), (2, 2, 3, 3, False)])  # a hole
+@example([(0, 0, 10, 10, True), (2, 2, 6, 6, False), (4, 4, 2, 2, True), (-5, 12, 3, 3, True)])  # an island in a hole
+@example([(0, 0, 10, 10, True), (1, 1, 2, 2, False), (5, 5, 2, 3, False), (3, 3, 2, 2, False)])  # holes touching
+@_with_examples(_PINCHES)
+@given(_BOXES)
+def test_to_shapely_is_the_cross_section(boxes):
+    """to_shapely (each part of manifold3d's decompose, its outline first, then its holes) against
+    the even-odd overlay of all the contours it replaced: the same region, valid, of the same
+    area, for rectangles added and cut in turn (holes, islands in holes, parts touching at a
+    corner, a hole touching the outline)."""
+    import shapely
+
+    from deltaslice.slicing.gapfill import to_shapely
+
+    region = _region(boxes)
     ours = to_shapely(region)
     overlay = shapely.Polygon()
     for p in region.to_polygons():
         overlay = shapely.symmetric_difference(overlay, shapely.make_valid(shapely.Polygon(np.asarray(p, float))))
-    assert ours.is_valid
+    assert ours.is_valid, shapely.is_valid_reason(ours)
     assert ours.area == pytest.approx(region.area(), rel=1e-12, abs=1e-12)
     assert shapely.equals(ours, overlay) or (ours.is_empty and overlay.is_empty)
-    assert len(shapely.get_parts(ours)) == len(region.decompose())
+    # a part split at a pinch is two polygons; nothing else is split or merged
+    assert len(shapely.get_parts(ours)) == len(shapely.get_parts(overlay))
+
+
+def test_to_shapely_splits_the_pinches():
+    """Each pinch example is one part to manifold3d (or two that touch) and comes out valid, as
+    separate polygons: the old conversion gave a ring through the pinch on three of them."""
+    import shapely
+
+    from deltaslice.slicing.gapfill import to_shapely
+
+    for boxes in _PINCHES:
+        ours = to_shapely(_region(boxes))
+        assert ours.is_valid, (boxes, shapely.is_valid_reason(ours))
+        assert len(shapely.get_parts(ours)) >= 2
+
+
+def _even_odd(region, xy):
+    """Independent membership: a point is in the region when a ray from it crosses the region's
+    contours an odd number of times. xy: (n, 2) float, mm -> (n,) bool."""
+    inside = np.zeros(len(xy), bool)
+    for ring in region.to_polygons():
+        a = np.asarray(ring, float)
+        b = np.roll(a, -1, axis=0)
+        x, y = xy[:, :1], xy[:, 1:]
+        straddle = (a[:, 1] > y) != (b[:, 1] > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cross_x = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+        inside ^= (straddle & (x < cross_x)).sum(axis=1) % 2 == 1
+    return inside
+
+
+@settings(max_examples=60, deadline=None)
+@_with_examples(_PINCHES)
+@given(_BOXES)
+def test_shapely_point_tests_match_the_cross_section(boxes):
+    """What the slicer asks of a converted region (bridge ends in the support, overhang tests,
+    travels inside a part: shapely.contains_xy on a prepared to_shapely) against an even-odd count
+    over manifold3d's own contours, on a grid of points off every box edge; and gap fill's medial
+    lines run on it."""
+    import shapely
+
+    from deltaslice.slicing.gapfill import medial_lines, to_shapely
+
+    region = _region(boxes)
+    ours = to_shapely(region)
+    shapely.prepare(ours)
+    g = np.arange(-20.25, 36, 0.5)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    np.testing.assert_array_equal(shapely.contains_xy(ours, xy[:, 0], xy[:, 1]), _even_odd(region, xy))
+    for pts, widths in medial_lines(ours, 0.1, 0.9, 0.25, 0.0125, 0.0, 0.0):
+        assert len(pts) == len(widths) + 1

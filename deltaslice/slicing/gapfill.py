@@ -20,10 +20,14 @@ from manifold3d import CrossSection
 
 
 def to_shapely(region: CrossSection):
-    """CrossSection -> shapely (Multi)Polygon, one polygon per connected part: manifold3d's
+    """CrossSection -> valid shapely (Multi)Polygon, one polygon per connected part: manifold3d's
     decompose gives each part's contours, its outline first (Clipper2's tree: an outer node, then
-    its holes), which make the polygon as they are (it was an overlay of all the contours, 4x the
-    cost)."""
+    its holes), which make the polygon as they are (an overlay of all the contours costs 4x).
+
+    Clipper2 keeps a part that touches itself at a point (two squares meeting at a corner, a
+    hole touching the outline twice) as one ring through the pinch, which OGC calls invalid and
+    GEOS's predicates and offsets then get wrong; only those parts are rebuilt, by GEOS's
+    structure method (shells unioned, holes cut), which splits them at the pinch."""
     parts = []
     for part in region.decompose():
         rings = [np.asarray(p, float) for p in part.to_polygons()]
@@ -31,6 +35,11 @@ def to_shapely(region: CrossSection):
             parts.append(shapely.Polygon(rings[0], rings[1:]))
     if not parts:
         return shapely.Polygon()
+    if not shapely.is_valid(parts).all():
+        parts = [q for p in parts
+                 for q in ([p] if p.is_valid else shapely.get_parts(shapely.make_valid(p, method="structure",
+                                                                                         keep_collapsed=False)))
+                 if q.area > 0]
     return parts[0] if len(parts) == 1 else shapely.MultiPolygon(parts)
 
 
