@@ -354,3 +354,18 @@ def test_play_errors_are_one_line(espe_stream, args, message):
         bus.close()
     assert r.returncode == 1 and message in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert not bus.data  # nothing reached the bus
+
+
+def test_a_damaged_stream_is_refused_before_the_ports_open(espe_stream, tmp_path):
+    data = bytearray(espe_stream.read_bytes())
+    data[len(data) // 2] ^= 0x40
+    bad = tmp_path / "bad.dsl"
+    bad.write_bytes(bytes(data))
+    bus, laser = Pty(), LaserBoard()
+    try:
+        r = run_play(bad, bus, laser)
+    finally:
+        bus.close()
+        laser.close()
+    assert r.returncode == 1 and "CRC mismatch" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert not bus.data and not laser.data  # nothing moved, the laser board never heard from it
