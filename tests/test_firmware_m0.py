@@ -16,6 +16,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -60,9 +61,25 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run_m0(build, stream, tmp_path, timeout=240):
-    """QEMU with the player, its UART a TCP server; `deltaslice send` to it. Returns (send's
-    result, the player's log lines, QEMU's exit status)."""
+def send_late(stream, port):
+    """A host that opens the link a second after the board started and throws away what came
+    (the board's first credit), as one does that opens a Bluetooth link to a running board."""
+    import serial
+
+    from deltaslice.send import send_stream
+
+    link = serial.serial_for_url(f"socket://127.0.0.1:{port}", timeout=0.2)
+    try:
+        time.sleep(1.0)
+        link.reset_input_buffer()
+        return send_stream(stream.read_bytes(), link, timeout=10)
+    finally:
+        link.close()
+
+
+def run_m0(build, stream, tmp_path, timeout=240, late=False):
+    """QEMU with the player, its UART a TCP server; `deltaslice send` to it; QEMU ended once send
+    has its verdict (the player halts, as a board does). Returns (send's result, the log lines)."""
     port, log = free_port(), tmp_path / "m0.log"
     qemu = subprocess.Popen(
         ["qemu-system-arm", "-M", "microbit", "-kernel", str(build / "m0_pid_player.elf"), "-display", "none",
@@ -74,22 +91,26 @@ def run_m0(build, stream, tmp_path, timeout=240):
         # QEMU says it listens, then waits for the one connection before it starts the machine
         said = qemu.stderr.readline()
         assert "waiting for connection" in said, said + qemu.stderr.read()
-        sent = subprocess.run([sys.executable, "-m", "deltaslice", "send", str(stream), "--port",
-                               f"socket://127.0.0.1:{port}", "--quiet", "--timeout", "30"],
-                              capture_output=True, text=True, timeout=timeout, cwd=ROOT, stdin=subprocess.DEVNULL)
-        code = qemu.wait(timeout=30)
+        if late:
+            sent = send_late(stream, port)
+        else:
+            sent = subprocess.run([sys.executable, "-m", "deltaslice", "send", str(stream), "--port",
+                                   f"socket://127.0.0.1:{port}", "--quiet", "--timeout", "30"],
+                                  capture_output=True, text=True, timeout=timeout, cwd=ROOT, stdin=subprocess.DEVNULL)
+        deadline = time.monotonic() + 30  # the player logs that it halted just after its verdict
+        while "# halted" not in log.read_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
     finally:
-        if qemu.poll() is None:
-            qemu.kill()
-            qemu.wait()
-    return sent, log.read_text().splitlines(), code
+        qemu.kill()
+        qemu.wait()
+    return sent, log.read_text().splitlines()
 
 
 def test_m0_pid_player_follows_the_stream_sent_to_it(build, uady_stream, tmp_path):
-    sent, log, code = run_m0(build, uady_stream, tmp_path)
+    sent, log = run_m0(build, uady_stream, tmp_path)
     assert sent.returncode == 0, sent.stderr
     assert f"the board played {SAMPLES} samples" in sent.stdout, sent.stdout
-    assert code == 0  # the player left through semihosting's application exit
+    assert log[-1] == "# halted: done"
     decoded = subprocess.run([sys.executable, "-m", "deltaslice", "decode", str(uady_stream)], capture_output=True,
                              text=True, check=True, cwd=ROOT).stdout
     counts = np.loadtxt([ln for ln in decoded.splitlines() if not ln.startswith("#")], dtype=np.int64)[:, 1:]
@@ -114,9 +135,9 @@ def test_m0_refuses_a_stream_for_another_printer(build, tmp_path):
     path = tmp_path / "etitc.dsl"
     write_samples(blocks(s.__class__(s.t[:300], s.q[:300], s.e[:300], s.tool[:300]), 300), p, path, fmt="stream",
                   rate=p.planning.output_rate)
-    sent, log, code = run_m0(build, path, tmp_path)
+    sent, log = run_m0(build, path, tmp_path)
     assert sent.returncode == 1 and "stream made for another printer" in sent.stderr, sent.stderr
-    assert code == 1 and not [ln for ln in log if not ln.startswith("#")]  # no sample played
+    assert log[-1] == "# halted: failed" and not [ln for ln in log if not ln.startswith("#")]  # no sample played
 
 
 def test_make_builds_the_m0_and_laser_players_by_default(tmp_path):
@@ -127,3 +148,11 @@ def test_make_builds_the_m0_and_laser_players_by_default(tmp_path):
                        check=True)
     assert f"-o {tmp_path}/m0_pid_player.elf" in r.stdout and f"-o {tmp_path}/uno_laser_player.elf" in r.stdout
     assert f"{tmp_path}/uno_laser_player.hex" in r.stdout
+
+
+def test_m0_credits_again_until_the_host_listens(build, uady_stream, tmp_path):
+    # the board does not reset when the host opens its link: its first credit went to no one, so
+    # it sends it again until a byte comes
+    result, log = run_m0(build, uady_stream, tmp_path, late=True)
+    assert result.samples == SAMPLES and result.bytes_sent == uady_stream.stat().st_size
+    assert log[-1] == "# halted: done"

@@ -311,7 +311,7 @@ def test_protocol_2_packets_for_x_series(espe_stream):
     assert written[1][8:10] == (64).to_bytes(2, "little") and written[1][12::2][:3] == bytes([1, 2, 3])
     goals = [[int.from_bytes(p[13 + 5 * s:17 + 5 * s], "little") for s in range(3)] for p in written[2:]]
     assert all(p[8:10] == (116).to_bytes(2, "little") for p in written[2:])
-    assert goals[0] == list(counts[0, :3]) and goals[-1] == list(counts[-1, :3]) and len(goals) > 150
+    assert goals[0] == list(counts[0, :3]) and goals[-1] == list(counts[-1, :3]) and len(goals) > 50
 
 
 def test_ctrl_c_stops_with_the_laser_off(espe_stream):

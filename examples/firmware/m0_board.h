@@ -17,7 +17,8 @@ int32_t board_encoder(int joint);            /* the joint's quadrature count, ze
 void board_motor(int joint, int32_t duty);   /* -255..255: PWM duty, the sign is the direction */
 void board_wait_sample(uint32_t period_us);  /* until the next sample tick */
 int board_tick_missed(void);                 /* a tick came while no sample was ready (the bytes are late) */
+uint32_t board_ms(void);                     /* milliseconds since power-up (wrapping) */
 void board_log(const char *line);            /* a line for the developer (not the stream's UART) */
-void board_exit(int failed);                 /* the motors are off: stop here */
+void board_exit(int failed);                 /* the motors are off: halt here */
 
 #endif

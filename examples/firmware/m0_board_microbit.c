@@ -28,9 +28,6 @@
 
 /* ARM semihosting: the operation in r0, its argument in r1, then BKPT 0xAB (Cortex-M) */
 #define SYS_WRITE0 0x04
-#define SYS_EXIT 0x18
-#define ADP_STOPPED_APPLICATION_EXIT 0x20026
-#define ADP_STOPPED_RUNTIME_ERROR 0x20023
 
 static int semihost(int op, const void *arg)
 {
@@ -43,8 +40,25 @@ static int semihost(int op, const void *arg)
 static motor motors[JOINTS];
 static int32_t duties[JOINTS];
 
+/* SysTick (the Cortex-M0's own timer) for board_ms: 1 ms at the nRF51's 16 MHz */
+#define SYST_CSR (*(volatile uint32_t *)0xE000E010u)
+#define SYST_RVR (*(volatile uint32_t *)0xE000E014u)
+#define SYST_CVR (*(volatile uint32_t *)0xE000E018u)
+#define SYST_COUNTFLAG (1u << 16)
+
+static uint32_t ms;
+
+uint32_t board_ms(void)
+{
+    if (SYST_CSR & SYST_COUNTFLAG) ms++; /* read often enough (the main loop): a lap lost is no harm */
+    return ms;
+}
+
 void board_init(void)
 {
+    SYST_RVR = 16000u - 1u;
+    SYST_CVR = 0;
+    SYST_CSR = 5u; /* enabled, the processor's clock, no interrupt */
     UART_ENABLE = 4;
     UART_BAUDRATE = UART_BAUD_115200;
     UART_STARTRX = 1;
@@ -84,14 +98,11 @@ void board_log(const char *line) { semihost(SYS_WRITE0, line); }
 
 void board_exit(int failed)
 {
-    uint8_t b;
-    uint32_t idle = 0;
-    /* take what the host still sends (a chunk it was credited): QEMU closing its socket on unread
-       bytes would reset the connection, and the host could lose the verdict line */
-    while (idle < 200000u) idle = board_uart_read(&b) ? 0 : idle + 1;
-    semihost(SYS_EXIT, (const void *)(failed ? ADP_STOPPED_RUNTIME_ERROR : ADP_STOPPED_APPLICATION_EXIT));
-    for (;;) {
-    }
+    /* halt, as the board does: QEMU keeps its socket open, so the host reads the verdict line
+       whatever it still had on its way (QEMU leaving with unread bytes would reset the
+       connection and could lose the line); the log says how it ended, the host ends QEMU */
+    board_log(failed ? "# halted: failed\n" : "# halted: done\n");
+    for (;;) __asm__ volatile("wfi");
 }
 
 /* start-up: .data from flash, .bss zeroed, then main; the vector table's first two words */

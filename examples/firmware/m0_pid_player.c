@@ -23,7 +23,8 @@
 
 #define JOINTS 3
 #define CHUNK 64  /* bytes the host sends per credit */
-#define RING 128  /* a power of two; holds RING - 1 bytes */
+#define RING 256  /* a power of two; holds RING - 1 bytes: two chunks more than the credits need */
+#define RECREDIT_MS 500 /* the first credit again, while no byte came */
 
 static dsl_player player;
 static uint8_t ring[RING];
@@ -47,13 +48,26 @@ static void serial_poll(void)
 }
 
 /* A credit for every chunk of ring space that no received byte fills and no credited byte on
-   its way will fill. */
+   its way will fill (the host's chunks may end short of a credit: none are owed then). */
 static void serial_grant(void)
 {
-    while ((head - tail) + (granted - received) + CHUNK <= RING - 1) {
+    if ((int32_t)(granted - received) < 0) granted = received;
+    while ((head - tail) + (granted - received) + CHUNK <= RING / 2 - 1) {
         board_uart_write('>');
         granted += CHUNK;
     }
+}
+
+/* A board that does not reset when the host opens its port (a Bluetooth link, QEMU's socket) sent
+   its first credit before anyone listened, or the host's port flushed it on opening: until the
+   first byte comes, the first credit goes again every RECREDIT_MS. A host that took two of them
+   sends two chunks: the ring's other half holds the second. */
+static void serial_recredit(void)
+{
+    static uint32_t last;
+    if (received || board_ms() - last < RECREDIT_MS) return;
+    last = board_ms();
+    board_uart_write('>');
 }
 
 static char *put_int(char *s, int32_t v)
@@ -132,6 +146,7 @@ int main(void)
         int r, budget;
         serial_poll();
         serial_grant();
+        serial_recredit();
         for (budget = 64; budget && tail != head; budget--) {
             if (dsl_feed(&player, &ring[tail % RING], 1) != 1) break;
             tail++;
