@@ -377,7 +377,8 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
 
 @main.command("send")
 @click.argument("stream", type=click.Path(dir_okay=False))
-@click.option("--port", required=True, metavar="DEVICE", help="Serial port of the board (e.g. /dev/ttyACM0, COM3).")
+@click.option("--port", required=True, metavar="DEVICE",
+              help="Serial port of the board (e.g. /dev/ttyACM0, COM3), or a URL such as socket://HOST:PORT.")
 @click.option("--baud", type=click.IntRange(min=1), default=115200, show_default=True, help="Baud rate the player uses.")
 @click.option("--timeout", type=click.FloatRange(min=0.1), default=10.0, show_default=True,
               help="Seconds without a byte from the board before giving up (heaters may take a while).")
@@ -397,6 +398,50 @@ def send_cmd(stream, port, baud, timeout, printer_path, quiet):
     result = _run(send_file, stream, port, baud=baud, timeout=timeout, progress=not quiet,
                   printer=None if printer_path is None else _printer(printer_path, None))
     click.echo(f"sent {result.bytes_sent} bytes; the board played {result.samples} samples in {result.seconds:.1f} s")
+
+
+@main.command("play")
+@click.argument("stream", type=click.Path(dir_okay=False))
+@click.option("--dynamixel", "bus_port", required=True, metavar="DEVICE",
+              help="Serial port of the Dynamixel bus (a U2D2 or USB2Dynamixel: /dev/ttyUSB0, COM3).")
+@click.option("--laser", "laser_port", default=None, metavar="DEVICE",
+              help="Serial port of the laser board (examples/firmware/uno_laser_player.c).")
+@click.option("--baud", type=click.IntRange(min=1), default=1_000_000, show_default=True, help="Bus baud rate.")
+@click.option("--ids", default=None, metavar="1,2,3", help="Servo IDs in joint order (default 1, 2, 3, ...).")
+@click.option("--protocol", type=click.Choice(["1", "2"]), default="1", show_default=True,
+              help="Dynamixel protocol: 1 (AX/MX control table) or 2 (X series).")
+@click.option("--interval", type=click.FloatRange(min=0.0), default=0.0, show_default=True,
+              help="Least milliseconds between goal packets (default: as often as the bus carries them).")
+@click.option("--release", is_flag=True, help="Torque off when playback stops (default: hold the last goal).")
+@click.option("--printer", "printer_path", default=None, metavar="FILE|NAME",
+              help="Refuse the stream unless it was compiled for this printer.")
+@click.option("--quiet", is_flag=True, help="No progress output.")
+def play_cmd(stream, bus_port, laser_port, baud, ids, protocol, interval, release, printer_path, quiet):
+    """Play a checked .dsl stream in real time on Dynamixel servos (goal positions by SYNC_WRITE)
+    and, with --laser, the laser board. Keys while playing: p pause (laser off), r resume, q abort;
+    Ctrl-C aborts too. Every stop switches the laser off.
+
+    \b
+    Example:
+      deltaslice play engraving.dsl --dynamixel /dev/ttyUSB0 --laser /dev/ttyACM0
+    """
+    from .pipeline import play_file
+
+    try:
+        id_list = None if ids is None else [int(x) for x in ids.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"{ids!r}: expected IDs like 1,2,3", param_hint="--ids") from None
+    try:
+        result = play_file(stream, bus_port, baud=baud, ids=id_list, protocol=int(protocol), laser_port=laser_port,
+                           release=release, min_interval=interval / 1e3,
+                           printer=None if printer_path is None else _printer(printer_path, None), keyboard=True,
+                           progress=not quiet)
+    except DeltasliceError as exc:  # its line says where playback stopped and that the laser is off
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(EXIT_INTERRUPTED if getattr(exc, "interrupted", False) else EXIT_ERROR)
+    click.echo(f"played {result.samples} samples in {result.seconds:.2f} s: {result.packets} goal packets "
+               f"(every {result.decimation} sample{'s' if result.decimation > 1 else ''}), "
+               f"{result.laser_frames} laser frames; {result.timing()}")
 
 
 @main.command("firmware-config")

@@ -45,3 +45,10 @@ class MeshWarning(UserWarning):
 class OutputError(DeltasliceError):
     """An output cannot be written: missing or read-only directory, the input itself, a full
     disk, or a job beyond the size and time bounds."""
+
+
+class PlayError(DeltasliceError):
+    """Playing a stream on a servo bus failed or was stopped (the laser is off by then);
+    ``interrupted`` when Ctrl-C stopped it."""
+
+    interrupted = False

@@ -594,12 +594,60 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     except ImportError:
         raise SendError("deltaslice send needs pyserial (pip install pyserial)") from None
     try:
-        port = serial.Serial(str(port_name), baudrate=int(baud), timeout=0.2)
+        # a device, or a URL pyserial opens (socket://host:port: a board behind a TCP bridge, or QEMU's UART)
+        port = serial.serial_for_url(str(port_name), baudrate=int(baud), timeout=0.2)
     except (serial.SerialException, ValueError, OSError) as exc:
         raise SendError(f"{port_name}: cannot open the serial port: {exc}") from None
     with port:
-        return send_stream(data, port, timeout=timeout, name=str(stream_path),
-                           progress=stderr_progress(progress, "sending", unit="B"))
+        try:
+            return send_stream(data, port, timeout=timeout, name=str(stream_path),
+                               progress=stderr_progress(progress, "sending", unit="B"))
+        except (serial.SerialException, OSError) as exc:  # unplugged, or the far end closed
+            raise SendError(f"{port_name}: the link to the board failed: {exc}") from None
+
+
+def play_file(stream_path, bus_port, *, baud=1_000_000, ids=None, protocol=1, laser_port=None, release=False,
+              min_interval=0.0, printer=None, keyboard=False, progress=False):
+    """Check a stream file whole, then play it in real time on the Dynamixel bus at ``bus_port``
+    and the laser board at ``laser_port`` (see :mod:`deltaslice.play`). ids: the servos' bus IDs
+    in joint order (default 1, 2, 3, ...). printer: a path, name or Printer the stream must match,
+    or None. keyboard: pause/resume/abort from the terminal's keys. Returns a
+    :class:`~deltaslice.play.PlayResult`."""
+    from .emit.stream import StreamReader
+    from .errors import PlayError
+    from .play import Keys, open_bus, open_laser, play
+
+    _check_path(stream_path, "stream")
+    try:
+        f = open(stream_path, "rb")
+    except OSError as exc:
+        raise StreamError(f"{stream_path}: cannot open stream: {exc.strerror or exc}") from None
+    with f:
+        # a damaged file is refused before a port is opened: the machine would stop mid-job
+        reader = StreamReader(f, str(stream_path))
+        parts = [c for _i, _s, c in reader.blocks()]
+    h = reader.header
+    if printer is not None:
+        loaded = _printer(printer)
+        if loaded.fingerprint() != h.fingerprint:
+            raise StreamError(f"{stream_path}: stream compiled for printer {h.printer_name!r}, not {loaded.name!r}")
+    if laser_port is not None and h.tool_kind != "laser":
+        raise PlayError(f"{stream_path}: --laser given, but the stream's tool is {h.tool_kind!r}, not a laser")
+    counts = np.concatenate(parts) if parts else np.zeros((0, h.n_channels), dtype=np.int64)
+    ids = list(range(1, h.n_joints + 1)) if ids is None else list(ids)
+    bus = open_bus(bus_port, baud)
+    laser = None
+    try:
+        laser = open_laser(laser_port) if laser_port is not None else None
+        with Keys() if keyboard else contextlib.nullcontext() as keys:
+            return play(counts, reader.events, rate=h.rate, n_joints=h.n_joints, bus_port=bus, baud=baud, ids=ids,
+                        protocol=protocol, laser_port=laser, laser_name=str(laser_port), release=release,
+                        min_interval=min_interval, keys=keys, name=str(stream_path),
+                        progress=stderr_progress(progress, "playing", unit="samples"))
+    finally:
+        bus.closePort()
+        if laser is not None:
+            laser.close()
 
 
 def shipped_printers() -> list[dict]:
