@@ -1,0 +1,225 @@
+"""Every bad input ends with one line in the user's words (issue 50): the exit status, an
+``error:`` line naming the file and the problem, no traceback and no Python exception name;
+readers of untrusted files bounded in time and memory."""
+
+from __future__ import annotations
+
+import re
+import resource
+import struct
+import subprocess
+import sys
+import time
+import zipfile
+import zlib
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from deltaslice.cli import main
+from deltaslice.emit import stream
+
+from conftest import ROOT, printer
+
+LASER = "delta_espe_laser"
+STROKE = 'stroke="black" fill="none"'
+# a Python exception's name (ValueError, StopIteration, BadZipFile, ...) in a message
+PYTHON_NAMES = re.compile(r"\b[A-Z]\w*(Error|Exception|Warning)\b|StopIteration|BadZipFile|Traceback")
+
+
+def _run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def one_line_error(result, code=1) -> str:
+    """The error line of a CLI run that must end with one error line and ``code``."""
+    assert not (result.exception and not isinstance(result.exception, SystemExit)), result.exception
+    assert result.exit_code == code, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith(("error:", "Error:"))]
+    assert len(errors) == 1, result.output
+    assert not PYTHON_NAMES.search(result.output), result.output
+    return errors[0]
+
+
+def _svg(tmp_path, body, root='<svg xmlns="http://www.w3.org/2000/svg" width="100" height="100">', name="a.svg"):
+    path = tmp_path / name
+    path.write_text(f"{root}{body}</svg>")
+    return path
+
+
+# ----------------------------------------------------------------------------------- printer files
+
+BIG = "1" + "0" * 309  # an integer of 310 digits: no float holds it
+
+
+def test_a_printer_number_of_310_digits_is_one_line(tmp_path):
+    text = (ROOT / "printers" / "delta_etitc.toml").read_text()
+    path = tmp_path / "big.toml"
+    path.write_text(re.sub(r"(?m)^forearm = .*$", f"forearm = {BIG}", text, count=1))
+    line = one_line_error(_run("firmware-config", "--printer", path))
+    assert "[kinematics] forearm = 100... (an integer of 310 digits)" in line and "magnitude <= 1e+12" in line
+
+
+def test_a_sensor_table_number_of_310_digits_is_one_line(tmp_path):
+    text = (ROOT / "printers" / "delta_ucb.toml").read_text()
+    path = tmp_path / "big.toml"
+    table = f"sensor_table = [[[0, 0], [{BIG}, 1]], [[0, 0], [1, 1]], [[0, 0], [1, 1]]]"
+    path.write_text(re.sub(r"(?m)^sensor_table = .*$", table, text, count=1))
+    line = one_line_error(_run("firmware-config", "--printer", path))
+    assert "[joints] sensor_table" in line and len(line) < 600
+
+
+# ----------------------------------------------------------------------------------- SVG and images
+
+
+def test_an_svg_in_another_namespace_is_one_line(tmp_path):
+    path = _svg(tmp_path, f'<path d="M 10 10 L 50 50" {STROKE}/>',
+                root='<svg xmlns="http://example.com/other" width="100" height="100">')
+    line = one_line_error(_run(path, "--printer", LASER, "-o", tmp_path / "o.dsl"))
+    assert "not an SVG drawing" in line and "http://www.w3.org/2000/svg" in line
+
+
+@pytest.mark.parametrize("root", [
+    '<svg xmlns="http://www.w3.org/2000/svg" width="100" height="1e308" viewBox="0 0 100 100">',
+    '<svg xmlns="http://www.w3.org/2000/svg" width="1e308" height="1e308" viewBox="0 0 100 100">',
+])
+def test_an_svg_width_or_height_of_1e308_is_one_line(tmp_path, root):
+    path = _svg(tmp_path, f'<path d="M 10 10 L 50 50" {STROKE}/>', root=root)
+    line = one_line_error(_run(path, "--printer", LASER, "-o", tmp_path / "o.dsl"))
+    assert "SVG coordinate" in line and "no drawing is that large" in line
+
+
+@pytest.mark.parametrize("body", [
+    f'<path d="M 10 10 L {"9" * 320} 50" {STROKE}/>',
+    f'<path d="M 10 10 Q 50 1{"0" * 320} 90 50" {STROKE}/>',
+    f'<circle cx="50" cy="50" r="1{"0" * 320}" {STROKE}/>',
+    f'<path d="M 10 10 L 1e308 50 L -1e308 50" {STROKE}/>',
+])
+def test_an_svg_coordinate_of_320_digits_is_one_line(tmp_path, body):
+    line = one_line_error(_run(_svg(tmp_path, body), "--printer", LASER, "-o", tmp_path / "o.dsl"))
+    assert "SVG coordinate" in line
+
+
+def test_an_svg_that_is_not_xml_says_so_without_parseerror(tmp_path):
+    path = tmp_path / "a.svg"
+    path.write_text('<svg xmlns="http://www.w3.org/2000/svg"><path d="M 0 0 L 1 1"')
+    line = one_line_error(_run(path, "--printer", LASER, "-o", tmp_path / "o.dsl"))
+    assert "not well-formed XML" in line and "line 1" in line
+
+
+def _png(shape=(64, 64)) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray((np.random.default_rng(0).random(shape) * 255).astype(np.uint8)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def test_a_file_that_is_not_an_image_is_one_line(tmp_path):
+    path = tmp_path / "a.png"
+    path.write_text("hello, not an image")
+    line = one_line_error(_run(path, "--printer", LASER, "-o", tmp_path / "o.dsl"))
+    assert "not an image file" in line
+
+
+def test_a_truncated_image_is_one_line(tmp_path):
+    path = tmp_path / "a.png"
+    data = _png()
+    path.write_bytes(data[: len(data) // 2])
+    line = one_line_error(_run(path, "--printer", LASER, "-o", tmp_path / "o.dsl"))
+    assert "damaged or truncated" in line
+
+
+def test_a_raster_line_pitch_of_a_nanometre_is_refused_before_allocating(tmp_path):
+    path = tmp_path / "a.png"
+    path.write_bytes(_png())
+    line = one_line_error(_run(path, "--printer", LASER, "--mode", "raster", "--line-pitch", "1e-6",
+                               "-o", tmp_path / "o.dsl"))
+    assert "line pitch of 1e-06 mm" in line and "at least" in line
+
+
+def test_an_engraving_too_wide_says_what_fits(tmp_path):
+    path = tmp_path / "a.png"
+    path.write_bytes(_png())
+    line = one_line_error(_run(path, "--printer", LASER, "--width", "1e6", "-o", tmp_path / "o.dsl"))
+    assert "does not fit" in line and "the largest that fits" in line and "no part of the work area" not in line
+
+
+# ----------------------------------------------------------------------------------- meshes
+
+
+def _zip(path, parts):
+    with zipfile.ZipFile(path, "w") as z:
+        for name, text in parts.items():
+            z.writestr(name, text)
+    return path
+
+
+@pytest.mark.parametrize("name, make, words", [
+    ("empty.3mf", lambda p: _zip(p, {}), "without a 3D model"),
+    ("bad.3mf", lambda p: p.write_bytes(b"PK\x03\x04 not a zip"), "a 3MF is a zip archive"),
+    ("bad.ply", lambda p: p.write_text("plx\nformat ascii 1.0\nend_header\n"), "not a PLY file"),
+    ("short.ply", lambda p: p.write_text("not a ply at all\n"), "not a readable PLY file"),
+    ("short.off", lambda p: p.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n"), "not a readable OFF file"),
+])
+def test_a_damaged_mesh_is_one_line(tmp_path, name, make, words):
+    path = tmp_path / name
+    make(path)
+    line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl"))
+    assert words in line
+
+
+# ----------------------------------------------------------------------------------- planning
+
+
+def test_a_joint_velocity_too_low_for_any_travel_is_one_line(tmp_path):
+    line = one_line_error(_run(ROOT / "examples" / "parts" / "calibration_cube.stl", "--printer", "delta_etitc",
+                               "--set", "joints.velocity_max=1e-9", "-o", tmp_path / "o.dsl", "--quiet"))
+    assert "velocity_max = 1e-09 deg/s" in line and "7600 s" in line
+
+
+# ----------------------------------------------------------------------------------- streams
+
+
+def hostile_stream(blocks=1000, n=65535) -> bytes:
+    """A stream with valid CRCs and delta_etitc's fingerprint whose blocks of width 0 each declare
+    n samples: 17 bytes a block."""
+    p = printer("delta_etitc")
+    data = bytearray(stream.StreamHeader.for_printer(p, p.planning.output_rate).encode())
+    body = bytes([0x40, 0]) * (p.n_joints + 1)  # order 1, width 0, first count 0
+    for _ in range(blocks):
+        rec = struct.pack("<BHH", stream.REC_BLOCK, 5 + len(body) + 4, n) + body
+        data += rec + struct.pack("<I", zlib.crc32(rec))
+    end = struct.pack("<BHII", stream.REC_END, stream.END_LEN, blocks * n, zlib.crc32(bytes(data)))
+    return bytes(data + end + struct.pack("<I", zlib.crc32(end)))
+
+
+def _limited(limit_bytes):
+    def set_limit():
+        resource.setrlimit(resource.RLIMIT_AS, (limit_bytes, limit_bytes))
+
+    return set_limit
+
+
+@pytest.mark.parametrize("command", [["verify", "{f}", "--printer", "delta_etitc"], ["decode", "{f}", "--units"]])
+def test_a_17_kb_stream_declaring_65_million_samples_is_refused_fast_in_little_memory(tmp_path, command):
+    """17 KB with valid CRCs: verify asked for gigabytes (MemoryError under 2 GB), decode --units ran past 20 s."""
+    path = tmp_path / "hostile.dsl"
+    path.write_bytes(hostile_stream())
+    assert path.stat().st_size < 18_000
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, "-m", "deltaslice", *[a.format(f=path) for a in command]], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60, preexec_fn=_limited(1 << 30))
+    assert time.monotonic() - t0 < 20
+    assert out.returncode == 1, out.stderr[-2000:]
+    assert out.stderr.strip().splitlines()[-1].startswith("error:") and "Traceback" not in out.stderr
+    assert "declares 65535 samples, more than the 512" in out.stderr
+
+
+def test_the_stream_reader_takes_blocks_of_up_to_512_samples():
+    import io
+
+    assert len(stream.read_counts(io.BytesIO(hostile_stream(blocks=3, n=512)), "s")[1]) == 3 * 512
