@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import MISSING, Problems, Section, _Stop
+from ..config import MISSING, Problems, Section, _shown, _Stop
 from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
 from .limits import Limits
@@ -71,6 +71,16 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     return out
 
 
+def _finite_number(x) -> bool:
+    """A TOML int or float a float holds finitely (an integer of 310 digits does not)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:
+        return False
+
+
 def _read_sensor_table(sec: Section, n: int) -> tuple:
     """``[joints] sensor_table``: per joint, ``[[reading, joint value], ...]`` (raw sensor reading,
     joint value in file units), at least two points with distinct readings; () per joint when absent."""
@@ -85,11 +95,9 @@ def _read_sensor_table(sec: Section, n: int) -> tuple:
     out = []
     for j, points in enumerate(table):
         ok = (isinstance(points, list) and len(points) >= 2 and all(
-            isinstance(p, list) and len(p) == 2 and all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in p)
-            for p in points))
+            isinstance(p, list) and len(p) == 2 and all(_finite_number(x) for x in p) for p in points))
         if not ok or len({float(p[0]) for p in points}) != len(points):
-            sec.fail("sensor_table", table, f"{expected} (joint {j + 1}: {points!r})")
+            sec.fail("sensor_table", table, f"{expected} (joint {j + 1}: {_shown(points)})")
         out.append(tuple(sorted((float(r), float(v)) for r, v in points)))
     return tuple(out)
 
