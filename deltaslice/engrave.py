@@ -39,7 +39,11 @@ from .errors import DeltasliceError
 from .formats import is_svg
 from .toolpath import Role, Toolpath, ToolpathBuilder
 
-MAX_PIXELS = 25_000_000  # larger images are refused: 5000 x 5000 px is far finer than any spot
+MAX_PIXELS = 25_000_000  # larger images and rasters are refused: 5000 x 5000 px is far finer than any spot
+# No SVG drawing spans a billion user units (26 km at 96 per inch); a larger coordinate (1e308, a
+# number of 320 digits) would overflow the scaling and the curve flattening to inf and NaN.
+SVG_MAGNITUDE = 1e9
+SVG_NAMESPACE = "http://www.w3.org/2000/svg"
 
 
 class EngraveError(DeltasliceError):
@@ -173,8 +177,14 @@ def load_grey(path) -> np.ndarray:
             f"{path}: image is too large (over {MAX_PIXELS / 1e6:.0f} Mpx, Pillow's decompression-bomb bound): "
             "scale it down"
         ) from None
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise EngraveError(f"{path}: not a readable image ({exc.__class__.__name__}: {exc})") from None
+    except UnidentifiedImageError:
+        raise EngraveError(f"{path}: not an image file Pillow can read (PNG, JPG, BMP, TIFF, ...)") from None
+    except OSError as exc:
+        if exc.strerror:  # the file system's own reason (permission denied, ...)
+            raise EngraveError(f"{path}: cannot read the image: {exc.strerror}") from None
+        raise EngraveError(f"{path}: the image is damaged or truncated ({exc})") from None
+    except ValueError as exc:
+        raise EngraveError(f"{path}: the image is damaged or of an unsupported kind ({exc})") from None
     return la[..., 0] * la[..., 1] + (1.0 - la[..., 1])
 
 
@@ -215,9 +225,28 @@ def svg_polylines(path, tolerance: float) -> tuple[list[np.ndarray], tuple]:
         svg = se.SVG.parse(str(path), reify=True)
     except FileNotFoundError:
         raise EngraveError(f"{path}: no such SVG file") from None
-    except Exception as exc:  # svgelements raises parser errors of several kinds
-        raise EngraveError(f"{path}: not a readable SVG ({exc.__class__.__name__}: {exc})") from None
+    except SyntaxError as exc:  # xml.etree's ParseError: the message says where
+        raise EngraveError(f"{path}: not well-formed XML, so not a readable SVG ({exc})") from None
+    except OSError as exc:
+        raise EngraveError(f"{path}: cannot read the SVG: {exc.strerror or exc}") from None
+    except Exception as exc:  # svgelements raises errors of several kinds on bad attribute values
+        raise EngraveError(f"{path}: not a readable SVG ({exc or 'malformed content'})") from None
+    if not isinstance(svg, se.SVG):  # svgelements reads only SVG's own namespace; another root is a bare element
+        tag = str(getattr(svg, "values", {}).get("tag", "?"))
+        raise EngraveError(f"{path}: the root element is <{tag}>, not an SVG drawing (expected <svg> in the "
+                           f"namespace {SVG_NAMESPACE})")
     lines = []
+
+    def point(p) -> np.ndarray:
+        xy = np.array([[p.x, p.y]], dtype=float)
+        if not (np.isfinite(xy).all() and np.abs(xy).max() <= SVG_MAGNITUDE):
+            size = "overflows" if not np.isfinite(xy).all() else f"is beyond +-{SVG_MAGNITUDE:g} user units"
+            raise EngraveError(
+                f"{path}: an SVG coordinate ({xy[0, 0]:.4g}, {xy[0, 1]:.4g}), after the width, height, viewBox and "
+                f"transforms, {size}: no drawing is that large"
+            )
+        return xy
+
     for el in svg.elements():
         if not isinstance(el, se.Shape) or el.stroke is None or el.stroke.value is None:
             continue
@@ -228,14 +257,18 @@ def svg_polylines(path, tolerance: float) -> tuple[list[np.ndarray], tuple]:
             if isinstance(seg, se.Move):
                 if len(current) > 1:
                     lines.append(np.concatenate(current))
-                current = [np.array([[seg.end.x, seg.end.y]])]
+                current = [point(seg.end)]
             elif isinstance(seg, (se.Line, se.Close)):
                 if seg.end is not None and current:
-                    current.append(np.array([[seg.end.x, seg.end.y]]))
+                    current.append(point(seg.end))
             elif current:
-                chord = max(abs(seg.end - seg.start), 1e-9)
+                chord = max(float(np.hypot(*(point(seg.end) - point(seg.start))[0])), 1e-9)
                 n = int(np.clip(np.ceil(np.sqrt(chord / (8 * tolerance)) * 4), 4, 2000))
-                current.append(np.asarray(seg.npoint(np.linspace(0, 1, n + 1)[1:]), dtype=float))
+                with np.errstate(all="ignore"):  # a far control point overflows: refused just below
+                    flat = np.asarray(seg.npoint(np.linspace(0, 1, n + 1)[1:]), dtype=float)
+                for p in flat[~(np.isfinite(flat).all(axis=1) & (np.abs(flat).max(axis=1) <= SVG_MAGNITUDE))][:1]:
+                    point(se.Point(*p))  # a control point far out takes the curve there: refused as one
+                current.append(flat)
         if len(current) > 1:
             lines.append(np.concatenate(current))
     lines = [p for p in lines if len(p) > 1 and np.ptp(p, axis=0).max() > 0]
@@ -257,6 +290,8 @@ def _svg_default_size(frame):
 
 def _fits(kin, bed, w: float, h: float, z: float) -> bool:
     """Whether a w x h mm rectangle centred on the bed lies on the bed and in reach at z."""
+    if not (np.isfinite(w) and np.isfinite(h)):
+        return False
     u = np.linspace(-0.5, 0.5, 25)
     X, Y = np.meshgrid(u * w, u * h)
     pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)])
@@ -284,12 +319,14 @@ def _place(where, printer, px_w: float, px_h: float, opts: EngraveOptions, defau
     base_w, base_h = (w, h) if w is not None else (1.0, aspect)
     if w is not None and ok(1.0):
         return w, h
-    lo, hi = 0.0, 1.0
+    # the scale of a 1 um engraving: a requested size of any magnitude searches down to it
+    tiny = 1e-3 / max(base_w, base_h)
+    if not ok(tiny):
+        raise EngraveError(f"{where}: no part of the work area is in reach of {printer.name} at z = {opts.z:g} mm")
+    lo, hi = tiny, 1.0
     while ok(hi) and hi < 1e4:
         lo, hi = hi, hi * 2
-    if lo == 0.0 and not ok(1e-3):
-        raise EngraveError(f"{where}: no part of the work area is in reach of {printer.name} at z = {opts.z:g} mm")
-    for _ in range(40):
+    for _ in range(60):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if ok(mid) else (lo, mid)
     fw, fh = lo * base_w, lo * base_h
@@ -396,7 +433,14 @@ def _raster_toolpath(where, grey: np.ndarray, printer, opts: EngraveOptions) -> 
     w0, h0 = _place(where, printer, grey.shape[1], grey.shape[0], opts)
     over = opts.overscan or default_overscan(printer, feed, w0, h0, opts.z)
     w, h = _place(where, printer, grey.shape[1], grey.shape[0], opts, margin_x=over)
-    rows, cols = max(1, int(round(h / pitch))), max(1, int(round(w / pitch)))
+    rows, cols = max(1.0, round(h / pitch)), max(1.0, round(w / pitch))
+    if rows * cols > MAX_PIXELS:  # before OpenCV allocates it: 1e-6 mm lines asked for 3.8e16 bytes
+        least = float(np.sqrt(w * h / MAX_PIXELS))
+        raise EngraveError(
+            f"{where}: a line pitch of {pitch:g} mm makes a raster of {cols:.4g} x {rows:.4g} dots over {w:.1f} x {h:.1f} mm, "
+            f"more than {MAX_PIXELS / 1e6:.0f} Mpx: use a line pitch of at least {least:.3g} mm"
+        )
+    rows, cols = int(rows), int(cols)
     small = cv2.resize(grey.astype(np.float32), (cols, rows), interpolation=cv2.INTER_AREA).astype(float)
     pw = raster_powers(small, opts.levels, opts.dither, opts.power)
     pw[pw < 1.0 / printer.tool.power_counts] = 0.0
