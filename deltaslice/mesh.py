@@ -145,7 +145,7 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     except MeshError:
         raise
     except Exception as exc:  # trimesh raises many types on bad input
-        raise MeshError(f"{shown}: cannot parse as {suffix or 'a mesh'}: {type(exc).__name__}: {exc}") from None
+        raise MeshError(f"{shown}: {_parse_failure(suffix, exc)}") from None
     try:
         if isinstance(loaded, trimesh.Scene):
             vertices, faces = _flatten_scene(loaded, shown, notes)
@@ -160,6 +160,29 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     if len(faces) == 0 or len(vertices) == 0:
         raise MeshError(f"{shown}: the mesh has no triangles")
     return vertices, faces, notes
+
+
+_KINDS = {".3mf": "3MF", ".ply": "PLY", ".off": "OFF", ".obj": "OBJ", ".stl": "STL", ".glb": "glTF", ".gltf": "glTF"}
+
+
+def _parse_failure(suffix: str, exc: Exception) -> str:
+    """What trimesh's failure to read a file means, in a user's words (its exceptions are
+    Python's own: StopIteration for a 3MF without a model, IndexError for a short PLY header)."""
+    import zipfile
+
+    kind = _KINDS.get(suffix, suffix.lstrip(".").upper() or "mesh")
+    if suffix == ".3mf":
+        if isinstance(exc, zipfile.BadZipFile):
+            return "not a 3MF file: a 3MF is a zip archive, and this is not one (or a damaged one)"
+        if isinstance(exc, (StopIteration, KeyError)):
+            return "a 3MF without a 3D model in it (no 3D/3dmodel.model part with a mesh)"
+        if isinstance(exc, SyntaxError) or type(exc).__name__ == "XMLSyntaxError":  # lxml's is a SyntaxError too
+            return f"a 3MF whose model is not well-formed XML ({exc.msg if hasattr(exc, 'msg') else exc})"
+    if suffix == ".ply" and "not a ply" in str(exc).lower():
+        return "not a PLY file: a PLY starts with the line 'ply'"
+    if isinstance(exc, (IndexError, KeyError, StopIteration, EOFError, ValueError, UnicodeDecodeError)):
+        return f"not a readable {kind} file: its header or data is damaged, incomplete or of another format"
+    return f"not a readable {kind} file ({exc or 'no detail'})"
 
 
 #: OBJ statements that are not polygons (texture and normal vertices, names, groups, smoothing,
