@@ -26,6 +26,7 @@ from . import interrupt
 interrupt.install(at_once=True)
 
 import json  # noqa: E402
+import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
 from dataclasses import asdict, is_dataclass  # noqa: E402
@@ -222,10 +223,29 @@ placement_options = _options(
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 
+class _Bound(click.ParamType):
+    """A job bound: a finite number >= 0 (0: no bound). click's FloatRange lets nan through (every
+    comparison with it is false), which then refused every job as "0.0 h exceeds the bound nan h"."""
+
+    name = "float"
+
+    def __init__(self, unit: str):
+        self.unit = unit
+
+    def convert(self, value, param, ctx):
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number of {self.unit}", param, ctx)
+        if not (math.isfinite(number) and number >= 0):
+            self.fail(f"{value!r}: expected a finite number of {self.unit} >= 0 (0: no bound)", param, ctx)
+        return number
+
+
 bound_options = _options(
-    click.option("--max-time", type=click.FloatRange(min=0), default=48.0, show_default=True, metavar="HOURS",
+    click.option("--max-time", type=_Bound("hours"), default=48.0, show_default=True, metavar="HOURS",
                  help="Refuse a job whose print time exceeds this, before writing (0: no bound)."),
-    click.option("--max-size", type=click.FloatRange(min=0), default=4096.0, show_default=True, metavar="MIB",
+    click.option("--max-size", type=_Bound("MiB"), default=4096.0, show_default=True, metavar="MIB",
                  help="Refuse an output larger than this, before writing (0: no bound)."),
 )
 
@@ -293,7 +313,7 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),
         max_duration_s=max_time * 3600.0 or None,
-        max_bytes=int(max_size * 1024**2) or None,
+        max_bytes=max(1, round(max_size * 1024**2)) if max_size else None,
         engrave=_engrave_dict(**engrave),
         center=center,
         **_placement(scale, rotate, keep_position),

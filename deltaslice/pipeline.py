@@ -10,6 +10,7 @@ Functions return objects (:class:`~deltaslice.report.CompileResult`,
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import re
 import stat
@@ -186,17 +187,38 @@ def _atomic_output(path, mode: str, *, max_bytes=None, **open_kwargs):
 def check_job(duration_s: float, n_samples_per_s: float, bytes_per_sample: float, *, max_duration_s, max_bytes,
               output="output") -> None:
     """Refuse a job whose print time or estimated output size is beyond the bounds (None: no bound)."""
+    check_bounds(max_duration_s, max_bytes)
     if max_duration_s is not None and not duration_s <= max_duration_s:
         raise OutputError(
-            f"{output}: print time {duration_s / 3600:.1f} h exceeds the bound {max_duration_s / 3600:g} h "
+            f"{output}: print time {_hours(duration_s)} exceeds the bound {max_duration_s / 3600:g} h "
             "(a feed rate near zero in the part?); raise it with --max-time HOURS, 0 for none"
         )
     size = duration_s * n_samples_per_s * bytes_per_sample
     if max_bytes is not None and not size <= max_bytes:
         raise OutputError(
-            f"{output}: the output would be about {size / 1024**2:.0f} MiB, over the bound {max_bytes / 1024**2:.0f} MiB; "
+            f"{output}: the output would be about {_mib(size)} MiB, over the bound {_mib(max_bytes)} MiB; "
             "raise it with --max-size MiB (0 for none), or write the compact .dsl stream"
         )
+
+
+def check_bounds(max_duration_s, max_bytes) -> None:
+    """The job bounds a library caller gives: None, or a finite number > 0 (nan compares false
+    with everything, so it would refuse every job)."""
+    for key, value, unit in (("max_duration_s", max_duration_s, "seconds"), ("max_bytes", max_bytes, "bytes")):
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise OutputError(f"{key} = {value!r}: expected a finite number of {unit} > 0, or None for no bound")
+
+
+def _hours(seconds: float) -> str:
+    """A print time for a message: hours, with the digits a small bound needs ("0.00111 h", not "0.0 h")."""
+    return f"{seconds / 3600:.3g} h" if seconds < 360 else f"{seconds / 3600:.1f} h"
+
+
+def _mib(size: float) -> str:
+    """A size in MiB with the digits a small bound needs ("0.001", not "0")."""
+    return f"{size / 1024**2:.3g}" if size < 100 * 1024**2 else f"{size / 1024**2:.0f}"
 
 
 def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None,
@@ -421,6 +443,7 @@ def compile_part(
     input, directory exists and is writable). max_duration_s, max_bytes: bounds on the
     planned print time and the output size checked before writing (None: no bound)."""
     _check_path(part, "part")
+    check_bounds(max_duration_s, max_bytes)
     if output is None:
         output = default_output(part)
     fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
@@ -545,6 +568,7 @@ def verify_output(output, printer, toolpath=None, **mesh_options):
 
     _check_path(output, "output")
     printer = _printer(printer)
+    _check_verify_memory(output, printer)
     meta, samples = read_output(output)
     fmt = meta.get("format", "csv")
     raw = meta.get("rate_hz", printer.planning.output_rate)
@@ -554,6 +578,68 @@ def verify_output(output, printer, toolpath=None, **mesh_options):
         raise StreamError(f"{output}: rate_hz {raw!r} is not a number") from None
     tp = None if toolpath is None else load_toolpath(toolpath, printer, **mesh_options)
     return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output))
+
+
+# verify holds every sample at once: about this many bytes per sample and channel (+3 for time,
+# tool and filament), measured at its peak (928 MB for a 6.67-million-sample delta_etitc stream)
+VERIFY_BYTES_PER_VALUE = 20
+CSV_MIN_ROW = 8  # bytes: the shortest CSV row ("0,0,0,0\n"), so a CSV of N bytes holds at most N / 8 samples
+
+
+def _check_verify_memory(output, printer) -> None:
+    """Refuse, before reading it, an output whose samples would not fit the memory this process
+    may use: a 1 MB stream of resting blocks holds 33 million samples (4.6 GB to verify)."""
+    from .emit import stream as dsl
+
+    try:
+        size = os.path.getsize(output)
+        with open(output, "rb") as f:
+            head = f.read(len(dsl.MAGIC))
+            f.seek(max(0, size - dsl.END_LEN))
+            tail = f.read(dsl.END_LEN)
+    except OSError:
+        return  # the reader names the problem
+    channels = printer.n_joints + 1
+    if head == dsl.MAGIC:
+        # at most MAX_BLOCK_SAMPLES per block of at least 5 + 2C + 4 bytes; the end record says how many
+        samples = size * dsl.MAX_BLOCK_SAMPLES // (5 + 2 * channels + 4)
+        if len(tail) == dsl.END_LEN and tail[0] == dsl.REC_END:
+            samples = min(samples, int.from_bytes(tail[3:7], "little"))
+    else:
+        samples = size // CSV_MIN_ROW
+    need = samples * VERIFY_BYTES_PER_VALUE * (channels + 3)
+    budget = _memory_budget()
+    if budget is not None and need > budget:
+        rate = printer.planning.output_rate
+        raise StreamError(
+            f"{output}: its {samples / 1e6:.3g} million samples ({samples / rate / 3600:.3g} h at {rate:g} Hz) need about "
+            f"{need / 1e9:.3g} GB to verify at once, more than the {budget / 1e9:.3g} GB this process can use"
+        )
+
+
+def _memory_budget() -> int | None:
+    """Bytes this process can still take: the memory the system has available, within the
+    process's own address-space and data limits; None where that cannot be told."""
+    budget = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    budget = int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        for limit in (resource.RLIMIT_AS, resource.RLIMIT_DATA):
+            soft = resource.getrlimit(limit)[0]
+            if soft != resource.RLIM_INFINITY:
+                budget = min(budget if budget is not None else soft, max(0, soft - used))
+    except (ImportError, OSError, ValueError, IndexError):
+        pass
+    return budget
 
 
 def decode_stream(path, out, *, units=False, printer=None) -> int:
