@@ -29,6 +29,10 @@ from .toolpath import EventKind, Role, Toolpath, centred, make_events
 ARC_TOLERANCE = 0.01
 #: Feed used before the file sets one (mm/s) when no printer is given.
 DEFAULT_FEED = 50.0
+# No move of a print pushes or pulls 10 m of filament (a Bowden tube's load is under 1 m). More
+# is E in other units or read in the wrong mode (absolute vs relative); E1e6 alone was 9 h of
+# filament-only motion whose verify ran out of memory.
+MAX_MOVE_FILAMENT = 10_000.0
 #: Lines between progress reports (a 60 MB spiral vase has 1.5 M).
 PROGRESS_LINES = 50_000
 
@@ -841,6 +845,12 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         bare_retracted = 0
                     if not math.isfinite(de) or abs(de) > 1e12:
                         raise GcodeError(f"{where}: extrusion {de:g} mm is not a finite amount")
+                    if abs(de) > MAX_MOVE_FILAMENT:
+                        raise GcodeError(
+                            f"{where}: {shown_line!r} moves {de:.6g} mm of filament in one move, more than "
+                            f"{MAX_MOVE_FILAMENT / 1000:g} m: is E absolute (M82) or relative (M83) as the slicer "
+                            "wrote it, and in mm?"
+                        )
                 if bare_retracted == 1 and moved and not bare:
                     bare_retracted = 2
                 arc = cmd in ("G2", "G3")

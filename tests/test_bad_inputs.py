@@ -223,3 +223,72 @@ def test_the_stream_reader_takes_blocks_of_up_to_512_samples():
     import io
 
     assert len(stream.read_counts(io.BytesIO(hostile_stream(blocks=3, n=512)), "s")[1]) == 3 * 512
+
+
+def test_verify_refuses_a_stream_whose_samples_would_not_fit_before_reading_it(tmp_path):
+    """65,000 resting blocks of 512 samples: 1.1 MB holding 33 million samples (4.7 GB to verify).
+    Under a 1 GB address-space limit verify says so at once instead of running out of memory."""
+    path = tmp_path / "long.dsl"
+    path.write_bytes(hostile_stream(blocks=65_000, n=512))
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, "-m", "deltaslice", "verify", str(path), "--printer", "delta_etitc"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60, preexec_fn=_limited(1 << 30))
+    assert time.monotonic() - t0 < 20
+    assert out.returncode == 1, out.stderr[-2000:]
+    assert "33.3 million samples" in out.stderr and "GB to verify at once" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_verify_reads_a_dsl_with_a_damaged_magic_number_as_a_stream(tmp_path):
+    data = bytearray(hostile_stream(blocks=2, n=4))
+    data[1] ^= 0xFF
+    path = tmp_path / "a.dsl"
+    path.write_bytes(bytes(data))
+    line = one_line_error(_run("verify", path, "--printer", "delta_etitc"))
+    assert "not a deltaslice stream (bad magic" in line and "CSV" not in line
+
+
+# ----------------------------------------------------------------------------------- G-code and job bounds
+
+START = "G21\nG90\nM82\nG92 E0\n;LAYER:0\nG1 Z0.4 F600\nG1 X-10 Y-10 F3000\n"
+
+
+@pytest.mark.parametrize("moves, line_no", [
+    ("G1 E1e6 F1200\n", 8),  # compiled, then verify ran out of memory
+    ("G1 E200000 F1200\n", 8),
+    ("G1 X5 Y-10 E0.5 F1200\nG1 X5 Y5 E1e9\n", 9),  # a filament limit reported at the wrong place
+])
+def test_a_move_of_kilometres_of_filament_is_refused_naming_its_line(tmp_path, moves, line_no):
+    path = tmp_path / "a.gcode"
+    path.write_text(START + moves)
+    line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl", "--quiet"))
+    assert f"a.gcode:{line_no}:" in line and "more than 10 m" in line and "M83" in line
+
+
+SQUARE = START + "G1 X5 Y-10 E0.5 F1200\nG1 X5 Y5 E1.0\nG1 X-10 Y5 E1.5\nG1 X-10 Y-10 E2.0\n"
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-1", "ten"])
+def test_max_time_nan_is_a_usage_error_that_says_why(tmp_path, value):
+    path = tmp_path / "a.gcode"
+    path.write_text(SQUARE)
+    result = _run(path, "--printer", "delta_etitc", "--max-time", value, "-o", tmp_path / "o.dsl")
+    assert result.exit_code == 2, result.output
+    assert "--max-time" in result.output and "hours" in result.output and "exceeds" not in result.output
+
+
+def test_a_small_size_bound_is_shown_with_its_digits(tmp_path):
+    path = tmp_path / "a.gcode"
+    path.write_text(SQUARE)
+    line = one_line_error(_run(path, "--printer", "delta_etitc", "--max-size", "0.001", "-o", tmp_path / "o.dsl"))
+    assert "over the bound 0.001 MiB" in line and "about 0 MiB" not in line
+
+
+def test_the_library_refuses_a_nan_bound_by_name(tmp_path):
+    from deltaslice import DeltasliceError
+    from deltaslice.pipeline import compile_part
+
+    path = tmp_path / "a.gcode"
+    path.write_text(SQUARE)
+    with pytest.raises(DeltasliceError, match=r"max_duration_s = nan: expected a finite number of seconds > 0"):
+        compile_part(path, "delta_etitc", output=tmp_path / "o.dsl", max_duration_s=float("nan"))
