@@ -292,3 +292,26 @@ def test_the_library_refuses_a_nan_bound_by_name(tmp_path):
     path.write_text(SQUARE)
     with pytest.raises(DeltasliceError, match=r"max_duration_s = nan: expected a finite number of seconds > 0"):
         compile_part(path, "delta_etitc", output=tmp_path / "o.dsl", max_duration_s=float("nan"))
+
+
+# ----------------------------------------------------------------------------------- Ctrl-C
+
+
+@pytest.mark.parametrize("delay", [1.5, 2.5, 3.5])
+def test_ctrl_c_to_the_process_group_leaves_no_worker_traceback(tmp_path, delay):
+    """A terminal's Ctrl-C signals every process of the group: the pool's workers printed
+    "Process ForkProcess-1: Traceback ... KeyboardInterrupt" in 6 interrupts of 10."""
+    import os
+    import signal
+
+    proc = subprocess.Popen([sys.executable, "-m", "deltaslice", str(ROOT / "examples" / "parts" / "calibration_cube.stl"),
+                             "--printer", "delta_etitc", "-o", str(tmp_path / "c.dsl"), "--quiet", "--scale", "3",
+                             "--workers", "2"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    time.sleep(delay)
+    os.killpg(proc.pid, signal.SIGINT)
+    _out, err = proc.communicate(timeout=120)
+    if proc.returncode == 0:
+        pytest.skip("the compile finished before the signal")
+    lines = [line for line in err.splitlines() if not line.startswith("mesh: ")]
+    assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("interrupted"), err
