@@ -80,6 +80,14 @@ class _DefaultGroup(click.Group):
             return super().invoke(ctx)
         except KeyboardInterrupt:
             raise _Interrupted() from None  # click would print a blank line and "Aborted!"
+        except BrokenPipeError:
+            # whoever read stdout stopped (decode F | head): nothing went wrong, so end quietly with 0
+            # (click's own handling exits 1); stdout goes to /dev/null so the final flush is silent
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError, AttributeError):  # a stdout without a descriptor (a test's)
+                pass
+            raise click.exceptions.Exit(EXIT_OK) from None
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         """click's main, with Ctrl-C at any moment -> one line and exit 130."""
@@ -376,7 +384,7 @@ def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, kee
 @main.command("workspace")
 @printer_options
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
-              help="PNG to write (default: <printer name>_workspace.png).")
+              help="PNG to write (default: <printer name>_workspace.png; with --json, none unless given).")
 @json_option
 def workspace_cmd(printer_path, overrides, plot_path, as_json):
     """Print the reachable volume, largest cylinder and cube, singularity margin and
@@ -389,7 +397,8 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
     from .pipeline import workspace_analysis
     from .report import workspace_summary
 
-    result = _run(workspace_analysis, _printer(printer_path, overrides), plot_path)
+    # --json is for programs: a picture only when --plot asks for one
+    result = _run(workspace_analysis, _printer(printer_path, overrides), plot_path, draw=not as_json)
     if as_json:
         _echo_json(result)
     else:

@@ -721,7 +721,8 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
     printer = _printer(printer)
     if holds_samples(part):
         meta, samples = read_output(part)
-        fig = draw.trajectory_figure(samples, printer, title=f"{Path(part).name} on {printer.name}")
+        fig = draw.trajectory_figure(samples, printer, title=f"{Path(part).name} on {printer.name}",
+                                     tool_state=meta.get("format", "csv") != "stream")
         what = f"{len(samples)} samples"
     else:
         toolpath = load_toolpath(part, printer, **mesh_options)
@@ -733,24 +734,29 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
     return f"{output}: {what}"
 
 
-def workspace_analysis(printer, plot_path=None):
-    """Workspace figures of a printer (:class:`~deltaslice.report.WorkspaceResult`); writes a PNG plot."""
+def workspace_analysis(printer, plot_path=None, *, draw=True):
+    """Workspace figures of a printer (:class:`~deltaslice.report.WorkspaceResult`); writes a PNG
+    plot to plot_path (default ``<printer name>_workspace.png``), none with ``draw=False`` and no
+    plot_path (the result's ``plot`` is then None)."""
     import numpy as np
 
     from .kinematics.workspace import analyse, plot
     from .report import WorkspaceResult
 
     printer = _printer(printer)
-    plot_path = plot_path or f"{printer.name}_workspace.png"
-    _check_png(plot_path)
+    draw = draw or plot_path is not None
+    plot_path = (plot_path or f"{printer.name}_workspace.png") if draw else None
+    if draw:
+        _check_png(plot_path)
     kin = printer.kinematics()
     cpu = np.abs(printer.limits.counts_per_unit[: printer.n_joints])
     z_range = (-0.25 * printer.bed.max_height - 10.0, 2.0 * printer.bed.max_height + 20.0)
     radius_max = max(1.6 * printer.bed.radius, 50.0)
     rep = analyse(kin, cpu, z_range, radius_max)
     interrupt.check()
-    with atomic_output(plot_path, "wb") as f:
-        plot(kin, rep, cpu, f, title=f"{printer.name}: workspace")
+    if draw:
+        with atomic_output(plot_path, "wb") as f:
+            plot(kin, rep, cpu, f, title=f"{printer.name}: workspace")
 
     xy = np.linspace(-1, 1, 41)
     X, Y = np.meshgrid(xy, xy)
@@ -771,7 +777,7 @@ def workspace_analysis(printer, plot_path=None):
         bed_reachable_percent=bed_cover, condition_median=float(rep.condition_median),
         condition_max=float(rep.condition_max), singularity_limit=float(printer.planning.singularity_limit),
         resolution_mm=(float(rep.resolution_min), float(rep.resolution_median), float(rep.resolution_max)),
-        plot=str(plot_path),
+        plot=None if plot_path is None else str(plot_path),
     )
 
 
