@@ -315,3 +315,80 @@ def test_ctrl_c_to_the_process_group_leaves_no_worker_traceback(tmp_path, delay)
         pytest.skip("the compile finished before the signal")
     lines = [line for line in err.splitlines() if not line.startswith("mesh: ")]
     assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("interrupted"), err
+
+
+# ----------------------------------------------------------------------------------- small surprises
+
+
+def test_workspace_json_writes_no_picture(tmp_path, monkeypatch):
+    import json
+
+    monkeypatch.chdir(tmp_path)
+    result = _run("workspace", "--printer", "delta_etitc", "--json")
+    assert result.exit_code == 0, result.output
+    assert list(tmp_path.iterdir()) == []
+    assert json.loads(result.stdout)["plot"] is None
+    result = _run("workspace", "--printer", "delta_etitc", "--json", "--plot", tmp_path / "ws.png")
+    assert result.exit_code == 0 and (tmp_path / "ws.png").stat().st_size > 0
+
+
+def test_decode_into_head_ends_quietly(tmp_path):
+    """decode's own help example, `deltaslice decode cube.dsl | head`: it exited 1 (click's broken-pipe exit)."""
+    path = tmp_path / "a.dsl"
+    path.write_bytes(hostile_stream(blocks=400, n=512))  # 200,000 lines: far more than a pipe holds
+    for extra in ([], ["--units"]):
+        out = subprocess.run(f"'{sys.executable}' -m deltaslice decode '{path}' {' '.join(extra)} | head -1; "
+                             "exit ${PIPESTATUS[0]}", shell=True, executable="/bin/bash", cwd=ROOT,
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0 and out.stderr == "" and len(out.stdout.splitlines()) == 1, (out.returncode, out.stderr)
+
+
+def _filament_limit_lines(fig):
+    """The red dashed lines of the filament panel: [(x, y)] arrays."""
+    ax = next(a for a in fig.axes if a.get_title().startswith("filament speed"))
+    return ax, [(np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float)) for line in ax.get_lines()
+                if line.get_linestyle() == "--"]
+
+
+def test_preview_draws_the_limit_a_retraction_is_held_to():
+    """A retraction at 25 mm/s (tool off) under a melt-flow limit of 2.1 mm/s: the panel drew the
+    melt-flow limit as the only upper line, which every unretraction crossed."""
+    from deltaslice.preview import trajectory_figure
+    from deltaslice.samples import Samples
+
+    p = printer("delta_etitc")
+    working, idle = p.limits.tool_velocity_limits()
+    t = np.arange(3000) / 1000.0
+    e = np.where(t < 1.0, 0.0, np.where(t < 1.1, -25.0 * (t - 1.0), np.where(t < 1.2, -2.5 + 25.0 * (t - 1.1), 1.0 * (t - 1.2))))
+    tool = (t >= 1.2).astype(float)
+    q = np.tile(np.radians([40.0, 40.0, 40.0]), (len(t), 1))
+    fig = trajectory_figure(Samples(t, q, e, tool), p)
+    ax, lines = _filament_limit_lines(fig)
+    top = max(y.max() for _x, y in lines)
+    bottom = min(y.min() for _x, y in lines)
+    assert top >= 25.0 and bottom <= -25.0 and idle >= 25.0
+    # where the tool extrudes throughout, the melt-flow limit is what is drawn
+    x, y = max(lines, key=lambda xy: xy[1].max())
+    assert np.isclose(y[x > 1.5].max(), working)
+    fig = trajectory_figure(Samples(t, q, e, tool), p, tool_state=False)  # a stream's: the larger limit throughout
+    ax, lines = _filament_limit_lines(fig)
+    assert sorted(float(y[0]) for _x, y in lines) == [-max(working, idle), max(working, idle)]
+
+
+def test_slice_says_its_time_is_wall_time(tmp_path):
+    result = _run("slice", ROOT / "examples" / "parts" / "calibration_cube.stl", "--printer", "delta_etitc",
+                  "-o", tmp_path / "c.gcode", "--quiet", "--scale", "0.3")
+    assert result.exit_code == 0, result.output
+    assert re.search(r"wall time \d+\.\d\d s$", result.stdout.strip())
+
+
+def test_the_verify_rate_row_says_its_limit_is_a_minimum(tmp_path):
+    import io
+
+    from deltaslice.emit.stream import read_stream
+    from deltaslice.verify import verify_samples
+
+    meta, samples = read_stream(io.BytesIO(hostile_stream(blocks=3, n=8)), "s")
+    report = verify_samples(samples, printer("delta_etitc"), rate=1000.0, fmt="stream", meta=meta)
+    row = next(line for line in report.text().splitlines() if "Hz" in line and "50" in line)
+    assert row.startswith("sample rate, at least")
