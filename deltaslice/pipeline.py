@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import interrupt
-from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError
+from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError, ToolpathWarning
 from .formats import format_for, holds_samples, part_kind
 from .machine import LimitMonitor, Printer, check_reach, load_printer
 from .machine.limits import TOLERANCE
@@ -489,8 +489,15 @@ def compile_part(
                                  "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
         from .planning import plan
 
-        trajectory = plan(toolpath, printer, speed_limit=speed_limit, planner=planner, solver=solver, workers=workers,
-                          progress=planning)
+        with warnings.catch_warnings(record=True) as caught:  # the unit notes, said as notes
+            warnings.simplefilter("always", ToolpathWarning)
+            trajectory = plan(toolpath, printer, speed_limit=speed_limit, planner=planner, solver=solver, workers=workers,
+                              progress=planning)
+        for w in caught:
+            if not issubclass(w.category, ToolpathWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            elif echo is not None:
+                echo(f"note: {w.message}")
         del toolpath
     interrupt.check()
     t_plan = time.perf_counter() - t0 - t_slice

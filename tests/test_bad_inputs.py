@@ -392,3 +392,59 @@ def test_the_verify_rate_row_says_its_limit_is_a_minimum(tmp_path):
     report = verify_samples(samples, printer("delta_etitc"), rate=1000.0, fmt="stream", meta=meta)
     row = next(line for line in report.text().splitlines() if "Hz" in line and "50" in line)
     assert row.startswith("sample rate, at least")
+
+
+# ----------------------------------------------------------------------------------- the library
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(overrides=[1, 2]), "overrides = [1, 2]: expected a dict"),
+    (dict(overrides="slicing.layer_height=0.3"), "expected a dict"),
+    (dict(overrides={1: 2}), "overrides: key 1: expected a 'section.key' string"),
+    (dict(reach_checks="no"), "reach_checks = 'no': expected True or False"),
+])
+def test_load_printer_refuses_bad_arguments_in_the_family(kwargs, words):
+    from deltaslice import PrinterFileError, load_printer
+
+    with pytest.raises(PrinterFileError, match=re.escape(words)):
+        load_printer("delta_etitc", **kwargs)
+
+
+def _square(side=20.0, z=0.4, feed=30.0):
+    from deltaslice import Role, Toolpath
+
+    h = side / 2
+    xyz = np.array([[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z], [-h, -h, z]])
+    n = len(xyz)
+    return Toolpath(start=np.array([0.0, 0.0, 5.0 * side / 20.0 if side < 1 else 5.0]), xyz=xyz,
+                    feed=np.r_[120.0 if feed < 1000 else feed, np.full(n - 1, feed)],
+                    e=np.r_[0.0, np.full(n - 1, 0.033 * side)], tool=np.r_[0.0, np.ones(n - 1)],
+                    role=np.r_[Role.OTHER, np.full(n - 1, Role.EXTERNAL_PERIMETER)], layer=np.zeros(n, int),
+                    layer_z=np.array([z]))
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda: _square(side=0.02, z=0.0004), "coordinates in metres?"),  # a 20 mm square given in metres
+    (lambda: _square(z=-0.4), "below the bed surface"),
+    (lambda: _square(feed=1800.0), "in mm/min?"),
+])
+def test_plan_notes_a_toolpath_probably_in_other_units(make, words):
+    from deltaslice import DeltasliceError, ToolpathWarning
+    from deltaslice.planning import plan
+
+    with pytest.warns(ToolpathWarning, match=re.escape(words)):
+        try:
+            plan(make(), printer("delta_etitc"), workers=1)
+        except DeltasliceError:
+            pass  # the note comes first, whatever planning then finds (a square below the bed is out of reach)
+
+
+def test_plan_notes_nothing_for_a_plain_square():
+    import warnings
+
+    from deltaslice import ToolpathWarning
+    from deltaslice.planning import plan
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ToolpathWarning)
+        plan(_square(), printer("delta_etitc"), workers=1)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
@@ -239,11 +240,25 @@ def resolve_printer(path) -> Path:
     return shipped
 
 
+def _checked_overrides(overrides) -> dict | None:
+    """``overrides`` as the library takes them: None, or a mapping of "section.key" strings to
+    values (what --set builds); anything else is refused as the CLI refuses a malformed --set."""
+    if overrides is None:
+        return None
+    if not isinstance(overrides, Mapping):
+        raise PrinterFileError(f"overrides = {_shown(overrides)}: expected a dict of {{'section.key': value}}, "
+                               "e.g. {'slicing.layer_height': 0.3}")
+    for key in overrides:
+        if not isinstance(key, str):
+            raise PrinterFileError(f"overrides: key {_shown(key)}: expected a 'section.key' string, e.g. 'slicing.layer_height'")
+    return dict(overrides)
+
+
 def apply_overrides(data: dict, overrides, path: str) -> dict:
     """A copy of a parsed printer file with ``{"section.key": value}`` set (``--set``); the
     result is validated like the file itself. Raises PrinterFileError on a malformed key."""
     out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
-    for dotted, value in dict(overrides or {}).items():
+    for dotted, value in (_checked_overrides(overrides) or {}).items():
         section, _, key = str(dotted).partition(".")
         if not section or not key or "." in key:
             raise PrinterFileError(f"--set {dotted}: expected section.key=value (e.g. slicing.layer_height=0.3)")
@@ -268,6 +283,9 @@ def load_printer(path: str | Path, overrides: dict | None = None, *, reach_check
     the check that the geometry reaches the bed): :func:`check_reach` does it later, so that a
     compile can start its slicing workers before this process loads numba.
     """
+    overrides = _checked_overrides(overrides)
+    if not isinstance(reach_checks, bool):
+        raise PrinterFileError(f"load_printer: reach_checks = {reach_checks!r}: expected True or False")
     path = resolve_printer(path)
     shown = str(path)
     try:

@@ -11,14 +11,15 @@ Cartesian planner instead (:mod:`.trapezoid`), made safe for the joint limits.
 from __future__ import annotations
 
 import itertools
+import warnings
 from array import array
 from collections import deque
 
 import numpy as np
 
-from ..errors import DeltasliceError, UnreachableError
+from ..errors import DeltasliceError, ToolpathWarning, UnreachableError
 from ..pool import resolve_workers, start_pool
-from ..toolpath import WAIT_KINDS, Role, Toolpath
+from ..toolpath import WAIT_KINDS, Role, Toolpath, unit_notes
 from .pieces import Piece, PieceBatch
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, iter_run_parts, plan_runs
@@ -202,6 +203,8 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     if not ((toolpath.lengths > 1e-9) | (toolpath.e != 0)).any():
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     _check_tool(toolpath, printer)
+    for note in unit_notes(toolpath):
+        warnings.warn(note, ToolpathWarning, stacklevel=2)
     kin = printer.kinematics()
 
     def rest_links():
