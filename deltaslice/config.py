@@ -253,8 +253,8 @@ def _shown(value) -> str:
 
 def _fallback(default, above, minval, maxval) -> float:
     """A stand-in value within the bounds, so reading goes on after a recorded problem."""
-    if isinstance(default, (int, float)) and not isinstance(default, bool):
-        return float(default)
+    if isinstance(default, (int, float)) and not isinstance(default, bool) and abs(default) <= MAGNITUDE:
+        return float(default)  # a default derived from another key's value of 310 digits is not a float
     if minval is not None:
         return float(minval)
     if above is not None:

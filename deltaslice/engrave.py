@@ -30,6 +30,7 @@ Units: images in pixels (row 0 at the top), everything returned in mm in the bed
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -162,16 +163,20 @@ def load_grey(path) -> np.ndarray:
     if path.stat().st_size == 0:
         raise EngraveError(f"{path}: empty file, not an image")
     try:
-        with Image.open(path) as im:
-            cols, rows = im.size
-            if cols * rows == 0:
-                raise EngraveError(f"{path}: the image has no pixels ({cols} x {rows})")
-            if cols * rows > MAX_PIXELS:
-                raise EngraveError(
-                    f"{path}: image of {cols} x {rows} px is too large ({cols * rows / 1e6:.0f} Mpx > "
-                    f"{MAX_PIXELS / 1e6:.0f} Mpx): scale it down"
-                )
-            la = np.asarray(im.convert("LA"), dtype=float) / 255.0
+        # Pillow warns about what it skips in a damaged file (EXIF, TIFF tags) in Python's own format on
+        # stderr; the image is used or refused here, in one line
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                cols, rows = im.size
+                if cols * rows == 0:
+                    raise EngraveError(f"{path}: the image has no pixels ({cols} x {rows})")
+                if cols * rows > MAX_PIXELS:
+                    raise EngraveError(
+                        f"{path}: image of {cols} x {rows} px is too large ({cols * rows / 1e6:.0f} Mpx > "
+                        f"{MAX_PIXELS / 1e6:.0f} Mpx): scale it down"
+                    )
+                la = np.asarray(im.convert("LA"), dtype=float) / 255.0
     except Image.DecompressionBombError:  # Pillow refuses to open over ~179 Mpx, before our own bound
         raise EngraveError(
             f"{path}: image is too large (over {MAX_PIXELS / 1e6:.0f} Mpx, Pillow's decompression-bomb bound): "
@@ -183,8 +188,10 @@ def load_grey(path) -> np.ndarray:
         if exc.strerror:  # the file system's own reason (permission denied, ...)
             raise EngraveError(f"{path}: cannot read the image: {exc.strerror}") from None
         raise EngraveError(f"{path}: the image is damaged or truncated ({exc})") from None
-    except ValueError as exc:
-        raise EngraveError(f"{path}: the image is damaged or of an unsupported kind ({exc})") from None
+    except EngraveError:
+        raise
+    except Exception as exc:  # Pillow's decoders raise what they meet: SyntaxError for a broken PNG chunk, ValueError
+        raise EngraveError(f"{path}: the image is damaged or of an unsupported kind ({exc or 'no detail'})") from None
     return la[..., 0] * la[..., 1] + (1.0 - la[..., 1])
 
 

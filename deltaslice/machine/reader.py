@@ -149,9 +149,7 @@ def _read_tool(sec: Section) -> Tool:
 def _number(value, fallback: float) -> float:
     """A default taken from another key's raw value: that value if it is a finite number, else
     ``fallback`` (the other key's own getter reports what is wrong with it)."""
-    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-        return float(value)
-    return fallback
+    return float(value) if _finite_number(value) else fallback
 
 
 def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
