@@ -448,3 +448,12 @@ def test_plan_notes_nothing_for_a_plain_square():
     with warnings.catch_warnings():
         warnings.simplefilter("error", ToolpathWarning)
         plan(_square(), printer("delta_etitc"), workers=1)
+
+
+def test_a_filament_limit_the_planner_cannot_meet_names_the_move_and_its_extrusion(tmp_path):
+    """9,000 mm of filament over a 20 mm edge (under the 10 m bound): the line said only "between
+    grid points at" a point, a grid stage's start, which on a straight stretch may be moves away."""
+    path = tmp_path / "a.gcode"
+    path.write_text(START + "G1 X10 Y-10 E0.6 F1200\nG1 X10 Y10 E1.2\nG1 X-10 Y10 E9000\nG1 X-10 Y-10 E9000.6\n")
+    line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl", "--quiet"))
+    assert "where the extrusion becomes 449.9 mm of filament per mm of path, at x = 10.00, y = 10.00" in line
