@@ -590,7 +590,6 @@ def verify_output(output, printer, toolpath=None, **mesh_options):
 # verify holds every sample at once: about this many bytes per sample and channel (+3 for time,
 # tool and filament), measured at its peak (928 MB for a 6.67-million-sample delta_etitc stream)
 VERIFY_BYTES_PER_VALUE = 20
-CSV_MIN_ROW = 8  # bytes: the shortest CSV row ("0,0,0,0\n"), so a CSV of N bytes holds at most N / 8 samples
 
 
 def _check_verify_memory(output, printer) -> None:
@@ -598,22 +597,23 @@ def _check_verify_memory(output, printer) -> None:
     may use: a 1 MB stream of resting blocks holds 33 million samples (4.6 GB to verify)."""
     from .emit import stream as dsl
 
+    channels = printer.n_joints + 1
     try:
         size = os.path.getsize(output)
         with open(output, "rb") as f:
             head = f.read(len(dsl.MAGIC))
-            f.seek(max(0, size - dsl.END_LEN))
-            tail = f.read(dsl.END_LEN)
+            if head == dsl.MAGIC:
+                # at most MAX_BLOCK_SAMPLES per block of at least 5 + 2C + 4 bytes; the end record says how many
+                samples = size * dsl.MAX_BLOCK_SAMPLES // (5 + 2 * channels + 4)
+                f.seek(max(0, size - dsl.END_LEN))
+                tail = f.read(dsl.END_LEN)
+                if len(tail) == dsl.END_LEN and tail[0] == dsl.REC_END:
+                    samples = min(samples, int.from_bytes(tail[3:7], "little"))
+            else:  # a CSV: one sample a line, counted a megabyte at a time
+                f.seek(0)
+                samples = sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 20), b""))
     except OSError:
         return  # the reader names the problem
-    channels = printer.n_joints + 1
-    if head == dsl.MAGIC:
-        # at most MAX_BLOCK_SAMPLES per block of at least 5 + 2C + 4 bytes; the end record says how many
-        samples = size * dsl.MAX_BLOCK_SAMPLES // (5 + 2 * channels + 4)
-        if len(tail) == dsl.END_LEN and tail[0] == dsl.REC_END:
-            samples = min(samples, int.from_bytes(tail[3:7], "little"))
-    else:
-        samples = size // CSV_MIN_ROW
     need = samples * VERIFY_BYTES_PER_VALUE * (channels + 3)
     budget = _memory_budget()
     if budget is not None and need > budget:

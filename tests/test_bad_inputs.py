@@ -457,3 +457,20 @@ def test_a_filament_limit_the_planner_cannot_meet_names_the_move_and_its_extrusi
     path.write_text(START + "G1 X10 Y-10 E0.6 F1200\nG1 X10 Y10 E1.2\nG1 X-10 Y10 E9000\nG1 X-10 Y-10 E9000.6\n")
     line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl", "--quiet"))
     assert "where the extrusion becomes 449.9 mm of filament per mm of path, at x = 10.00, y = 10.00" in line
+
+
+def test_verify_counts_a_csv_by_its_lines_against_the_memory_it_may_use(tmp_path, monkeypatch):
+    from deltaslice import StreamError, pipeline
+    from deltaslice.emit import csv as csvfmt
+
+    t = np.arange(5000) / 1000.0
+    path = tmp_path / "a.csv"
+    path.write_text(csvfmt.comment_lines("delta_etitc", 1, 1000.0, ["rad"] * 3, {})
+                    + csvfmt.format_rows(t, np.full((5000, 3), 0.5), 0.1 * t, np.ones(5000)))
+    lines = path.read_bytes().count(b"\n")
+    need = lines * pipeline.VERIFY_BYTES_PER_VALUE * 7
+    monkeypatch.setattr(pipeline, "_memory_budget", lambda: need - 1)
+    with pytest.raises(StreamError, match=rf"its {lines / 1e6:.3g} million samples .* more than the"):
+        pipeline.verify_output(path, "delta_etitc")
+    monkeypatch.setattr(pipeline, "_memory_budget", lambda: need)  # counted, not guessed from the size: it fits
+    pipeline.verify_output(path, "delta_etitc")
