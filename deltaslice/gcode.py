@@ -244,11 +244,26 @@ _MOTION_LETTERS = set("XYZEFIJRS")
 ARC_END_TOLERANCE = 0.01
 #: Most chords one arc may become (a longer arc is refused, not a memory blow-up).
 ARC_MAX_CHORDS = 1_000_000
+#: Chords all of a file's arcs may become: a base and so many a line read. A 959-byte file of 40 full
+#: circles of radius 1e9 mm asked for 28 million points and ran out of memory; a real arc's full
+#: circle of 200 mm radius is about 300 chords.
+ARC_CHORDS_BASE = 1_000_000
+ARC_CHORDS_PER_LINE = 3_000
+
+
+class _ArcBudget(Exception):
+    """An arc needing more chords than the file's arcs have left (the reader says which line)."""
+
+    def __init__(self, chords: int, radius: float):
+        super().__init__(chords, radius)
+        self.chords, self.radius = chords, radius
+
+
 #: How notes name Slic3r 1.3's no-extrusion G-code (the E register written without its letter).
 _SLIC3R_NO_EXTRUSION = "Slic3r no-extrusion flavour"
 
 
-def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str):
+def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str, budget: int | None = None):
     """Points along a G2/G3 arc in the XY plane after p0, ending at p1 ((k, 3) mm).
 
     I/J arcs whose end is off the circle by more than :data:`ARC_END_TOLERANCE` are refused;
@@ -307,6 +322,8 @@ def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str):
     k = math.ceil(abs(sweep) / step) if step > 0 else ARC_MAX_CHORDS + 1
     if k > ARC_MAX_CHORDS:
         raise GcodeError(f"{where}: arc of radius {r0:.6g} mm would need {k} chords (at most {ARC_MAX_CHORDS})")
+    if budget is not None and k > budget:
+        raise _ArcBudget(k, r0)
     k = max(1, k)
     t = np.arange(1, k + 1) / k
     ang = a0 + sweep * t
@@ -706,6 +723,7 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
     skipped: Counter = Counter()
     started = False
     handed = 0  # moves handed to the sink
+    arc_chords = 0  # points all arcs so far became (bounded: ARC_CHORDS_BASE)
 
     if progress is not None and not callable(progress):
         raise GcodeError(f"{shown}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
@@ -869,7 +887,17 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                     if "I" in params or "J" in params:
                         ij = (params.get("I", 0.0) * unit, params.get("J", 0.0) * unit)
                     r_word = params.get("R")
-                    pts = _arc_points(pos, target, ij, None if r_word is None else r_word * unit, cmd == "G2", where)
+                    allowed = ARC_CHORDS_BASE + ARC_CHORDS_PER_LINE * line_no
+                    try:
+                        pts = _arc_points(pos, target, ij, None if r_word is None else r_word * unit, cmd == "G2", where,
+                                          budget=allowed - arc_chords)
+                    except _ArcBudget as over:
+                        raise GcodeError(
+                            f"{where}: the arcs up to this line would be {arc_chords + over.chords} chords, more than "
+                            f"{allowed} for {line_no} lines (this arc, of radius {over.radius:.6g} mm, takes "
+                            f"{over.chords}): are I, J and R in mm?"
+                        ) from None
+                    arc_chords += len(pts)
                     seg = np.linalg.norm(np.diff(np.vstack([pos, pts]), axis=0), axis=1)
                     share = seg / seg.sum() if seg.sum() > 0 else np.full(len(pts), 1 / len(pts))
                     xs.extend(pts[:, 0].tolist())

@@ -474,3 +474,14 @@ def test_verify_counts_a_csv_by_its_lines_against_the_memory_it_may_use(tmp_path
         pipeline.verify_output(path, "delta_etitc")
     monkeypatch.setattr(pipeline, "_memory_budget", lambda: need)  # counted, not guessed from the size: it fits
     pipeline.verify_output(path, "delta_etitc")
+
+
+def test_a_few_arcs_of_a_billion_mm_are_refused_before_their_points_are_made(tmp_path):
+    """A 959-byte G-code of 40 full circles of radius 1e9 mm asked for 28 million points: a
+    MemoryError traceback after 70 s under a 3 GB cap."""
+    path = tmp_path / "a.gcode"
+    path.write_text("G21\nG90\nM82\nG92 E0\nG1 X0 Y0 Z0.4 F3000\n" + "G2 X0 Y0 I1e9 J0 F3000\n" * 40)
+    t0 = time.monotonic()
+    line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl", "--quiet"))
+    assert time.monotonic() - t0 < 20
+    assert "a.gcode:7: the arcs up to this line would be" in line and "are I, J and R in mm?" in line

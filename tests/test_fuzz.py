@@ -98,7 +98,8 @@ def test_output_reader_raises_only_the_family(data):
 
 @SETTINGS
 @given(st.lists(st.sampled_from(["G1", "G0", "X", "Y", "Z", "E", "F", "1", "-", ".", "e9", "nan", " ", ";", "\n", "G92",
-                                 "M82", "M83", "G91", "G90", "0.0001", "1e400", "inf", "T1", "G28"]), max_size=60))
+                                 "M82", "M83", "G91", "G90", "0.0001", "1e400", "inf", "T1", "G28",
+                                 "G2", "G3", "I", "J", "R", "1e9", "200000"]), max_size=60))
 def test_gcode_reader_raises_only_the_family(tmp_path_factory, tokens):
     path = tmp_path_factory.mktemp("g") / "f.gcode"
     path.write_text("".join(tokens))
