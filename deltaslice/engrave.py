@@ -45,6 +45,9 @@ MAX_PIXELS = 25_000_000  # larger images and rasters are refused: 5000 x 5000 px
 # number of 320 digits) would overflow the scaling and the curve flattening to inf and NaN.
 SVG_MAGNITUDE = 1e9
 SVG_NAMESPACE = "http://www.w3.org/2000/svg"
+# Points the SVG's outlines may become once curves are flattened: a curve of any chord becomes up to
+# 2,000, so 250 KB of long quadratic curves asked for 2 GB. No engraving has a million corners.
+MAX_SVG_POINTS = 2_000_000
 
 
 class EngraveError(DeltasliceError):
@@ -243,6 +246,7 @@ def svg_polylines(path, tolerance: float) -> tuple[list[np.ndarray], tuple]:
         raise EngraveError(f"{path}: the root element is <{tag}>, not an SVG drawing (expected <svg> in the "
                            f"namespace {SVG_NAMESPACE})")
     lines = []
+    total = [0]  # points made so far, against MAX_SVG_POINTS
 
     def point(p) -> np.ndarray:
         xy = np.array([[p.x, p.y]], dtype=float)
@@ -271,6 +275,12 @@ def svg_polylines(path, tolerance: float) -> tuple[list[np.ndarray], tuple]:
             elif current:
                 chord = max(float(np.hypot(*(point(seg.end) - point(seg.start))[0])), 1e-9)
                 n = int(np.clip(np.ceil(np.sqrt(chord / (8 * tolerance)) * 4), 4, 2000))
+                total[0] += n
+                if total[0] > MAX_SVG_POINTS:
+                    raise EngraveError(
+                        f"{path}: its outlines become more than {MAX_SVG_POINTS:,} points once curves are flattened "
+                        f"to a tolerance of {tolerance:g}: simplify the drawing, or engrave it as an image"
+                    )
                 with np.errstate(all="ignore"):  # a far control point overflows: refused just below
                     flat = np.asarray(seg.npoint(np.linspace(0, 1, n + 1)[1:]), dtype=float)
                 for p in flat[~(np.isfinite(flat).all(axis=1) & (np.abs(flat).max(axis=1) <= SVG_MAGNITUDE))][:1]:

@@ -485,3 +485,15 @@ def test_a_few_arcs_of_a_billion_mm_are_refused_before_their_points_are_made(tmp
     line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl", "--quiet"))
     assert time.monotonic() - t0 < 20
     assert "a.gcode:7: the arcs up to this line would be" in line and "are I, J and R in mm?" in line
+
+
+def test_an_svg_of_long_curves_is_refused_before_its_points_are_made(tmp_path, monkeypatch):
+    """Each curve becomes up to 2,000 points: 250 KB of them asked for 2 GB (38 s). Here with the
+    bound made small, so the test is quick."""
+    from deltaslice import engrave
+
+    monkeypatch.setattr(engrave, "MAX_SVG_POINTS", 10_000)
+    segs = " ".join(f"Q 5 5 {100000 if i % 2 == 0 else 0} 0" for i in range(20))
+    path = _svg(tmp_path, f'<path d="M 0 0 {segs}" {STROKE}/>')
+    line = one_line_error(_run(path, "--printer", LASER, "-o", tmp_path / "o.dsl"))
+    assert "more than 10,000 points once curves are flattened" in line
