@@ -497,3 +497,16 @@ def test_an_svg_of_long_curves_is_refused_before_its_points_are_made(tmp_path, m
     path = _svg(tmp_path, f'<path d="M 0 0 {segs}" {STROKE}/>')
     line = one_line_error(_run(path, "--printer", LASER, "-o", tmp_path / "o.dsl"))
     assert "more than 10,000 points once curves are flattened" in line
+
+
+def test_a_3mf_that_unpacks_to_more_than_a_part_holds_is_refused_unread(tmp_path, monkeypatch):
+    """612 KB of compressed spaces unpacked to 600 MB, read in 1.4 GB; with the bound made small here."""
+    from deltaslice import mesh
+
+    monkeypatch.setattr(mesh, "MAX_3MF_UNPACKED", 1 << 20)
+    path = tmp_path / "bomb.3mf"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("3D/3dmodel.model", "<model><!--" + " " * (2 << 20) + "--></model>")
+    assert path.stat().st_size < 20_000
+    line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl"))
+    assert "its parts unpack to 2 MiB, more than the 1 MiB" in line
