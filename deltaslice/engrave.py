@@ -30,8 +30,10 @@ Units: images in pixels (row 0 at the top), everything returned in mm in the bed
 
 from __future__ import annotations
 
+import difflib
 import warnings
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -91,6 +93,14 @@ class EngraveOptions:
         def bad(key, value, expected):
             raise EngraveError(f"{where}: engraving option {key} = {value!r}: expected {expected}")
 
+        for key in ("width", "height", "power", "feed", "travel_feed", "z", "blur", "gamma", "low", "high",
+                    "tolerance", "line_pitch", "overscan", "aperture", "levels"):
+            v = getattr(self, key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))):
+                bad(key, v, "a number")  # a string reached numpy's isfinite as a TypeError
+        for key in ("invert", "dynamic_power", "dither"):
+            if not isinstance(getattr(self, key), (bool, np.bool_)):
+                bad(key, getattr(self, key), "True or False")
         if self.mode not in ("vector", "raster"):
             bad("mode", self.mode, "'vector' or 'raster'")
         for key in ("width", "height", "feed", "travel_feed", "line_pitch", "overscan"):
@@ -116,10 +126,28 @@ class EngraveOptions:
 # --------------------------------------------------------------------------- entry point
 
 
+def engrave_options(options, where: str = "engrave") -> EngraveOptions:
+    """``options`` as :class:`EngraveOptions`: one already, None (the defaults) or a mapping of its
+    fields; anything else, or an unknown field, is refused by name."""
+    if isinstance(options, EngraveOptions):
+        return options
+    if options is None:
+        return EngraveOptions()
+    if not isinstance(options, Mapping):
+        raise EngraveError(f"{where}: engraving options = {options!r:.60}: expected a dict of EngraveOptions fields")
+    known = {f.name for f in fields(EngraveOptions)}
+    for key in options:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), sorted(known), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise EngraveError(f"{where}: unknown engraving option {key!r}{hint}: expected one of {', '.join(sorted(known))}")
+    return EngraveOptions(**options)
+
+
 def engrave(path, printer, options: EngraveOptions | dict | None = None) -> Toolpath:
     """A Toolpath engraving the image or SVG at ``path`` with ``printer``'s laser."""
-    opts = options if isinstance(options, EngraveOptions) else EngraveOptions(**(options or {}))
     where = str(path)
+    opts = engrave_options(options, where)
     opts.check(where)
     if printer.tool.channel_kind != "laser":
         raise EngraveError(f"{where}: printer {printer.name} has no laser ([tool] kind = 'extruder'): images are for lasers")

@@ -347,6 +347,8 @@ def read_gcode(path, *, printer=None, echo=None, center=False, progress=None) ->
     """
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         raise GcodeError(f"read_gcode: path: expected a file path, got {type(path).__name__} {path!r:.60}")
+    if not isinstance(center, bool):
+        raise GcodeError(f"read_gcode: center = {center!r:.60}: expected True or False")
     path = Path(path)
     shown = str(path)
     try:

@@ -655,6 +655,10 @@ def decode_stream(path, out, *, units=False, printer=None) -> int:
     from .emit.stream import decode_to_text
 
     _check_path(path, "stream")
+    if not callable(getattr(out, "write", None)):
+        raise DeltasliceError(f"decode_stream: out = {out!r:.60}: expected a text file object (with write)")
+    if not isinstance(units, bool):
+        raise DeltasliceError(f"decode_stream: units = {units!r}: expected True or False")
     loaded = None if printer is None else _printer(printer)
     try:
         f = open(path, "rb")
@@ -722,6 +726,8 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
 
     _check_path(part, "part")
     _check_png(output)
+    if layer is not None and (isinstance(layer, bool) or not isinstance(layer, (int, np.integer))):
+        raise DeltasliceError(f"preview: layer = {layer!r}: expected a layer index (an integer) or None")
     if not Path(part).exists():
         raise DeltasliceError(f"{part}: no such file")
     check_output(output, inputs=[part])

@@ -510,3 +510,38 @@ def test_a_3mf_that_unpacks_to_more_than_a_part_holds_is_refused_unread(tmp_path
     assert path.stat().st_size < 20_000
     line = one_line_error(_run(path, "--printer", "delta_etitc", "-o", tmp_path / "o.dsl"))
     assert "its parts unpack to 2 MiB, more than the 1 MiB" in line
+
+
+def _png_file(tmp_path):
+    path = tmp_path / "a.png"
+    path.write_bytes(_png())
+    return path
+
+
+@pytest.mark.parametrize("call, words", [
+    (lambda d: ("compile", _png_file(d), LASER, dict(engrave="x")), "engraving options = 'x': expected a dict"),
+    (lambda d: ("compile", _png_file(d), LASER, dict(engrave={"widht": 1})), "unknown engraving option 'widht' (did you mean 'width'?)"),
+    (lambda d: ("compile", _png_file(d), LASER, dict(engrave={"width": "x"})), "engraving option width = 'x': expected a number"),
+    (lambda d: ("compile", _png_file(d), LASER, dict(engrave={"dither": "x"})), "engraving option dither = 'x': expected True or False"),
+    (lambda d: ("compile", d / "a.gcode", "delta_etitc", dict(center="y")), "center = 'y': expected True or False"),
+    (lambda d: ("decode", None, None, dict(out=None)), "out = None: expected a text file object"),
+    (lambda d: ("decode", None, None, dict(units="x")), "units = 'x': expected True or False"),
+    (lambda d: ("preview", d / "a.gcode", "delta_etitc", dict(layer="x")), "layer = 'x': expected a layer index"),
+])
+def test_the_library_refuses_arguments_of_the_wrong_kind_in_the_family(tmp_path, call, words):
+    """Each raised a raw TypeError, AttributeError or numpy UFuncTypeError."""
+    import io
+
+    from deltaslice import DeltasliceError, pipeline
+
+    (tmp_path / "a.gcode").write_text(SQUARE)
+    stream_path = tmp_path / "s.dsl"
+    stream_path.write_bytes(hostile_stream(blocks=2, n=4))
+    what, part, printer_name, kwargs = call(tmp_path)
+    with pytest.raises(DeltasliceError, match=re.escape(words)):
+        if what == "compile":
+            pipeline.compile_part(part, printer_name, output=tmp_path / "o.dsl", **kwargs)
+        elif what == "decode":
+            pipeline.decode_stream(stream_path, **{"out": io.StringIO(), **kwargs})
+        else:
+            pipeline.preview(part, printer_name, tmp_path / "p.png", **kwargs)
