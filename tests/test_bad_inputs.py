@@ -297,10 +297,12 @@ def test_the_library_refuses_a_nan_bound_by_name(tmp_path):
 # ----------------------------------------------------------------------------------- Ctrl-C
 
 
-@pytest.mark.parametrize("delay", [1.5, 2.5, 3.5])
+@pytest.mark.parametrize("delay", [1.5, 3.0, 4.5])
 def test_ctrl_c_to_the_process_group_leaves_no_worker_traceback(tmp_path, delay):
     """A terminal's Ctrl-C signals every process of the group: the pool's workers printed
-    "Process ForkProcess-1: Traceback ... KeyboardInterrupt" in 6 interrupts of 10."""
+    "Process ForkProcess-1: Traceback ... KeyboardInterrupt" in 6 interrupts of 10. A worker that
+    leaves halfway through sending a result must not hang the parent (it did, at 4.5 s, once the
+    workers left silently: the pool's shutdown waited for the rest of the result)."""
     import os
     import signal
 
@@ -310,7 +312,7 @@ def test_ctrl_c_to_the_process_group_leaves_no_worker_traceback(tmp_path, delay)
                             start_new_session=True)
     time.sleep(delay)
     os.killpg(proc.pid, signal.SIGINT)
-    _out, err = proc.communicate(timeout=120)
+    _out, err = proc.communicate(timeout=60)
     if proc.returncode == 0:
         pytest.skip("the compile finished before the signal")
     lines = [line for line in err.splitlines() if not line.startswith("mesh: ")]

@@ -18,7 +18,7 @@ from collections import deque
 import numpy as np
 
 from ..errors import DeltasliceError, ToolpathWarning, UnreachableError
-from ..pool import resolve_workers, start_pool
+from ..pool import resolve_workers, start_pool, stop_pool
 from ..toolpath import WAIT_KINDS, Role, Toolpath, unit_notes
 from .pieces import Piece, PieceBatch
 from .spool import SPOOL_MOVES, PieceSpool
@@ -532,7 +532,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                         if first is not None:
                             first()  # the reach check speaks first, as when the workers plan the chunk
                         raise  # the error of the chunk's first job that fails: it is among these
-            with start_pool(workers, initializer=_init_worker, initargs=(printer, toolpath)) as pool:
+            pool = start_pool(workers, initializer=_init_worker, initargs=(printer, toolpath))
+            try:
 
                 def run_first():
                     nonlocal first
@@ -542,7 +543,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                         except BaseException:
                             # no worker outlives the error: the chunks not started are dropped, the
                             # ones running finish (a few tenths of a second)
-                            pool.shutdown(wait=True, cancel_futures=True)
+                            stop_pool(pool)
                             raise
                         first = None
 
@@ -563,6 +564,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                 run_first()
                 while queue:
                     _drain_one(queue, put_away, plan_here)
+            finally:
+                stop_pool(pool)
     finally:
         _WORKER["toolpath"] = None  # this process keeps no toolpath once it is planned
     return np.asarray(job_start), np.asarray(job_piece)
