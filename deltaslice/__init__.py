@@ -17,6 +17,7 @@ from .errors import (
     PlanningError,
     PrinterFileError,
     StreamError,
+    ToolpathWarning,
     UnreachableError,
 )
 
@@ -43,6 +44,7 @@ __all__ = [
     "PlanningError",
     "PrinterFileError",
     "StreamError",
+    "ToolpathWarning",
     "UnreachableError",
     "Printer",
     "load_printer",

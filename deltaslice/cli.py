@@ -26,6 +26,7 @@ from . import interrupt
 interrupt.install(at_once=True)
 
 import json  # noqa: E402
+import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
 from dataclasses import asdict, is_dataclass  # noqa: E402
@@ -78,6 +79,14 @@ class _DefaultGroup(click.Group):
             return super().invoke(ctx)
         except KeyboardInterrupt:
             raise _Interrupted() from None  # click would print a blank line and "Aborted!"
+        except BrokenPipeError:
+            # whoever read stdout stopped (decode F | head): nothing went wrong, so end quietly with 0
+            # (click's own handling exits 1); stdout goes to /dev/null so the final flush is silent
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError, AttributeError):  # a stdout without a descriptor (a test's)
+                pass
+            raise click.exceptions.Exit(EXIT_OK) from None
 
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         """click's main, with Ctrl-C at any moment -> one line and exit 130."""
@@ -221,10 +230,29 @@ placement_options = _options(
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 
+class _Bound(click.ParamType):
+    """A job bound: a finite number >= 0 (0: no bound). click's FloatRange lets nan through (every
+    comparison with it is false), which then refused every job as "0.0 h exceeds the bound nan h"."""
+
+    name = "float"
+
+    def __init__(self, unit: str):
+        self.unit = unit
+
+    def convert(self, value, param, ctx):
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number of {self.unit}", param, ctx)
+        if not (math.isfinite(number) and number >= 0):
+            self.fail(f"{value!r}: expected a finite number of {self.unit} >= 0 (0: no bound)", param, ctx)
+        return number
+
+
 bound_options = _options(
-    click.option("--max-time", type=click.FloatRange(min=0), default=48.0, show_default=True, metavar="HOURS",
+    click.option("--max-time", type=_Bound("hours"), default=48.0, show_default=True, metavar="HOURS",
                  help="Refuse a job whose print time exceeds this, before writing (0: no bound)."),
-    click.option("--max-size", type=click.FloatRange(min=0), default=4096.0, show_default=True, metavar="MIB",
+    click.option("--max-size", type=_Bound("MiB"), default=4096.0, show_default=True, metavar="MIB",
                  help="Refuse an output larger than this, before writing (0: no bound)."),
 )
 
@@ -292,7 +320,7 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
         progress=not quiet,
         echo=lambda s: click.echo(s, err=True),
         max_duration_s=max_time * 3600.0 or None,
-        max_bytes=int(max_size * 1024**2) or None,
+        max_bytes=max(1, round(max_size * 1024**2)) if max_size else None,
         engrave=_engrave_dict(**engrave),
         center=center,
         **_placement(scale, rotate, keep_position),
@@ -355,7 +383,7 @@ def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, kee
 @main.command("workspace")
 @printer_options
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
-              help="PNG to write (default: <printer name>_workspace.png).")
+              help="PNG to write (default: <printer name>_workspace.png; with --json, none unless given).")
 @json_option
 def workspace_cmd(printer_path, overrides, plot_path, as_json):
     """Print the reachable volume, largest cylinder and cube, singularity margin and
@@ -368,7 +396,8 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
     from .pipeline import workspace_analysis
     from .report import workspace_summary
 
-    result = _run(workspace_analysis, _printer(printer_path, overrides), plot_path)
+    # --json is for programs: a picture only when --plot asks for one
+    result = _run(workspace_analysis, _printer(printer_path, overrides), plot_path, draw=not as_json)
     if as_json:
         _echo_json(result)
     else:

@@ -112,7 +112,7 @@ class Section:
 
     def fail(self, key, value, expected):
         """Report a problem with ``key``: raise at once, or record it and stop the section."""
-        shown = "missing" if value is MISSING else f"= {value!r}"
+        shown = "missing" if value is MISSING else f"= {_shown(value)}"
         message = f"{self._where(key)} {shown}: expected {expected}"
         if self.problems is None:
             raise PrinterFileError(f"{self.path}: {message}")
@@ -174,7 +174,10 @@ class Section:
     def _check_float(self, key, value, above, minval, maxval):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(key, value, "a number")
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:  # TOML integers have no bound: one of 310 digits is beyond any float
+            self.fail(key, value, f"a number of magnitude <= {MAGNITUDE:g} (mm, s, degrees)")
         if not math.isfinite(value):
             self.fail(key, value, "a finite number")
         if above is not None and not value > above:
@@ -237,10 +240,21 @@ class Section:
                 self.problems.suggested.add((self.name, close[0]))
 
 
+SHOWN_CHARS = 80  # a value quoted in a message longer than this is cut: the message stays one readable line
+
+
+def _shown(value) -> str:
+    """A value as a message quotes it: repr, an integer of many digits by its length, a long repr cut."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**20:
+        return f"{'-' if value < 0 else ''}{str(abs(value))[:3]}... (an integer of {len(str(abs(value)))} digits)"
+    text = repr(value)
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS - 3]}..."
+
+
 def _fallback(default, above, minval, maxval) -> float:
     """A stand-in value within the bounds, so reading goes on after a recorded problem."""
-    if isinstance(default, (int, float)) and not isinstance(default, bool):
-        return float(default)
+    if isinstance(default, (int, float)) and not isinstance(default, bool) and abs(default) <= MAGNITUDE:
+        return float(default)  # a default derived from another key's value of 310 digits is not a float
     if minval is not None:
         return float(minval)
     if above is not None:

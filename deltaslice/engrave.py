@@ -30,7 +30,10 @@ Units: images in pixels (row 0 at the top), everything returned in mm in the bed
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import difflib
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +42,14 @@ from .errors import DeltasliceError
 from .formats import is_svg
 from .toolpath import Role, Toolpath, ToolpathBuilder
 
-MAX_PIXELS = 25_000_000  # larger images are refused: 5000 x 5000 px is far finer than any spot
+MAX_PIXELS = 25_000_000  # larger images and rasters are refused: 5000 x 5000 px is far finer than any spot
+# No SVG drawing spans a billion user units (26 km at 96 per inch); a larger coordinate (1e308, a
+# number of 320 digits) would overflow the scaling and the curve flattening to inf and NaN.
+SVG_MAGNITUDE = 1e9
+SVG_NAMESPACE = "http://www.w3.org/2000/svg"
+# Points the SVG's outlines may become once curves are flattened: a curve of any chord becomes up to
+# 2,000, so 250 KB of long quadratic curves asked for 2 GB. No engraving has a million corners.
+MAX_SVG_POINTS = 2_000_000
 
 
 class EngraveError(DeltasliceError):
@@ -83,6 +93,14 @@ class EngraveOptions:
         def bad(key, value, expected):
             raise EngraveError(f"{where}: engraving option {key} = {value!r}: expected {expected}")
 
+        for key in ("width", "height", "power", "feed", "travel_feed", "z", "blur", "gamma", "low", "high",
+                    "tolerance", "line_pitch", "overscan", "aperture", "levels"):
+            v = getattr(self, key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))):
+                bad(key, v, "a number")  # a string reached numpy's isfinite as a TypeError
+        for key in ("invert", "dynamic_power", "dither"):
+            if not isinstance(getattr(self, key), (bool, np.bool_)):
+                bad(key, getattr(self, key), "True or False")
         if self.mode not in ("vector", "raster"):
             bad("mode", self.mode, "'vector' or 'raster'")
         for key in ("width", "height", "feed", "travel_feed", "line_pitch", "overscan"):
@@ -108,10 +126,28 @@ class EngraveOptions:
 # --------------------------------------------------------------------------- entry point
 
 
+def engrave_options(options, where: str = "engrave") -> EngraveOptions:
+    """``options`` as :class:`EngraveOptions`: one already, None (the defaults) or a mapping of its
+    fields; anything else, or an unknown field, is refused by name."""
+    if isinstance(options, EngraveOptions):
+        return options
+    if options is None:
+        return EngraveOptions()
+    if not isinstance(options, Mapping):
+        raise EngraveError(f"{where}: engraving options = {options!r:.60}: expected a dict of EngraveOptions fields")
+    known = {f.name for f in fields(EngraveOptions)}
+    for key in options:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), sorted(known), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise EngraveError(f"{where}: unknown engraving option {key!r}{hint}: expected one of {', '.join(sorted(known))}")
+    return EngraveOptions(**options)
+
+
 def engrave(path, printer, options: EngraveOptions | dict | None = None) -> Toolpath:
     """A Toolpath engraving the image or SVG at ``path`` with ``printer``'s laser."""
-    opts = options if isinstance(options, EngraveOptions) else EngraveOptions(**(options or {}))
     where = str(path)
+    opts = engrave_options(options, where)
     opts.check(where)
     if printer.tool.channel_kind != "laser":
         raise EngraveError(f"{where}: printer {printer.name} has no laser ([tool] kind = 'extruder'): images are for lasers")
@@ -158,23 +194,35 @@ def load_grey(path) -> np.ndarray:
     if path.stat().st_size == 0:
         raise EngraveError(f"{path}: empty file, not an image")
     try:
-        with Image.open(path) as im:
-            cols, rows = im.size
-            if cols * rows == 0:
-                raise EngraveError(f"{path}: the image has no pixels ({cols} x {rows})")
-            if cols * rows > MAX_PIXELS:
-                raise EngraveError(
-                    f"{path}: image of {cols} x {rows} px is too large ({cols * rows / 1e6:.0f} Mpx > "
-                    f"{MAX_PIXELS / 1e6:.0f} Mpx): scale it down"
-                )
-            la = np.asarray(im.convert("LA"), dtype=float) / 255.0
+        # Pillow warns about what it skips in a damaged file (EXIF, TIFF tags) in Python's own format on
+        # stderr; the image is used or refused here, in one line
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                cols, rows = im.size
+                if cols * rows == 0:
+                    raise EngraveError(f"{path}: the image has no pixels ({cols} x {rows})")
+                if cols * rows > MAX_PIXELS:
+                    raise EngraveError(
+                        f"{path}: image of {cols} x {rows} px is too large ({cols * rows / 1e6:.0f} Mpx > "
+                        f"{MAX_PIXELS / 1e6:.0f} Mpx): scale it down"
+                    )
+                la = np.asarray(im.convert("LA"), dtype=float) / 255.0
     except Image.DecompressionBombError:  # Pillow refuses to open over ~179 Mpx, before our own bound
         raise EngraveError(
             f"{path}: image is too large (over {MAX_PIXELS / 1e6:.0f} Mpx, Pillow's decompression-bomb bound): "
             "scale it down"
         ) from None
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise EngraveError(f"{path}: not a readable image ({exc.__class__.__name__}: {exc})") from None
+    except UnidentifiedImageError:
+        raise EngraveError(f"{path}: not an image file Pillow can read (PNG, JPG, BMP, TIFF, ...)") from None
+    except OSError as exc:
+        if exc.strerror:  # the file system's own reason (permission denied, ...)
+            raise EngraveError(f"{path}: cannot read the image: {exc.strerror}") from None
+        raise EngraveError(f"{path}: the image is damaged or truncated ({exc})") from None
+    except EngraveError:
+        raise
+    except Exception as exc:  # Pillow's decoders raise what they meet: SyntaxError for a broken PNG chunk, ValueError
+        raise EngraveError(f"{path}: the image is damaged or of an unsupported kind ({exc or 'no detail'})") from None
     return la[..., 0] * la[..., 1] + (1.0 - la[..., 1])
 
 
@@ -215,9 +263,29 @@ def svg_polylines(path, tolerance: float) -> tuple[list[np.ndarray], tuple]:
         svg = se.SVG.parse(str(path), reify=True)
     except FileNotFoundError:
         raise EngraveError(f"{path}: no such SVG file") from None
-    except Exception as exc:  # svgelements raises parser errors of several kinds
-        raise EngraveError(f"{path}: not a readable SVG ({exc.__class__.__name__}: {exc})") from None
+    except SyntaxError as exc:  # xml.etree's ParseError: the message says where
+        raise EngraveError(f"{path}: not well-formed XML, so not a readable SVG ({exc})") from None
+    except OSError as exc:
+        raise EngraveError(f"{path}: cannot read the SVG: {exc.strerror or exc}") from None
+    except Exception as exc:  # svgelements raises errors of several kinds on bad attribute values
+        raise EngraveError(f"{path}: not a readable SVG ({exc or 'malformed content'})") from None
+    if not isinstance(svg, se.SVG):  # svgelements reads only SVG's own namespace; another root is a bare element
+        tag = str(getattr(svg, "values", {}).get("tag", "?"))
+        raise EngraveError(f"{path}: the root element is <{tag}>, not an SVG drawing (expected <svg> in the "
+                           f"namespace {SVG_NAMESPACE})")
     lines = []
+    total = [0]  # points made so far, against MAX_SVG_POINTS
+
+    def point(p) -> np.ndarray:
+        xy = np.array([[p.x, p.y]], dtype=float)
+        if not (np.isfinite(xy).all() and np.abs(xy).max() <= SVG_MAGNITUDE):
+            size = "overflows" if not np.isfinite(xy).all() else f"is beyond +-{SVG_MAGNITUDE:g} user units"
+            raise EngraveError(
+                f"{path}: an SVG coordinate ({xy[0, 0]:.4g}, {xy[0, 1]:.4g}), after the width, height, viewBox and "
+                f"transforms, {size}: no drawing is that large"
+            )
+        return xy
+
     for el in svg.elements():
         if not isinstance(el, se.Shape) or el.stroke is None or el.stroke.value is None:
             continue
@@ -228,14 +296,24 @@ def svg_polylines(path, tolerance: float) -> tuple[list[np.ndarray], tuple]:
             if isinstance(seg, se.Move):
                 if len(current) > 1:
                     lines.append(np.concatenate(current))
-                current = [np.array([[seg.end.x, seg.end.y]])]
+                current = [point(seg.end)]
             elif isinstance(seg, (se.Line, se.Close)):
                 if seg.end is not None and current:
-                    current.append(np.array([[seg.end.x, seg.end.y]]))
+                    current.append(point(seg.end))
             elif current:
-                chord = max(abs(seg.end - seg.start), 1e-9)
+                chord = max(float(np.hypot(*(point(seg.end) - point(seg.start))[0])), 1e-9)
                 n = int(np.clip(np.ceil(np.sqrt(chord / (8 * tolerance)) * 4), 4, 2000))
-                current.append(np.asarray(seg.npoint(np.linspace(0, 1, n + 1)[1:]), dtype=float))
+                total[0] += n
+                if total[0] > MAX_SVG_POINTS:
+                    raise EngraveError(
+                        f"{path}: its outlines become more than {MAX_SVG_POINTS:,} points once curves are flattened "
+                        f"to a tolerance of {tolerance:g}: simplify the drawing, or engrave it as an image"
+                    )
+                with np.errstate(all="ignore"):  # a far control point overflows: refused just below
+                    flat = np.asarray(seg.npoint(np.linspace(0, 1, n + 1)[1:]), dtype=float)
+                for p in flat[~(np.isfinite(flat).all(axis=1) & (np.abs(flat).max(axis=1) <= SVG_MAGNITUDE))][:1]:
+                    point(se.Point(*p))  # a control point far out takes the curve there: refused as one
+                current.append(flat)
         if len(current) > 1:
             lines.append(np.concatenate(current))
     lines = [p for p in lines if len(p) > 1 and np.ptp(p, axis=0).max() > 0]
@@ -257,6 +335,8 @@ def _svg_default_size(frame):
 
 def _fits(kin, bed, w: float, h: float, z: float) -> bool:
     """Whether a w x h mm rectangle centred on the bed lies on the bed and in reach at z."""
+    if not (np.isfinite(w) and np.isfinite(h)):
+        return False
     u = np.linspace(-0.5, 0.5, 25)
     X, Y = np.meshgrid(u * w, u * h)
     pts = np.column_stack([X.ravel(), Y.ravel(), np.full(X.size, z)])
@@ -284,12 +364,14 @@ def _place(where, printer, px_w: float, px_h: float, opts: EngraveOptions, defau
     base_w, base_h = (w, h) if w is not None else (1.0, aspect)
     if w is not None and ok(1.0):
         return w, h
-    lo, hi = 0.0, 1.0
+    # the scale of a 1 um engraving: a requested size of any magnitude searches down to it
+    tiny = 1e-3 / max(base_w, base_h)
+    if not ok(tiny):
+        raise EngraveError(f"{where}: no part of the work area is in reach of {printer.name} at z = {opts.z:g} mm")
+    lo, hi = tiny, 1.0
     while ok(hi) and hi < 1e4:
         lo, hi = hi, hi * 2
-    if lo == 0.0 and not ok(1e-3):
-        raise EngraveError(f"{where}: no part of the work area is in reach of {printer.name} at z = {opts.z:g} mm")
-    for _ in range(40):
+    for _ in range(60):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if ok(mid) else (lo, mid)
     fw, fh = lo * base_w, lo * base_h
@@ -396,7 +478,14 @@ def _raster_toolpath(where, grey: np.ndarray, printer, opts: EngraveOptions) -> 
     w0, h0 = _place(where, printer, grey.shape[1], grey.shape[0], opts)
     over = opts.overscan or default_overscan(printer, feed, w0, h0, opts.z)
     w, h = _place(where, printer, grey.shape[1], grey.shape[0], opts, margin_x=over)
-    rows, cols = max(1, int(round(h / pitch))), max(1, int(round(w / pitch)))
+    rows, cols = max(1.0, round(h / pitch)), max(1.0, round(w / pitch))
+    if rows * cols > MAX_PIXELS:  # before OpenCV allocates it: 1e-6 mm lines asked for 3.8e16 bytes
+        least = float(np.sqrt(w * h / MAX_PIXELS))
+        raise EngraveError(
+            f"{where}: a line pitch of {pitch:g} mm makes a raster of {cols:.4g} x {rows:.4g} dots over {w:.1f} x {h:.1f} mm, "
+            f"more than {MAX_PIXELS / 1e6:.0f} Mpx: use a line pitch of at least {least:.3g} mm"
+        )
+    rows, cols = int(rows), int(cols)
     small = cv2.resize(grey.astype(np.float32), (cols, rows), interpolation=cv2.INTER_AREA).astype(float)
     pw = raster_powers(small, opts.levels, opts.dither, opts.power)
     pw[pw < 1.0 / printer.tool.power_counts] = 0.0

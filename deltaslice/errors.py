@@ -42,6 +42,11 @@ class SendError(DeltasliceError):
 class MeshWarning(UserWarning):
     """A mesh was sliced, but only after closing gaps or similar guesswork the user should hear about."""
 
+class ToolpathWarning(UserWarning):
+    """A toolpath was planned as given, but some of it looks like another unit or origin (metres
+    for millimetres, mm/min for mm/s, heights below the bed)."""
+
+
 class OutputError(DeltasliceError):
     """An output cannot be written: missing or read-only directory, the input itself, a full
     disk, or a job beyond the size and time bounds."""

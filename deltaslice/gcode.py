@@ -29,6 +29,10 @@ from .toolpath import EventKind, Role, Toolpath, centred, make_events
 ARC_TOLERANCE = 0.01
 #: Feed used before the file sets one (mm/s) when no printer is given.
 DEFAULT_FEED = 50.0
+# No move of a print pushes or pulls 10 m of filament (a Bowden tube's load is under 1 m). More
+# is E in other units or read in the wrong mode (absolute vs relative); E1e6 alone was 9 h of
+# filament-only motion whose verify ran out of memory.
+MAX_MOVE_FILAMENT = 10_000.0
 #: Lines between progress reports (a 60 MB spiral vase has 1.5 M).
 PROGRESS_LINES = 50_000
 
@@ -240,11 +244,26 @@ _MOTION_LETTERS = set("XYZEFIJRS")
 ARC_END_TOLERANCE = 0.01
 #: Most chords one arc may become (a longer arc is refused, not a memory blow-up).
 ARC_MAX_CHORDS = 1_000_000
+#: Chords all of a file's arcs may become: a base and so many a line read. A 959-byte file of 40 full
+#: circles of radius 1e9 mm asked for 28 million points and ran out of memory; a real arc's full
+#: circle of 200 mm radius is about 300 chords.
+ARC_CHORDS_BASE = 1_000_000
+ARC_CHORDS_PER_LINE = 3_000
+
+
+class _ArcBudget(Exception):
+    """An arc needing more chords than the file's arcs have left (the reader says which line)."""
+
+    def __init__(self, chords: int, radius: float):
+        super().__init__(chords, radius)
+        self.chords, self.radius = chords, radius
+
+
 #: How notes name Slic3r 1.3's no-extrusion G-code (the E register written without its letter).
 _SLIC3R_NO_EXTRUSION = "Slic3r no-extrusion flavour"
 
 
-def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str):
+def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str, budget: int | None = None):
     """Points along a G2/G3 arc in the XY plane after p0, ending at p1 ((k, 3) mm).
 
     I/J arcs whose end is off the circle by more than :data:`ARC_END_TOLERANCE` are refused;
@@ -303,6 +322,8 @@ def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str):
     k = math.ceil(abs(sweep) / step) if step > 0 else ARC_MAX_CHORDS + 1
     if k > ARC_MAX_CHORDS:
         raise GcodeError(f"{where}: arc of radius {r0:.6g} mm would need {k} chords (at most {ARC_MAX_CHORDS})")
+    if budget is not None and k > budget:
+        raise _ArcBudget(k, r0)
     k = max(1, k)
     t = np.arange(1, k + 1) / k
     ang = a0 + sweep * t
@@ -326,6 +347,8 @@ def read_gcode(path, *, printer=None, echo=None, center=False, progress=None) ->
     """
     if not isinstance(path, (str, os.PathLike)) or not str(path):
         raise GcodeError(f"read_gcode: path: expected a file path, got {type(path).__name__} {path!r:.60}")
+    if not isinstance(center, bool):
+        raise GcodeError(f"read_gcode: center = {center!r:.60}: expected True or False")
     path = Path(path)
     shown = str(path)
     try:
@@ -702,6 +725,7 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
     skipped: Counter = Counter()
     started = False
     handed = 0  # moves handed to the sink
+    arc_chords = 0  # points all arcs so far became (bounded: ARC_CHORDS_BASE)
 
     if progress is not None and not callable(progress):
         raise GcodeError(f"{shown}: progress: expected a callable(done, total) or None, got {type(progress).__name__}")
@@ -841,6 +865,12 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         bare_retracted = 0
                     if not math.isfinite(de) or abs(de) > 1e12:
                         raise GcodeError(f"{where}: extrusion {de:g} mm is not a finite amount")
+                    if abs(de) > MAX_MOVE_FILAMENT:
+                        raise GcodeError(
+                            f"{where}: {shown_line!r} moves {de:.6g} mm of filament in one move, more than "
+                            f"{MAX_MOVE_FILAMENT / 1000:g} m: is E absolute (M82) or relative (M83) as the slicer "
+                            "wrote it, and in mm?"
+                        )
                 if bare_retracted == 1 and moved and not bare:
                     bare_retracted = 2
                 arc = cmd in ("G2", "G3")
@@ -859,7 +889,17 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                     if "I" in params or "J" in params:
                         ij = (params.get("I", 0.0) * unit, params.get("J", 0.0) * unit)
                     r_word = params.get("R")
-                    pts = _arc_points(pos, target, ij, None if r_word is None else r_word * unit, cmd == "G2", where)
+                    allowed = ARC_CHORDS_BASE + ARC_CHORDS_PER_LINE * line_no
+                    try:
+                        pts = _arc_points(pos, target, ij, None if r_word is None else r_word * unit, cmd == "G2", where,
+                                          budget=allowed - arc_chords)
+                    except _ArcBudget as over:
+                        raise GcodeError(
+                            f"{where}: the arcs up to this line would be {arc_chords + over.chords} chords, more than "
+                            f"{allowed} for {line_no} lines (this arc, of radius {over.radius:.6g} mm, takes "
+                            f"{over.chords}): are I, J and R in mm?"
+                        ) from None
+                    arc_chords += len(pts)
                     seg = np.linalg.norm(np.diff(np.vstack([pos, pts]), axis=0), axis=1)
                     share = seg / seg.sum() if seg.sum() > 0 else np.full(len(pts), 1 / len(pts))
                     xs.extend(pts[:, 0].tolist())

@@ -29,12 +29,15 @@ _state = {"requested": False, "installed": False, "writing": 0, "written": [], "
 
 
 def _handler(signum, frame):
+    if os.getpid() != _state["pid"]:
+        # A forked worker (a terminal's Ctrl-C signals the whole process group): leave silently, the
+        # parent says it once and shuts its pools down. A KeyboardInterrupt raised here reached
+        # multiprocessing's bootstrap of an idle worker as "Process ForkProcess-1: Traceback".
+        os._exit(EXIT_INTERRUPTED)
     if _state["requested"]:
         exit_now()
     _state["requested"] = True
     if _in_import(frame):
-        if os.getpid() != _state["pid"]:
-            os._exit(EXIT_INTERRUPTED)  # a forked worker: the parent (signalled too) says it, once
         if not _state["writing"]:
             exit_now()  # nothing is half written: leave now, without raising into the import
         return  # an output is being written: recorded, the next check() stops before it replaces anything

@@ -138,6 +138,8 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         read = _read_obj(path, notes)
         if read is not None:
             return read
+    if suffix == ".3mf":
+        _check_unpacked_size(path, shown)
     import trimesh  # other formats only: STL and plain OBJ are read here, and importing trimesh takes 0.4-0.8 s
 
     try:
@@ -145,7 +147,7 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     except MeshError:
         raise
     except Exception as exc:  # trimesh raises many types on bad input
-        raise MeshError(f"{shown}: cannot parse as {suffix or 'a mesh'}: {type(exc).__name__}: {exc}") from None
+        raise MeshError(f"{shown}: {_parse_failure(suffix, exc)}") from None
     try:
         if isinstance(loaded, trimesh.Scene):
             vertices, faces = _flatten_scene(loaded, shown, notes)
@@ -160,6 +162,49 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     if len(faces) == 0 or len(vertices) == 0:
         raise MeshError(f"{shown}: the mesh has no triangles")
     return vertices, faces, notes
+
+
+# What a 3MF's parts may unpack to: about 5 million triangles of model XML. A 612 KB file of
+# compressed spaces unpacked to 600 MB and its reading took 1.4 GB.
+MAX_3MF_UNPACKED = 512 << 20
+
+
+def _check_unpacked_size(path: Path, shown: str) -> None:
+    """Refuse a 3MF (a zip archive) whose parts unpack to more than MAX_3MF_UNPACKED, from its
+    directory, before anything is unpacked; a file that is no zip is left to the reader's words."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            unpacked = sum(max(0, info.file_size) for info in z.infolist())
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+        return
+    if unpacked > MAX_3MF_UNPACKED:
+        raise MeshError(f"{shown}: its parts unpack to {unpacked / 2**20:.0f} MiB, more than the "
+                        f"{MAX_3MF_UNPACKED >> 20} MiB a 3MF of a printable part holds (a zip bomb?)")
+
+
+_KINDS = {".3mf": "3MF", ".ply": "PLY", ".off": "OFF", ".obj": "OBJ", ".stl": "STL", ".glb": "glTF", ".gltf": "glTF"}
+
+
+def _parse_failure(suffix: str, exc: Exception) -> str:
+    """What trimesh's failure to read a file means, in a user's words (its exceptions are
+    Python's own: StopIteration for a 3MF without a model, IndexError for a short PLY header)."""
+    import zipfile
+
+    kind = _KINDS.get(suffix, suffix.lstrip(".").upper() or "mesh")
+    if suffix == ".3mf":
+        if isinstance(exc, zipfile.BadZipFile):
+            return "not a 3MF file: a 3MF is a zip archive, and this is not one (or a damaged one)"
+        if isinstance(exc, (StopIteration, KeyError)):
+            return "a 3MF without a 3D model in it (no 3D/3dmodel.model part with a mesh)"
+        if isinstance(exc, SyntaxError) or type(exc).__name__ == "XMLSyntaxError":  # lxml's is a SyntaxError too
+            return f"a 3MF whose model is not well-formed XML ({exc.msg if hasattr(exc, 'msg') else exc})"
+    if suffix == ".ply" and "not a ply" in str(exc).lower():
+        return "not a PLY file: a PLY starts with the line 'ply'"
+    if isinstance(exc, (IndexError, KeyError, StopIteration, EOFError, ValueError, UnicodeDecodeError)):
+        return f"not a readable {kind} file: its header or data is damaged, incomplete or of another format"
+    return f"not a readable {kind} file ({exc or 'no detail'})"
 
 
 #: OBJ statements that are not polygons (texture and normal vertices, names, groups, smoothing,

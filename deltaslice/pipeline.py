@@ -10,6 +10,7 @@ Functions return objects (:class:`~deltaslice.report.CompileResult`,
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import re
 import stat
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import interrupt
-from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError
+from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError, ToolpathWarning
 from .formats import format_for, holds_samples, part_kind
 from .machine import LimitMonitor, Printer, check_reach, load_printer
 from .machine.limits import TOLERANCE
@@ -186,17 +187,38 @@ def _atomic_output(path, mode: str, *, max_bytes=None, **open_kwargs):
 def check_job(duration_s: float, n_samples_per_s: float, bytes_per_sample: float, *, max_duration_s, max_bytes,
               output="output") -> None:
     """Refuse a job whose print time or estimated output size is beyond the bounds (None: no bound)."""
+    check_bounds(max_duration_s, max_bytes)
     if max_duration_s is not None and not duration_s <= max_duration_s:
         raise OutputError(
-            f"{output}: print time {duration_s / 3600:.1f} h exceeds the bound {max_duration_s / 3600:g} h "
+            f"{output}: print time {_hours(duration_s)} exceeds the bound {max_duration_s / 3600:g} h "
             "(a feed rate near zero in the part?); raise it with --max-time HOURS, 0 for none"
         )
     size = duration_s * n_samples_per_s * bytes_per_sample
     if max_bytes is not None and not size <= max_bytes:
         raise OutputError(
-            f"{output}: the output would be about {size / 1024**2:.0f} MiB, over the bound {max_bytes / 1024**2:.0f} MiB; "
+            f"{output}: the output would be about {_mib(size)} MiB, over the bound {_mib(max_bytes)} MiB; "
             "raise it with --max-size MiB (0 for none), or write the compact .dsl stream"
         )
+
+
+def check_bounds(max_duration_s, max_bytes) -> None:
+    """The job bounds a library caller gives: None, or a finite number > 0 (nan compares false
+    with everything, so it would refuse every job)."""
+    for key, value, unit in (("max_duration_s", max_duration_s, "seconds"), ("max_bytes", max_bytes, "bytes")):
+        if value is None:
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise OutputError(f"{key} = {value!r}: expected a finite number of {unit} > 0, or None for no bound")
+
+
+def _hours(seconds: float) -> str:
+    """A print time for a message: hours, with the digits a small bound needs ("0.00111 h", not "0.0 h")."""
+    return f"{seconds / 3600:.3g} h" if seconds < 360 else f"{seconds / 3600:.1f} h"
+
+
+def _mib(size: float) -> str:
+    """A size in MiB with the digits a small bound needs ("0.001", not "0")."""
+    return f"{size / 1024**2:.3g}" if size < 100 * 1024**2 else f"{size / 1024**2:.0f}"
 
 
 def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None,
@@ -421,6 +443,7 @@ def compile_part(
     input, directory exists and is writable). max_duration_s, max_bytes: bounds on the
     planned print time and the output size checked before writing (None: no bound)."""
     _check_path(part, "part")
+    check_bounds(max_duration_s, max_bytes)
     if output is None:
         output = default_output(part)
     fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
@@ -466,8 +489,15 @@ def compile_part(
                                  "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
         from .planning import plan
 
-        trajectory = plan(toolpath, printer, speed_limit=speed_limit, planner=planner, solver=solver, workers=workers,
-                          progress=planning)
+        with warnings.catch_warnings(record=True) as caught:  # the unit notes, said as notes
+            warnings.simplefilter("always", ToolpathWarning)
+            trajectory = plan(toolpath, printer, speed_limit=speed_limit, planner=planner, solver=solver, workers=workers,
+                              progress=planning)
+        for w in caught:
+            if not issubclass(w.category, ToolpathWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            elif echo is not None:
+                echo(f"note: {w.message}")
         del toolpath
     interrupt.check()
     t_plan = time.perf_counter() - t0 - t_slice
@@ -545,6 +575,7 @@ def verify_output(output, printer, toolpath=None, **mesh_options):
 
     _check_path(output, "output")
     printer = _printer(printer)
+    _check_verify_memory(output, printer)
     meta, samples = read_output(output)
     fmt = meta.get("format", "csv")
     raw = meta.get("rate_hz", printer.planning.output_rate)
@@ -556,12 +587,78 @@ def verify_output(output, printer, toolpath=None, **mesh_options):
     return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output))
 
 
+# verify holds every sample at once: about this many bytes per sample and channel (+3 for time,
+# tool and filament), measured at its peak (928 MB for a 6.67-million-sample delta_etitc stream)
+VERIFY_BYTES_PER_VALUE = 20
+
+
+def _check_verify_memory(output, printer) -> None:
+    """Refuse, before reading it, an output whose samples would not fit the memory this process
+    may use: a 1 MB stream of resting blocks holds 33 million samples (4.6 GB to verify)."""
+    from .emit import stream as dsl
+
+    channels = printer.n_joints + 1
+    try:
+        size = os.path.getsize(output)
+        with open(output, "rb") as f:
+            head = f.read(len(dsl.MAGIC))
+            if head == dsl.MAGIC:
+                # at most MAX_BLOCK_SAMPLES per block of at least 5 + 2C + 4 bytes; the end record says how many
+                samples = size * dsl.MAX_BLOCK_SAMPLES // (5 + 2 * channels + 4)
+                f.seek(max(0, size - dsl.END_LEN))
+                tail = f.read(dsl.END_LEN)
+                if len(tail) == dsl.END_LEN and tail[0] == dsl.REC_END:
+                    samples = min(samples, int.from_bytes(tail[3:7], "little"))
+            else:  # a CSV: one sample a line, counted a megabyte at a time
+                f.seek(0)
+                samples = sum(chunk.count(b"\n") for chunk in iter(lambda: f.read(1 << 20), b""))
+    except OSError:
+        return  # the reader names the problem
+    need = samples * VERIFY_BYTES_PER_VALUE * (channels + 3)
+    budget = _memory_budget()
+    if budget is not None and need > budget:
+        rate = printer.planning.output_rate
+        raise StreamError(
+            f"{output}: its {samples / 1e6:.3g} million samples ({samples / rate / 3600:.3g} h at {rate:g} Hz) need about "
+            f"{need / 1e9:.3g} GB to verify at once, more than the {budget / 1e9:.3g} GB this process can use"
+        )
+
+
+def _memory_budget() -> int | None:
+    """Bytes this process can still take: the memory the system has available, within the
+    process's own address-space and data limits; None where that cannot be told."""
+    budget = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    budget = int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+        for limit in (resource.RLIMIT_AS, resource.RLIMIT_DATA):
+            soft = resource.getrlimit(limit)[0]
+            if soft != resource.RLIM_INFINITY:
+                budget = min(budget if budget is not None else soft, max(0, soft - used))
+    except (ImportError, OSError, ValueError, IndexError):
+        pass
+    return budget
+
+
 def decode_stream(path, out, *, units=False, printer=None) -> int:
     """Print a stream file's samples to the text file ``out`` (see ``emit.stream.decode_to_text``);
     printer: a path, name or Printer the stream must match, or None."""
     from .emit.stream import decode_to_text
 
     _check_path(path, "stream")
+    if not callable(getattr(out, "write", None)):
+        raise DeltasliceError(f"decode_stream: out = {out!r:.60}: expected a text file object (with write)")
+    if not isinstance(units, bool):
+        raise DeltasliceError(f"decode_stream: units = {units!r}: expected True or False")
     loaded = None if printer is None else _printer(printer)
     try:
         f = open(path, "rb")
@@ -677,13 +774,16 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
 
     _check_path(part, "part")
     _check_png(output)
+    if layer is not None and (isinstance(layer, bool) or not isinstance(layer, (int, np.integer))):
+        raise DeltasliceError(f"preview: layer = {layer!r}: expected a layer index (an integer) or None")
     if not Path(part).exists():
         raise DeltasliceError(f"{part}: no such file")
     check_output(output, inputs=[part])
     printer = _printer(printer)
     if holds_samples(part):
         meta, samples = read_output(part)
-        fig = draw.trajectory_figure(samples, printer, title=f"{Path(part).name} on {printer.name}")
+        fig = draw.trajectory_figure(samples, printer, title=f"{Path(part).name} on {printer.name}",
+                                     tool_state=meta.get("format", "csv") != "stream")
         what = f"{len(samples)} samples"
     else:
         toolpath = load_toolpath(part, printer, **mesh_options)
@@ -695,24 +795,29 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
     return f"{output}: {what}"
 
 
-def workspace_analysis(printer, plot_path=None):
-    """Workspace figures of a printer (:class:`~deltaslice.report.WorkspaceResult`); writes a PNG plot."""
+def workspace_analysis(printer, plot_path=None, *, draw=True):
+    """Workspace figures of a printer (:class:`~deltaslice.report.WorkspaceResult`); writes a PNG
+    plot to plot_path (default ``<printer name>_workspace.png``), none with ``draw=False`` and no
+    plot_path (the result's ``plot`` is then None)."""
     import numpy as np
 
     from .kinematics.workspace import analyse, plot
     from .report import WorkspaceResult
 
     printer = _printer(printer)
-    plot_path = plot_path or f"{printer.name}_workspace.png"
-    _check_png(plot_path)
+    draw = draw or plot_path is not None
+    plot_path = (plot_path or f"{printer.name}_workspace.png") if draw else None
+    if draw:
+        _check_png(plot_path)
     kin = printer.kinematics()
     cpu = np.abs(printer.limits.counts_per_unit[: printer.n_joints])
     z_range = (-0.25 * printer.bed.max_height - 10.0, 2.0 * printer.bed.max_height + 20.0)
     radius_max = max(1.6 * printer.bed.radius, 50.0)
     rep = analyse(kin, cpu, z_range, radius_max)
     interrupt.check()
-    with atomic_output(plot_path, "wb") as f:
-        plot(kin, rep, cpu, f, title=f"{printer.name}: workspace")
+    if draw:
+        with atomic_output(plot_path, "wb") as f:
+            plot(kin, rep, cpu, f, title=f"{printer.name}: workspace")
 
     xy = np.linspace(-1, 1, 41)
     X, Y = np.meshgrid(xy, xy)
@@ -733,7 +838,7 @@ def workspace_analysis(printer, plot_path=None):
         bed_reachable_percent=bed_cover, condition_median=float(rep.condition_median),
         condition_max=float(rep.condition_max), singularity_limit=float(printer.planning.singularity_limit),
         resolution_mm=(float(rep.resolution_min), float(rep.resolution_median), float(rep.resolution_max)),
-        plot=str(plot_path),
+        plot=None if plot_path is None else str(plot_path),
     )
 
 

@@ -130,4 +130,12 @@ def forked_map(fn, tasks, workers: int, *, started=None, in_flight: int = 2, **i
             submit()
             yield result
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        stop_pool(pool)
+
+
+def stop_pool(pool) -> None:
+    """Shut a pool down, its tasks not started dropped: once its running tasks end, or at once after
+    a Ctrl-C. Its forked workers then leave on the same signal (:mod:`.interrupt`), perhaps halfway
+    through sending a result, and waiting for the executor's thread, which waits for the rest of
+    that result, hung the compile (the command line leaves with os._exit, not joining it)."""
+    pool.shutdown(wait=not interrupt.requested(), cancel_futures=True)

@@ -136,9 +136,11 @@ def _series(ax, t, y, colour, limit=None, lower=None, label=None):
         ax.axhline(-limit if lower is None else lower, color="#c0392b", lw=1, ls="--")
 
 
-def trajectory_figure(samples, printer, *, title=""):
+def trajectory_figure(samples, printer, *, title="", tool_state=True):
     """Joint position, speed and acceleration over time against the printer's limits (red
-    dashed), then the tool channel's speed and the tool-tip speed. samples: :class:`Samples`."""
+    dashed), then the tool channel's speed and the tool-tip speed. samples: :class:`Samples`.
+    tool_state: whether the samples' tool column is the tool's on/off state (a CSV's); a stream's is
+    derived, and its filament speed is held, as verify holds it, to the larger of the two limits."""
     plt = _plt()
     lim = printer.limits
     J = lim.n_joints
@@ -173,8 +175,27 @@ def trajectory_figure(samples, printer, *, title=""):
         v, _a = windowed_differences(values, t, max(1, int(rate / 100)), 1)
         w = max(1, int(rate / 100))
         working, idle = lim.tool_velocity_limits()
-        _series(ax, t[w // 2: w // 2 + len(v)], v, "#ff7f0e", working, -idle)
-        ax.set_title(f"filament speed (mm/s); limits: melt flow +{working:.3g}, retract -{idle:.3g}")
+        either = max(working, idle)
+        tv = t[w // 2: w // 2 + len(v)]
+        _series(ax, tv, v, "#ff7f0e")
+        # The limit each stretch is held to, as verify holds it: the melt-flow speed only where the
+        # tool extrudes throughout the window, the retract speed (either way) elsewhere. One line at
+        # the melt-flow speed looked violated by every retraction and unretraction.
+        if tool_state and len(v):
+            on = np.asarray(samples.tool) > 0
+            c = np.concatenate([[0], np.cumsum(on)])
+            throughout = (c[w + 1: w + 1 + len(v)] - c[: len(v)]) == w + 1
+            limit = np.where(throughout, working, either)
+            lt, _lo, hi = _envelope(tv, limit)
+            ax.plot(lt, hi, color="#c0392b", lw=1, ls="--", drawstyle="steps-mid")
+            ax.plot(lt, -hi, color="#c0392b", lw=1, ls="--", drawstyle="steps-mid")
+            ax.set_title(f"filament speed (mm/s); limits: melt flow {working:.3g}\nwhile extruding, retract {idle:.3g}",
+                         fontsize=9)
+        else:
+            ax.axhline(either, color="#c0392b", lw=1, ls="--")
+            ax.axhline(-either, color="#c0392b", lw=1, ls="--")
+            ax.set_title(f"filament speed (mm/s); limit {either:.3g}: a stream has no\ntool state, so melt flow "
+                         f"{working:.3g} and retract {idle:.3g} are not told apart", fontsize=9)
     tip = printer.kinematics().forward(samples.q)
     if len(t) > 1:
         w = max(1, int(rate / 100))

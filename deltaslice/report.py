@@ -48,7 +48,7 @@ def slice_summary(output: str, summary: dict, seconds: float) -> str:
     """One line after ``deltaslice slice``; summary: ``Toolpath.summary()``."""
     return (
         f"{output}: {summary['layers']} layers, {summary['moves']} moves, {summary['filament_mm']:.1f} mm filament, "
-        f"{seconds:.2f} s"
+        f"wall time {seconds:.2f} s"
     )
 
 
@@ -72,7 +72,7 @@ class WorkspaceResult:
     condition_max: float
     singularity_limit: float
     resolution_mm: tuple
-    plot: str
+    plot: str | None  # the PNG written, None when none was asked for
 
 
 def workspace_summary(r: WorkspaceResult) -> str:
@@ -93,6 +93,6 @@ def workspace_summary(r: WorkspaceResult) -> str:
         f"worst {r.condition_max:.2f} (limit {r.singularity_limit:g})",
         f"resolution (tool motion per actuator count, worst joint): best {best:.4f} mm, "
         f"median {median:.4f} mm, worst {worst:.4f} mm",
-        f"plot: {r.plot}",
+        f"plot: {r.plot or 'none'}",
     ]
     return "\n".join(lines)

@@ -382,6 +382,32 @@ class ToolpathBuilder:
                         make_events(self._events))
 
 
+SMALL_EXTENT = 0.5  # mm: a whole part narrower than a line of filament is a part in other units
+FAST_FEED = 1000.0  # mm/s: beyond any printer; G-code feeds in mm/min (1800-6000) land here
+
+
+def unit_notes(toolpath: Toolpath) -> list[str]:
+    """What in a toolpath looks like another unit or origin, one sentence each: heights below the
+    bed, a part smaller than a line of filament (coordinates in metres?), feeds beyond any printer
+    (mm/min?). Planned as given; a library caller hears of them (:class:`ToolpathWarning`)."""
+    notes = []
+    if len(toolpath.layer_z) and float(toolpath.layer_z.min()) < 0:
+        i = int(np.argmin(toolpath.layer_z))
+        notes.append(f"Toolpath.layer_z: layer {i} at z = {float(toolpath.layer_z[i]):g} mm is below the bed surface "
+                     "(z is measured up from the bed in the bed frame): heights measured down, or from another origin?")
+    work = toolpath.working
+    if work.any():
+        pts = np.concatenate([toolpath.starts[work], toolpath.xyz[work]])
+        span = np.ptp(pts[:, :2], axis=0)
+        if float(span.max()) < SMALL_EXTENT:
+            notes.append(f"Toolpath.xyz: the work spans {span[0]:.3g} x {span[1]:.3g} mm, narrower than a line of "
+                         "filament: coordinates in metres? (deltaslice takes mm)")
+    if len(toolpath.feed) and float(toolpath.feed.max()) > FAST_FEED:
+        notes.append(f"Toolpath.feed: feeds up to {float(toolpath.feed.max()):g} mm/s, beyond any printer: in mm/min? "
+                     "(deltaslice takes mm/s)")
+    return notes
+
+
 def centred(toolpath: Toolpath) -> tuple[Toolpath, np.ndarray]:
     """The toolpath moved in x-y so its footprint (the bounding box of its working moves, or of
     all moves when none works) is centred on the bed origin, and the shift (2,) mm.

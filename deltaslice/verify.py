@@ -265,7 +265,9 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         rows.append(CheckRow("samples", "file", "", 0.0, 1.0, None, 0.0, -1, None, False))
     if rate < MIN_RATE:
         col.add(Violation("rate", "t", 0, 0.0, rate, MIN_RATE, "Hz (too slow to check the motion between samples)"))
-    rows.append(CheckRow("rate", "t", "Hz", rate, MIN_RATE, None, 0.0, -1, None, not col.failed("rate", "t")))
+    # the one row whose limit is a minimum: named so ("rate t 1000, limit 50 Hz" read as a maximum)
+    rows.append(CheckRow("sample rate, at least", "samples", "Hz", rate, MIN_RATE, None, 0.0, -1, None,
+                         not col.failed("rate", "t")))
 
     # any non-finite value fails; the checks below see the finite values only
     arrays = [("t", t)] + [(f"q{j + 1}", samples.q[:, j]) for j in range(samples.n_joints)] + [("e", samples.e),

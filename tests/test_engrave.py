@@ -261,7 +261,7 @@ def _bad_images(tmp_path):
     Image.new("L", (50, 40), 255).save(tmp_path / "white.png")
     Image.new("L", (50, 40), 0).save(tmp_path / "black.jpg")
     return {
-        "text.png": "not a readable image",
+        "text.png": "not an image file",
         "empty.png": "empty file",
         "white.png": "uniformly white",
         "black.jpg": "uniformly black",

@@ -127,5 +127,8 @@ def read_output(data: bytes, name: str = "<output>"):
     fan 0..255 or laser mode 0/3/4."""
     import io
 
-    reader = stream.read_stream if data[: len(STREAM_MAGIC)] == STREAM_MAGIC else csvfmt.read_csv
+    # a .dsl or a file with NUL bytes is a stream, whatever its first bytes: one with a damaged magic
+    # number is reported as such, not as a CSV that is not UTF-8
+    binary = data[: len(STREAM_MAGIC)] == STREAM_MAGIC or str(name).lower().endswith(".dsl") or b"\0" in data[:64]
+    reader = stream.read_stream if binary else csvfmt.read_csv
     return reader(io.BytesIO(data), name)

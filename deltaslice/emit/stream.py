@@ -34,6 +34,10 @@ VERSION_EVENTS = 2  # a stream with event records (a version-2 reader plays vers
 MAX_RECORD = 512  # bytes: the player's block buffer (DSL_MAX_RECORD in dsl_player.h)
 MAX_CHANNELS = 8
 BLOCK_SAMPLES = 512  # nominal samples per block; halved until the record fits MAX_RECORD
+# A reader refuses a block declaring more samples than a writer makes: a 17-byte block of width 0
+# may declare 65,535 samples, so 17 KB of valid CRCs would otherwise decode to 65 million samples
+# (gigabytes). With it a stream holds at most BLOCK_SAMPLES / (5 + 2C + 4) samples per byte.
+MAX_BLOCK_SAMPLES = BLOCK_SAMPLES
 COUNT_LIMIT = 1 << 29  # |counts| must stay below this (int32 arithmetic in the player)
 
 REC_BLOCK = 0x42  # 'B'
@@ -754,6 +758,10 @@ class StreamReader:
             computed = zlib.crc32(memoryview(rec)[: length - 4])
             if stored != computed:
                 self._fail(index, at, f"CRC mismatch (stored 0x{stored:08x}, computed 0x{computed:08x}): block is corrupt")
+            n = struct.unpack_from("<H", rec, 3)[0]
+            if n > MAX_BLOCK_SAMPLES:
+                self._fail(index, at, f"the block declares {n} samples, more than the {MAX_BLOCK_SAMPLES} a block "
+                                      "holds (not a stream deltaslice wrote)")
             try:
                 counts = decode_block(rec, nch)
             except ValueError as exc:

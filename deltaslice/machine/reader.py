@@ -14,12 +14,13 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from ..config import MISSING, Problems, Section, _Stop
+from ..config import MISSING, Problems, Section, _shown, _Stop
 from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
 from .dynamics import Dynamics, read_actuators
@@ -72,6 +73,16 @@ def _read_joints(sec: Section, kinds: tuple[str, ...]) -> dict:
     return out
 
 
+def _finite_number(x) -> bool:
+    """A TOML int or float a float holds finitely (an integer of 310 digits does not)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:
+        return False
+
+
 def _read_sensor_table(sec: Section, n: int) -> tuple:
     """``[joints] sensor_table``: per joint, ``[[reading, joint value], ...]`` (raw sensor reading,
     joint value in file units), at least two points with distinct readings; () per joint when absent."""
@@ -86,11 +97,9 @@ def _read_sensor_table(sec: Section, n: int) -> tuple:
     out = []
     for j, points in enumerate(table):
         ok = (isinstance(points, list) and len(points) >= 2 and all(
-            isinstance(p, list) and len(p) == 2 and all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in p)
-            for p in points))
+            isinstance(p, list) and len(p) == 2 and all(_finite_number(x) for x in p) for p in points))
         if not ok or len({float(p[0]) for p in points}) != len(points):
-            sec.fail("sensor_table", table, f"{expected} (joint {j + 1}: {points!r})")
+            sec.fail("sensor_table", table, f"{expected} (joint {j + 1}: {_shown(points)})")
         out.append(tuple(sorted((float(r), float(v)) for r, v in points)))
     return tuple(out)
 
@@ -141,9 +150,7 @@ def _read_tool(sec: Section) -> Tool:
 def _number(value, fallback: float) -> float:
     """A default taken from another key's raw value: that value if it is a finite number, else
     ``fallback`` (the other key's own getter reports what is wrong with it)."""
-    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-        return float(value)
-    return fallback
+    return float(value) if _finite_number(value) else fallback
 
 
 def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
@@ -250,11 +257,25 @@ def resolve_printer(path) -> Path:
     return shipped
 
 
+def _checked_overrides(overrides) -> dict | None:
+    """``overrides`` as the library takes them: None, or a mapping of "section.key" strings to
+    values (what --set builds); anything else is refused as the CLI refuses a malformed --set."""
+    if overrides is None:
+        return None
+    if not isinstance(overrides, Mapping):
+        raise PrinterFileError(f"overrides = {_shown(overrides)}: expected a dict of {{'section.key': value}}, "
+                               "e.g. {'slicing.layer_height': 0.3}")
+    for key in overrides:
+        if not isinstance(key, str):
+            raise PrinterFileError(f"overrides: key {_shown(key)}: expected a 'section.key' string, e.g. 'slicing.layer_height'")
+    return dict(overrides)
+
+
 def apply_overrides(data: dict, overrides, path: str) -> dict:
     """A copy of a parsed printer file with ``{"section.key": value}`` set (``--set``); the
     result is validated like the file itself. Raises PrinterFileError on a malformed key."""
     out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
-    for dotted, value in dict(overrides or {}).items():
+    for dotted, value in (_checked_overrides(overrides) or {}).items():
         section, _, key = str(dotted).partition(".")
         if not section or not key or "." in key:
             raise PrinterFileError(f"--set {dotted}: expected section.key=value (e.g. slicing.layer_height=0.3)")
@@ -279,6 +300,9 @@ def load_printer(path: str | Path, overrides: dict | None = None, *, reach_check
     the check that the geometry reaches the bed): :func:`check_reach` does it later, so that a
     compile can start its slicing workers before this process loads numba.
     """
+    overrides = _checked_overrides(overrides)
+    if not isinstance(reach_checks, bool):
+        raise PrinterFileError(f"load_printer: reach_checks = {reach_checks!r}: expected True or False")
     path = resolve_printer(path)
     shown = str(path)
     try:

@@ -11,14 +11,15 @@ Cartesian planner instead (:mod:`.trapezoid`), made safe for the joint limits.
 from __future__ import annotations
 
 import itertools
+import warnings
 from array import array
 from collections import deque
 
 import numpy as np
 
-from ..errors import DeltasliceError, UnreachableError
-from ..pool import resolve_workers, start_pool
-from ..toolpath import WAIT_KINDS, EventKind, Role, Toolpath, make_events
+from ..errors import DeltasliceError, ToolpathWarning, UnreachableError
+from ..pool import resolve_workers, start_pool, stop_pool
+from ..toolpath import WAIT_KINDS, EventKind, Role, Toolpath, make_events, unit_notes
 from .pieces import Piece, PieceBatch
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, iter_run_parts, plan_runs
@@ -273,6 +274,8 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     if not ((toolpath.lengths > 1e-9) | (toolpath.e != 0)).any():
         raise DeltasliceError(f"the toolpath's {len(toolpath)} move(s) have zero length and no extrusion: nothing to plan")
     _check_tool(toolpath, printer)
+    for note in unit_notes(toolpath):
+        warnings.warn(note, ToolpathWarning, stacklevel=2)
     kin = printer.kinematics()
     given, moves = toolpath, len(toolpath)
     toolpath, lead_feed = job_toolpath(toolpath, printer)
@@ -639,7 +642,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                         if first is not None:
                             first()  # the reach check speaks first, as when the workers plan the chunk
                         raise  # the error of the chunk's first job that fails: it is among these
-            with start_pool(workers, initializer=_init_worker, initargs=(printer, toolpath)) as pool:
+            pool = start_pool(workers, initializer=_init_worker, initargs=(printer, toolpath))
+            try:
 
                 def run_first():
                     nonlocal first
@@ -649,7 +653,7 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                         except BaseException:
                             # no worker outlives the error: the chunks not started are dropped, the
                             # ones running finish (a few tenths of a second)
-                            pool.shutdown(wait=True, cancel_futures=True)
+                            stop_pool(pool)
                             raise
                         first = None
 
@@ -670,6 +674,8 @@ def _plan_jobs(jobs, pieces, chunk: int, n_moves: int | None, few: bool, printer
                 run_first()
                 while queue:
                     _drain_one(queue, put_away, plan_here)
+            finally:
+                stop_pool(pool)
     finally:
         _WORKER["toolpath"] = None  # this process keeps no toolpath once it is planned
     return np.asarray(job_start), np.asarray(job_piece)

@@ -606,6 +606,25 @@ def _describe(printer, channel: int) -> str:
     return printer.limits.names[channel]
 
 
+def _stage_place(path, s_grid, st: int, e_ratio=None) -> str:
+    """Where a stage of the grid is, for a message. A stage of a straight stretch can span several
+    moves (its start was the run's first corner, far from the move at fault): for the filament,
+    the join inside it where the extrusion rate jumps most, with that rate; else both its ends."""
+    s0, s1 = float(s_grid[st]), float(s_grid[min(st + 1, len(s_grid) - 1)])
+    if e_ratio is not None and len(e_ratio):
+        first, last = (int(k) for k in path.locate(np.array([s0, s1])))
+        ratio = np.asarray(e_ratio, float)
+        ks = np.arange(first, last + 1)
+        before = np.where(ks > 0, ratio[np.maximum(ks - 1, 0)], 0.0)
+        k = int(ks[np.argmax(np.abs(ratio[ks] - before))])
+        p = path.evaluate(np.array([path.piece_start[k]]), piece=np.array([k]))[0]
+        return (f"where the extrusion becomes {ratio[k]:.4g} mm of filament per mm of path, at x = {p[0]:.2f}, "
+                f"y = {p[1]:.2f}, z = {p[2]:.2f} mm")
+    p0, p1 = path.evaluate(np.array([s0, s1]))
+    return (f"between x = {p0[0]:.2f}, y = {p0[1]:.2f}, z = {p0[2]:.2f} mm and x = {p1[0]:.2f}, y = {p1[1]:.2f}, "
+            f"z = {p1[2]:.2f} mm")
+
+
 def _prepare(printer, spec: RunSpec, tolerance: float | None, deduped=None):
     """(polyline, blend tolerance left) of a run: deduplicated (``deduped``: dedupe's result when
     the caller has it), short segments merged."""
@@ -1107,11 +1126,11 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
             ch = int(np.argmax(np.maximum(check.velocity, check.acceleration)))
             kind = "velocity" if check.velocity[ch] >= check.acceleration[ch] else "acceleration"
             st = int(check.stage_v[ch] if kind == "velocity" else check.stage_a[ch])
-            p = path.evaluate(np.array([s_grid[st]]))[0]
             raise PlanningError(
                 f"layer {layer}: {_describe(printer, ch)} {kind} reaches "
-                f"{100 * max(check.velocity[ch], check.acceleration[ch]):.2f} % of its limit between grid points "
-                f"at x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm after {REFINE_PASSES} grid refinements"
+                f"{100 * max(check.velocity[ch], check.acceleration[ch]):.2f} % of its limit "
+                f"{_stage_place(path, s_grid, st, e_ratio if ch == printer.n_joints else None)} "
+                f"after {REFINE_PASSES} grid refinements"
             )
         # Split the offending stages (and their neighbours) in four and plan again.
         idx = np.flatnonzero(bad)

@@ -11,6 +11,8 @@ two is used.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import ruckig
 
@@ -35,12 +37,41 @@ def _ruckig_limits(printer, n: int, slower: float = 1.0) -> tuple:
             list(map(float, jerk / slower**3)))
 
 
+# ruckig's results by code (its Python enum lacks some): what each means for a travel
+_RUCKIG_DURATION, _RUCKIG_ZERO_LIMITS = -101, -104
+RUCKIG_MAX_DURATION = 7.6e3  # s: ruckig plans no longer move (its ErrorTrajectoryDuration)
+
+
+def _ruckig_failure(printer, layer, code) -> str:
+    """The one line for a travel ruckig could not plan, naming the joint limits behind it."""
+    lim = printer.limits
+    n = printer.n_joints
+    # the limits as the printer file gives them: degrees for a revolute joint, mm for a prismatic one
+    per = np.array([np.degrees(1.0) if k == "revolute" else 1.0 for k in lim.kinds[:n]])
+    unit = "deg" if lim.kinds[0] == "revolute" else "mm"
+    vel, acc = lim.velocity[:n] * per, lim.acceleration[:n] * per
+    limits = (f"[joints] velocity_max = {_g(vel)} {unit}/s, acceleration_max = {_g(acc)} {unit}/s^2"
+              f" (printer {printer.name})")
+    if code == _RUCKIG_DURATION:
+        return (f"layer {layer}: a travel would last longer than {RUCKIG_MAX_DURATION:g} s (ruckig's bound) at {limits}: "
+                "are the limits in the file's units?")
+    if code == _RUCKIG_ZERO_LIMITS:
+        return f"layer {layer}: a travel cannot be planned with a zero limit: {limits}"
+    return f"layer {layer}: ruckig could not plan a travel (its result code {code}) at {limits}"
+
+
+def _g(values) -> str:
+    values = [float(v) for v in values]
+    return f"{values[0]:g}" if len(set(values)) == 1 else "[" + ", ".join(f"{v:g}" for v in values) + "]"
+
+
 class _JointMoves:
     """ruckig's calculator, input and output made once for many rest-to-rest moves of one printer
     (a batch of travels): making and filling them took three times ruckig's calculation of a move."""
 
     def __init__(self, printer, n: int, slower: float = 1.0):
         vel, acc, jerk = _ruckig_limits(printer, n, slower)
+        self.printer = printer
         self.n = n
         self.otg, self.inp, self.traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
         inp = self.inp
@@ -52,9 +83,13 @@ class _JointMoves:
         """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece)."""
         self.inp.current_position = list(map(float, q0))
         self.inp.target_position = list(map(float, q1))
-        result = self.otg.calculate(self.inp, self.traj)
+        try:
+            result = self.otg.calculate(self.inp, self.traj)
+        except ValueError as exc:  # a code the binding's Result enum lacks ("-101 is not a valid Result")
+            code = re.match(r"\s*(-?\d+)", str(exc))
+            raise PlanningError(_ruckig_failure(self.printer, layer, int(code.group(1)) if code else None)) from None
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
-            raise PlanningError(f"layer {layer}: ruckig could not plan a travel ({result})")
+            raise PlanningError(_ruckig_failure(self.printer, layer, int(result.value)))
         profile = RuckigProfile.from_trajectory(self.traj)
         traj = None
         if profile is None:  # the piece keeps ruckig's object, one of its own (this one is reused)
