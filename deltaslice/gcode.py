@@ -666,6 +666,10 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
     every ``block`` moves and at the end when given, else kept in the returned state."""
     shown = name
     default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") else DEFAULT_FEED
+    bed = getattr(printer, "bed", None)
+    # the heights the printer's bed allows (its work envelope), checked here so a refusal names
+    # the line; the envelope's x-y extent waits for the placement (--center), planning.check_reachable
+    z_lo, z_hi = bed.z_limits() if bed is not None else (-math.inf, math.inf)
     start = np.zeros(3)
     pos = [0.0, 0.0, 0.0]  # bed frame
     offset = [0.0, 0.0, 0.0]  # bed = file + offset (G92 after the first move)
@@ -811,6 +815,10 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         target[k] = v + offset[k] if abs_xyz else pos[k] + v
                 if not all(math.isfinite(v) and abs(v) < 1e12 for v in target):
                     raise GcodeError(f"{where}: position {target} is not a finite coordinate")
+                if not z_lo <= target[2] <= z_hi:
+                    raise GcodeError(f"{where}: {shown_line!r} moves the tool to x = {target[0]:.2f}, y = {target[1]:.2f}, "
+                                     f"z = {target[2]:.2f} mm, outside the work envelope of {printer.name}: "
+                                     f"{bed.outside(target)}")
                 de = 0.0
                 bare = "bare" in params
                 moved = target != pos

@@ -86,10 +86,10 @@ DOCS = {
     ("tool", "bed_temperature"): ("deg C", "Bed temperature a sliced part is printed at; 0: an unheated bed (no bed events).", None),
     # bed
     ("bed", "shape"): ("", "`circle` (deltas) or `rectangle`.", None),
-    ("bed", "radius"): ("mm", "Printable radius of a circular bed; every printing move must lie within it.", None),
-    ("bed", "size_x"): ("mm", "Printable width of a rectangular bed (centred on the origin).", None),
-    ("bed", "size_y"): ("mm", "Printable depth of a rectangular bed.", None),
-    ("bed", "max_height"): ("mm", "Tallest part the machine prints (z above the bed).", None),
+    ("bed", "radius"): ("mm", "Printable radius of a circular bed: the work envelope's edge; every commanded point (travels included) must lie within it.", None),
+    ("bed", "size_x"): ("mm", "Printable width of a rectangular bed (centred on the origin): the work envelope's extent in x.", None),
+    ("bed", "size_y"): ("mm", "Printable depth of a rectangular bed: the work envelope's extent in y.", None),
+    ("bed", "max_height"): ("mm", "Tallest part the machine prints (z above the bed): the top of the work envelope; a commanded point above it, or below the bed surface, is refused.", None),
     # slicing
     ("slicing", "layer_height"): ("mm", "Layer height after the first.", None),
     ("slicing", "first_layer_height"): ("mm", "First layer's height.", "layer_height"),

@@ -1,0 +1,64 @@
+"""What a job may ask of the machine and of your files (issue 48): the work envelope, the tool's
+kind, retractions, outputs that never replace an input, and verify confirming the printer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from conftest import printer
+
+from deltaslice.cli import main
+from deltaslice.errors import GcodeError, UnreachableError
+from deltaslice.gcode import parse_gcode
+from deltaslice.planning import check_reachable
+from deltaslice.toolpath import Role, ToolpathBuilder
+
+PRINT = "G21\nG90\nM83\nG1 Z0.3 F600\nG1 X5 Y0 E0.2 F1200\n"
+
+
+def _run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def _one_line_error(result, code=1):
+    """The CLI's refusal: the exit code and one ``error:`` line, no Python exception name."""
+    assert result.exit_code == code, result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.output
+    assert "Error" not in lines[0] and "Traceback" not in result.output
+    return lines[0]
+
+
+# --------------------------------------------------------------------------- the work envelope
+
+
+@pytest.mark.parametrize("dive", ["G91\nG1 Z-5 F600\n", "G1 Z-5\n"])
+def test_a_move_into_the_bed_is_refused_naming_its_line(tmp_path, dive):
+    part = tmp_path / "dive.gcode"
+    part.write_text(PRINT + dive)
+    out = tmp_path / "dive.csv"
+    line = _one_line_error(_run(part, "--printer", "delta_etitc", "-o", out, "--quiet"))
+    n = len((PRINT + dive).splitlines())
+    assert f"dive.gcode:{n}:" in line and "below the bed" in line and "z = -" in line
+    assert not out.exists()
+
+
+def test_the_envelope_is_checked_on_every_toolpath_by_layer():
+    """A toolpath from any front end (here built from arrays) is held to the bed's volume where
+    it is planned: below the bed, above max_height and off the bed, each named with its layer."""
+    p = printer("delta_etitc")
+    for point, words in (([0, 0, -0.5], "below the bed"), ([0, 0, p.bed.max_height + 1], "max_height"),
+                         ([p.bed.radius + 2, 0, 1], "off the bed")):
+        b = ToolpathBuilder()
+        b.new_layer(0.3)
+        b.add([[0, 0, 0.3], point], 20.0, 0.0, [1.0, 0.0], [Role.PERIMETER, Role.TRAVEL])
+        with pytest.raises(UnreachableError, match=rf"layer 0: .*outside the work envelope .*{words}"):
+            check_reachable(b.build(), p)
+
+
+def test_points_inside_the_envelope_pass():
+    p = printer("delta_etitc")
+    tp = parse_gcode(PRINT + "G1 X0 Y5 E0.2\n", printer=p)
+    check_reachable(tp, p)
+    assert p.bed.contains(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, p.bed.max_height]])).all()
