@@ -670,6 +670,10 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
     # the heights the printer's bed allows (its work envelope), checked here so a refusal names
     # the line; the envelope's x-y extent waits for the placement (--center), planning.check_reachable
     z_lo, z_hi = bed.z_limits() if bed is not None else (-math.inf, math.inf)
+    tool = getattr(printer, "tool", None)
+    # the other kind of tool's words are refused, not reinterpreted: E words fired the laser
+    takes_filament = tool is None or tool.takes_filament
+    takes_laser_power = tool is None or tool.takes_laser_power
     start = np.zeros(3)
     pos = [0.0, 0.0, 0.0]  # bed frame
     offset = [0.0, 0.0, 0.0]  # bed = file + offset (G92 after the first move)
@@ -823,6 +827,10 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                 bare = "bare" in params
                 moved = target != pos
                 if "E" in params:
+                    if not takes_filament:
+                        raise GcodeError(f"{where}: {shown_line!r} extrudes filament (an E amount), but {printer.name}'s "
+                                         f"tool is a {tool.channel_kind}: give it a {tool.channel_kind}'s G-code, an image "
+                                         "or an SVG")
                     e_words = e_words or not bare
                     bare_words = bare_words or bare
                     v = params["E"] * unit
@@ -942,6 +950,9 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         raise GcodeError(f"{where}: temperature {value:g} C outside 0..1000")
                 events.append((handed + len(xs), int(kind), float(value)))
             elif cmd in _LASER_M:
+                if not takes_laser_power and cmd != "M5":  # M5 switches a laser off: nothing to refuse
+                    raise GcodeError(f"{where}: {shown_line!r} is a laser command, but {printer.name}'s tool is an "
+                                     f"{tool.channel_kind}: slice the part for it, or compile this file for a laser printer")
                 params = _params(params_w, where, "S")
                 if "S" in params:
                     if params["S"] < 0:
@@ -1111,7 +1122,8 @@ def _apply_dialects(printer, e, kind, power, moved, moved_xy, e_words, bare_word
       moving ones that lower the register are wipes (travels).
     * No E at all (hand-written paths, CNC-style files): G1/G2/G3 moves in x-y work, G0 travel.
     * A laser printer: with M3/M4 the power is S / s_max while G1/G2/G3 move; without them the
-      E or G1 rules above switch the laser on at full power.
+      G1 rule above switches the laser on at full power (E words never reach here: the reader
+      refuses them for a tool that takes no filament).
     """
     laser = printer is not None and printer.tool.channel_kind == "laser"
     if laser and laser_seen:
@@ -1143,8 +1155,8 @@ def _dialect_note(printer, state: _ReadState) -> str:
         return ""
     if state.bare_words and not state.e_words:
         return (f"{_SLIC3R_NO_EXTRUSION}: E values without their letter; moves carrying one are work moves"
-                + (" extruded with the printer's own flow model" if not laser else " with the laser on")
-                + ", those lowering it wipes; each unretraction is read from 0 (Slic3r resets its E register "
+                " extruded with the printer's own flow model, those lowering it wipes; each unretraction is read "
+                "from 0 (Slic3r resets its E register "
                 "after a retraction without writing G92 E0)")
     if not state.e_words and not state.bare_words:
         return ("no E words: G1/G2/G3 moves are work moves "

@@ -62,3 +62,32 @@ def test_points_inside_the_envelope_pass():
     tp = parse_gcode(PRINT + "G1 X0 Y5 E0.2\n", printer=p)
     check_reachable(tp, p)
     assert p.bed.contains(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, p.bed.max_height]])).all()
+
+
+# --------------------------------------------------------------------------- the tool's kind
+
+
+def test_extrusion_words_on_a_laser_printer_are_refused_naming_the_first(tmp_path):
+    """Extruder G-code (E words, no M3) on the laser printer fired the laser on 98 % of its samples."""
+    part = tmp_path / "ext.gcode"
+    part.write_text(PRINT + "G1 X5 Y5 E0.2\nG1 X0 Y5 E0.2\n")
+    out = tmp_path / "ext.csv"
+    line = _one_line_error(_run(part, "--printer", "delta_espe_laser", "-o", out, "--quiet"))
+    assert "ext.gcode:5:" in line and "E0.2" in line and "laser" in line
+    assert not out.exists()
+    with pytest.raises(GcodeError, match=r"t.gcode:2: 'G1 X1 2.0' extrudes filament"):  # Slic3r's bare E numbers too
+        parse_gcode("G1 Z1 F600\nG1 X1 2.0\n", name="t.gcode", printer=printer("delta_espe_laser"))
+
+
+def test_laser_commands_on_an_extruder_printer_are_refused_naming_the_first(tmp_path):
+    part = tmp_path / "m3.gcode"
+    part.write_text(PRINT + "M3 S99999\nG1 X5 Y5 E0.2\nM4 S10\n")
+    out = tmp_path / "m3.csv"
+    line = _one_line_error(_run(part, "--printer", "delta_etitc", "-o", out, "--quiet"))
+    assert "m3.gcode:6: 'M3 S99999' is a laser command" in line and "extruder" in line
+    assert not out.exists()
+    # M5 (laser off) asks nothing of an extruder; a laser's G-code stays a laser's
+    tp = parse_gcode(PRINT + "M5\n", printer=printer("delta_etitc"))
+    assert tp.e.sum() > 0
+    laser = parse_gcode("G21\nG90\nG1 Z0 F600\nM3 S500\nG1 X5 Y0\nM5\n", printer=printer("delta_espe_laser"))
+    assert laser.tool.max() == pytest.approx(0.5 * 1000 / printer("delta_espe_laser").tool.s_max)

@@ -33,6 +33,9 @@ class Extruder:
     channel_kind = "extruder"
     channel_name = "filament"
     channel_unit = "mm"
+    #: What an input may ask of the tool: filament (G-code E words) and laser power (M3/M4).
+    takes_filament = True
+    takes_laser_power = False
 
     @property
     def filament_area(self) -> float:
@@ -89,6 +92,8 @@ class Laser:
     channel_kind = "laser"
     channel_name = "laser"
     channel_unit = "0..1"
+    takes_filament = False
+    takes_laser_power = True
     retract_min_travel = 0.0  # a laser never retracts: every travel lifts
 
     @property

@@ -93,10 +93,10 @@ def _check_tool(toolpath: Toolpath, printer) -> None:
     """Refuse a toolpath made for the other kind of tool: filament for a laser, laser burns for
     an extruder (the channel would carry a meaning its player does not have)."""
     laser_moves = np.isin(toolpath.role, LASER_ROLES)
-    if printer.tool.channel_kind == "laser" and np.any(toolpath.e[toolpath.working] > 0):
+    if not printer.tool.takes_filament and np.any(toolpath.e[toolpath.working] > 0):
         raise DeltasliceError(f"the toolpath extrudes filament but {printer.name} has a laser: "
                               "slice it for an extruder printer, or give the laser an image, an SVG or laser G-code")
-    if printer.tool.channel_kind != "laser" and laser_moves.any():
+    if not printer.tool.takes_laser_power and laser_moves.any():
         raise DeltasliceError(f"the toolpath has {int(laser_moves.sum())} laser moves but {printer.name} has an extruder")
 
 
