@@ -157,10 +157,17 @@ def _run(fn, *args, **kwargs):
         sys.exit(EXIT_ERROR)
 
 
-def _echo_json(obj, **extra):
+def _echo_json(obj, err=False, **extra):
     data = asdict(obj) if is_dataclass(obj) else dict(obj)
     data.update(extra)
-    click.echo(json.dumps(_jsonable(data), indent=2, allow_nan=False))
+    click.echo(json.dumps(_jsonable(data), indent=2, allow_nan=False), err=err)
+
+
+def _to_stderr(output) -> bool:
+    """Whether a command's own lines go to stderr: its output (``-o -``) is standard output."""
+    from .formats import is_stdout
+
+    return is_stdout(output)
 
 
 def _jsonable(value):
@@ -258,7 +265,8 @@ def main():
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
-              help="Output file: .dsl binary stream (default: PART.dsl beside the part), .csv setpoints, .gcode.")
+              help="Output file: .dsl binary stream (default: PART.dsl beside the part), .csv setpoints, .gcode; "
+              "- for standard output (a stream unless --format says otherwise).")
 @click.option("--format", "fmt", type=click.Choice(["csv", "stream", "gcode"]), help="Override the format chosen from the extension.")
 @click.option("--speed-limit", type=click.Choice(["feed", "machine"]), default="feed", show_default=True,
               help="feed: obey the toolpath's feed rates; machine: only the actuators' limits.")
@@ -299,15 +307,15 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
         **_placement(scale, rotate, keep_position),
     )
     if as_json:
-        _echo_json(result)
+        _echo_json(result, err=_to_stderr(output))
     else:
-        click.echo(compile_summary(result))
+        click.echo(compile_summary(result), err=_to_stderr(output))
 
 
 @main.command("slice")
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code file to write.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code file to write (- for standard output).")
 @placement_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
 def slice_cmd(part, printer_path, overrides, output, scale, rotate, keep_position, quiet):
@@ -328,13 +336,13 @@ def slice_cmd(part, printer_path, overrides, output, scale, rotate, keep_positio
         echo=lambda s: click.echo(s, err=True),
         **_placement(scale, rotate, keep_position),
     )
-    click.echo(summary)
+    click.echo(summary, err=_to_stderr(output))
 
 
 @main.command("preview")
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG file to write.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG file to write (- for standard output).")
 @click.option("--layer", type=int, default=None, help="Layer to draw (default: the middle layer).")
 @placement_options
 def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, keep_position):
@@ -350,13 +358,13 @@ def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, kee
     from .pipeline import preview
 
     click.echo(_run(preview, part, _printer(printer_path, overrides), output, layer=layer,
-                    **_placement(scale, rotate, keep_position)))
+                    **_placement(scale, rotate, keep_position)), err=_to_stderr(output))
 
 
 @main.command("workspace")
 @printer_options
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
-              help="PNG to write (default: <printer name>_workspace.png).")
+              help="PNG to write (default: <printer name>_workspace.png; - for standard output).")
 @json_option
 def workspace_cmd(printer_path, overrides, plot_path, as_json):
     """Print the reachable volume, largest cylinder and cube, singularity margin and
@@ -371,9 +379,9 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
 
     result = _run(workspace_analysis, _printer(printer_path, overrides), plot_path)
     if as_json:
-        _echo_json(result)
+        _echo_json(result, err=_to_stderr(plot_path))
     else:
-        click.echo(workspace_summary(result))
+        click.echo(workspace_summary(result), err=_to_stderr(plot_path))
 
 
 @main.command("send")
@@ -403,7 +411,7 @@ def send_cmd(stream, port, baud, timeout, printer_path, quiet):
 @main.command("firmware-config")
 @printer_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
-              help="Header file to write (default: print it).")
+              help="Header file to write (default, or -: print it).")
 def firmware_config_cmd(printer_path, overrides, output):
     """Write the C header the firmware players include (dsl_config.h): the printer's fingerprint,
     rest pose and joint-sensor calibration in actuator counts.

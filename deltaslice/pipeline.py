@@ -22,7 +22,7 @@ import numpy as np
 
 from . import interrupt
 from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError
-from .formats import format_for, holds_samples, part_kind
+from .formats import format_for, holds_samples, is_stdout, part_kind
 from .machine import LimitMonitor, Printer, check_reach, load_printer
 from .machine.limits import TOLERANCE
 from .pool import check_workers, resolve_workers
@@ -79,6 +79,8 @@ def _resolve_output(output, inputs=()) -> tuple[Path, bool]:
     realpath, which would turn ``/dev/stdout`` into ``/proc/.../fd/pipe:[N]``."""
     if output is None or not isinstance(output, (str, os.PathLike)) or not str(output):
         raise OutputError(f"output: expected a file path, got {output!r}")
+    if is_stdout(output):
+        return Path("/dev/stdout"), True  # this process's descriptor 1 (_own_fd), whatever it is
     path = Path(output)
     for src in inputs:
         if src is not None and isinstance(src, (str, os.PathLike)) and _same_file(path, src):
@@ -105,8 +107,14 @@ def _resolve_output(output, inputs=()) -> tuple[Path, bool]:
 def check_output(output, inputs=()) -> Path:
     """Refuse an output before any work: the same file as an input, a missing or read-only
     directory, a directory. Returns the path written (a symlink's target; a device, a pipe or
-    ``/dev/stdout`` as given). Raises OutputError."""
+    ``/dev/stdout`` as given; ``-`` is standard output). Raises OutputError."""
     return _resolve_output(output, inputs)[0]
+
+
+def _printer_file(printer):
+    """The printer file a command reads (a Printer's path, or the path or name given), which no
+    output may replace."""
+    return getattr(printer, "path", printer)
 
 
 class _BoundedFile:
@@ -291,6 +299,8 @@ def write_firmware_config(printer, output=None) -> str:
     atomically to ``output`` when given. Returns the header text."""
     from .emit.firmware_config import firmware_config
 
+    if output is not None:
+        check_output(output, inputs=[_printer_file(printer)])
     printer = _printer(printer)
     text = firmware_config(printer)
     if output is not None:
@@ -303,7 +313,7 @@ def slice_to_gcode(part, printer, output, *, progress=False, echo=None, workers=
     """Slice a mesh and write G-code (workers: slicing processes, default all cores; the G-code is
     the same for any number). Returns a summary line."""
     _check_path(part, "part")
-    check_output(output, inputs=[part])
+    check_output(output, inputs=[part, _printer_file(printer)])
     printer = _printer(printer)
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo,
@@ -424,7 +434,7 @@ def compile_part(
     if output is None:
         output = default_output(part)
     fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
-    check_output(output, inputs=[part, getattr(printer, "path", printer)])
+    check_output(output, inputs=[part, _printer_file(printer)])
     workers = resolve_workers(workers, "compile_part")
     kind = part_kind(part)
     # A mesh's printer is checked (check_reach: numba's first load) while the slicing workers start
@@ -614,11 +624,11 @@ def shipped_printers() -> list[dict]:
     return rows
 
 
-def _check_png(path) -> None:
+def _check_png(path, inputs=()) -> None:
     _check_path(path, "plot")
-    if Path(path).suffix.lower() != ".png":
-        raise OutputError(f"{path}: expected a .png file name")
-    check_output(path)
+    if Path(path).suffix.lower() != ".png" and not is_stdout(path):
+        raise OutputError(f"{path}: expected a .png file name (or - for standard output)")
+    check_output(path, inputs)
 
 
 def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
@@ -628,10 +638,9 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
     from . import preview as draw
 
     _check_path(part, "part")
-    _check_png(output)
+    _check_png(output, inputs=[part, _printer_file(printer)])
     if not Path(part).exists():
         raise DeltasliceError(f"{part}: no such file")
-    check_output(output, inputs=[part])
     printer = _printer(printer)
     if holds_samples(part):
         meta, samples = read_output(part)
@@ -656,7 +665,7 @@ def workspace_analysis(printer, plot_path=None):
 
     printer = _printer(printer)
     plot_path = plot_path or f"{printer.name}_workspace.png"
-    _check_png(plot_path)
+    _check_png(plot_path, inputs=[printer.path])
     kin = printer.kinematics()
     cpu = np.abs(printer.limits.counts_per_unit[: printer.n_joints])
     z_range = (-0.25 * printer.bed.max_height - 10.0, 2.0 * printer.bed.max_height + 20.0)
