@@ -5,7 +5,7 @@
     deltaslice preview PART --printer P -o view.png
     deltaslice workspace --printer P [--plot ws.png]
     deltaslice decode STREAM [--units]
-    deltaslice verify OUTPUT --printer P [--toolpath PART]
+    deltaslice verify OUTPUT --printer P [--toolpath PART] [--assume-printer]
     deltaslice printers
 
 P is a printer file or the name of a shipped printer (``deltaslice printers``).
@@ -450,10 +450,14 @@ def decode_cmd(stream, units, printer_path):
 @printer_options
 @click.option("--toolpath", "toolpath_path", type=click.Path(dir_okay=False), default=None,
               help="The part or G-code compiled, to check the path deviation (give the same placement options).")
+@click.option("--assume-printer", is_flag=True,
+              help="The file does not say which printer it was made for (a CSV without its '#' header): check it as "
+                   "made for --printer (refused otherwise); the report says the printer was assumed.")
 @placement_options
 @_engrave_options
 @json_option
-def verify_cmd(output, printer_path, overrides, toolpath_path, scale, rotate, keep_position, as_json, **engrave):
+def verify_cmd(output, printer_path, overrides, toolpath_path, assume_printer, scale, rotate, keep_position, as_json,
+               **engrave):
     """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 3 on any violation.
 
     \b
@@ -464,7 +468,7 @@ def verify_cmd(output, printer_path, overrides, toolpath_path, scale, rotate, ke
     from .pipeline import verify_output
 
     report = _run(verify_output, output, _printer(printer_path, overrides), toolpath=toolpath_path,
-                  engrave=_engrave_dict(**engrave), **_placement(scale, rotate, keep_position))
+                  assume_printer=assume_printer, engrave=_engrave_dict(**engrave), **_placement(scale, rotate, keep_position))
     if as_json:
         _echo_json(report, ok=report.ok)
     else:

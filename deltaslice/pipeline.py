@@ -545,11 +545,13 @@ def _watch_progress(watch, progress, duration):
     return watched
 
 
-def verify_output(output, printer, toolpath=None, **mesh_options):
+def verify_output(output, printer, toolpath=None, *, assume_printer=False, **mesh_options):
     """Read a setpoints CSV or binary stream and check it against the printer (path, name or Printer).
 
     toolpath: the part (mesh) or G-code that was compiled, to check path deviation; give the
-    placement options (scale, rotate, keep_position) the compile had.
+    placement options (scale, rotate, keep_position) the compile had. assume_printer: check a file
+    that does not say which printer it was made for (a CSV without its ``#`` header) as made for
+    ``printer`` (refused otherwise); the report says the printer was assumed.
     Returns a :class:`~deltaslice.verify.VerifyReport`."""
     from .verify import verify_samples
 
@@ -563,7 +565,8 @@ def verify_output(output, printer, toolpath=None, **mesh_options):
     except (TypeError, ValueError):
         raise StreamError(f"{output}: rate_hz {raw!r} is not a number") from None
     tp = None if toolpath is None else load_toolpath(toolpath, printer, **mesh_options)
-    return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output))
+    return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output),
+                          assume_printer=assume_printer)
 
 
 def decode_stream(path, out, *, units=False, printer=None) -> int:

@@ -148,3 +148,27 @@ def test_dash_writes_to_standard_output(tmp_path):
     out = _cli("preview", part, "--printer", "delta_etitc", "-o", "-", cwd=tmp_path)
     assert out.returncode == 0 and out.stdout.startswith(b"\x89PNG"), out.stderr
     assert not (tmp_path / "-").exists()
+
+
+# --------------------------------------------------------------------------- verify confirms the printer
+
+
+def test_verify_refuses_a_file_that_cannot_name_its_printer_unless_assumed(tmp_path):
+    """A CSV whose '#' header lines were removed was reported OK against any printer: a rotary
+    delta's radians checked as a linear delta's millimetres."""
+    part = tmp_path / "part.gcode"
+    part.write_text(PRINT + "G1 X5 Y5 E0.2\n")
+    out = tmp_path / "part.csv"
+    assert _run(part, "--printer", "delta_etitc", "-o", out, "--quiet").exit_code == 0
+    bare = tmp_path / "bare.csv"
+    bare.write_text("".join(ln for ln in out.read_text().splitlines(keepends=True) if not ln.startswith("#")))
+    for name in ("linear_kossel", "delta_etitc"):
+        line = _one_line_error(_run("verify", bare, "--printer", name))
+        assert "does not say which printer" in line and name in line and "--assume-printer" in line
+    assumed = _run("verify", bare, "--printer", "delta_etitc", "--assume-printer")
+    assert assumed.exit_code == 0, assumed.output
+    assert "printer delta_etitc (assumed" in assumed.output and "note: the printer was assumed" in assumed.output
+    # a file that names its printer is confirmed from the file, flag or not
+    confirmed = _run("verify", out, "--printer", "delta_etitc", "--assume-printer")
+    assert confirmed.exit_code == 0 and "assumed" not in confirmed.output
+    assert _run("verify", out, "--printer", "linear_kossel", "--assume-printer").exit_code != 0
