@@ -674,6 +674,10 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
     # the other kind of tool's words are refused, not reinterpreted: E words fired the laser
     takes_filament = tool is None or tool.takes_filament
     takes_laser_power = tool is None or tool.takes_laser_power
+    # filament pushed so far and the most it ever was (mm, the file's amounts): their difference
+    # is how far the filament is pulled back, retractions in a row adding up
+    retract_bound = tool.max_retract_length if tool is not None else math.inf
+    e_pushed = e_most = 0.0
     start = np.zeros(3)
     pos = [0.0, 0.0, 0.0]  # bed frame
     offset = [0.0, 0.0, 0.0]  # bed = file + offset (G92 after the first move)
@@ -857,6 +861,14 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         bare_retracted = 0
                     if not math.isfinite(de) or abs(de) > 1e12:
                         raise GcodeError(f"{where}: extrusion {de:g} mm is not a finite amount")
+                    e_pushed += de
+                    if e_pushed > e_most:
+                        e_most = e_pushed
+                    elif e_most - e_pushed > retract_bound:
+                        raise GcodeError(
+                            f"{where}: {shown_line!r} retracts the filament {e_most - e_pushed:.2f} mm from where it last "
+                            f"extruded, more than {printer.name}'s [tool] max_retract_length = {retract_bound:g} mm "
+                            "(a filament unload is the firmware's; raise the bound with --set tool.max_retract_length=MM)")
                 if bare_retracted == 1 and moved and not bare:
                     bare_retracted = 2
                 arc = cmd in ("G2", "G3")

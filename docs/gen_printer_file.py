@@ -73,6 +73,7 @@ DOCS = {
     ("tool", "max_volumetric_flow"): ("mm³/s", "Hot end's melt limit: caps the filament speed while printing.", None),
     ("tool", "max_filament_acceleration"): ("mm/s²", "Extruder motor's filament acceleration limit.", None),
     ("tool", "retract_length"): ("mm", "Filament pulled back before a travel (0: no retracts).", None),
+    ("tool", "max_retract_length"): ("mm", "Longest retraction a G-code may ask for: filament pulled back below where it last extruded (retractions in a row add up); a longer one is refused naming its line. The default is Marlin's FWRETRACT `MAX_AUTORETRACT` (10 mm: longer standing E moves are filament loads, not retractions). At least `retract_length`.", None),
     ("tool", "retract_speed"): ("mm/s", "Filament speed of retracts and re-primes (the extruder's idle speed limit).", None),
     ("tool", "z_hop"): ("mm", "Lift of the nozzle during retracted travels.", None),
     ("tool", "retract_min_travel"): ("mm", "Travels shorter than this do not retract.", None),

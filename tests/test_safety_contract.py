@@ -3,6 +3,8 @@ kind, retractions, outputs that never replace an input, and verify confirming th
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -172,3 +174,48 @@ def test_verify_refuses_a_file_that_cannot_name_its_printer_unless_assumed(tmp_p
     confirmed = _run("verify", out, "--printer", "delta_etitc", "--assume-printer")
     assert confirmed.exit_code == 0 and "assumed" not in confirmed.output
     assert _run("verify", out, "--printer", "linear_kossel", "--assume-printer").exit_code != 0
+
+
+# --------------------------------------------------------------------------- retractions
+
+
+RETRACT = "G21\nG90\nM82\nG92 E0\nG1 Z0.3 F600\nG1 X5 Y0 E4 F1200\n"
+
+
+def test_a_retraction_longer_than_the_bound_is_refused_naming_its_line(tmp_path):
+    """``E-50`` after ``E4`` under M82 (54 mm pulled back; retract_length is 1 mm) was accepted."""
+    part = tmp_path / "r.gcode"
+    part.write_text(RETRACT + "G1 E-50 F1800\nG1 X0 Y5 F3000\n")
+    out = tmp_path / "r.csv"
+    line = _one_line_error(_run(part, "--printer", "delta_etitc", "-o", out, "--quiet"))
+    assert "r.gcode:7: 'G1 E-50 F1800' retracts the filament 54.00 mm" in line
+    assert "max_retract_length = 10 mm" in line and not out.exists()
+    # retractions in a row add up; pushed back, the filament may be pulled again
+    p = printer("delta_etitc")
+    with pytest.raises(GcodeError, match=r":8: .* 12.00 mm"):
+        parse_gcode(RETRACT + "G1 E-2 F1800\nG1 E-8\n", printer=p)
+    cycles = "".join(f"G1 E{4 + k * 0.0:g} F1800\nG1 E-5\nG1 X{k % 5} Y1 F3000\nG1 E4 F1800\n" for k in range(5))
+    assert parse_gcode(RETRACT + cycles, printer=p).e.min() == pytest.approx(-9.0)
+    # the bound is the printer's: raised, the same file reads
+    raised = parse_gcode(RETRACT + "G1 E-50 F1800\n", printer=_with(p, max_retract_length=60.0))
+    assert raised.e.min() == pytest.approx(-54.0)
+
+
+def _with(p, **tool):
+    import dataclasses
+
+    return dataclasses.replace(p, tool=dataclasses.replace(p.tool, **tool))
+
+
+def test_max_retract_length_is_validated_like_the_other_keys(tmp_path):
+    from deltaslice.errors import PrinterFileError
+    from deltaslice.machine import load_printer
+
+    assert printer("delta_etitc").tool.max_retract_length == 10.0
+    for value, expected in ((0.0, "> 0"), (0.5, ">= [tool] retract_length (1 mm)"), ("long", "number")):
+        with pytest.raises(PrinterFileError, match=rf"max_retract_length = .*expected .*{re.escape(expected)}"):
+            load_printer("delta_etitc", overrides={"tool.max_retract_length": value})
+    path = _printer_copy(tmp_path)
+    path.write_text(path.read_text().replace("retract_length = 1.0", "retract_length = 1.0\nmax_retract_length = 0.5"))
+    with pytest.raises(PrinterFileError, match=r"P.toml: \[tool\] max_retract_length = 0.5: expected a length >="):
+        load_printer(path)

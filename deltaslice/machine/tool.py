@@ -29,6 +29,8 @@ class Extruder:
     #: Temperatures deltaslice's slicer sets and waits for at the start, degrees C (bed 0: unheated).
     hotend_temperature: float = 200.0
     bed_temperature: float = 0.0
+    #: Longest retraction an input may ask for, mm: filament pulled back below where it last extruded.
+    max_retract_length: float = 10.0
 
     channel_kind = "extruder"
     channel_name = "filament"
@@ -95,6 +97,7 @@ class Laser:
     takes_filament = False
     takes_laser_power = True
     retract_min_travel = 0.0  # a laser never retracts: every travel lifts
+    max_retract_length = 0.0  # nor takes filament to pull back
 
     @property
     def counts_per_unit(self) -> float:
