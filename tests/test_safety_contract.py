@@ -3,6 +3,7 @@ kind, retractions, outputs that never replace an input, and verify confirming th
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -170,6 +171,8 @@ def test_verify_refuses_a_file_that_cannot_name_its_printer_unless_assumed(tmp_p
     assumed = _run("verify", bare, "--printer", "delta_etitc", "--assume-printer")
     assert assumed.exit_code == 0, assumed.output
     assert "printer delta_etitc (assumed" in assumed.output and "note: the printer was assumed" in assumed.output
+    as_json = _run("verify", bare, "--printer", "delta_etitc", "--assume-printer", "--json")
+    assert json.loads(as_json.output)["printer_assumed"] is True
     # a file that names its printer is confirmed from the file, flag or not
     confirmed = _run("verify", out, "--printer", "delta_etitc", "--assume-printer")
     assert confirmed.exit_code == 0 and "assumed" not in confirmed.output
@@ -194,7 +197,7 @@ def test_a_retraction_longer_than_the_bound_is_refused_naming_its_line(tmp_path)
     p = printer("delta_etitc")
     with pytest.raises(GcodeError, match=r":8: .* 12.00 mm"):
         parse_gcode(RETRACT + "G1 E-2 F1800\nG1 E-8\n", printer=p)
-    cycles = "".join(f"G1 E{4 + k * 0.0:g} F1800\nG1 E-5\nG1 X{k % 5} Y1 F3000\nG1 E4 F1800\n" for k in range(5))
+    cycles = "".join(f"G1 E-5 F1800\nG1 X{k} Y1 F3000\nG1 E4 F1800\n" for k in range(5))  # 9 mm each
     assert parse_gcode(RETRACT + cycles, printer=p).e.min() == pytest.approx(-9.0)
     # the bound is the printer's: raised, the same file reads
     raised = parse_gcode(RETRACT + "G1 E-50 F1800\n", printer=_with(p, max_retract_length=60.0))
