@@ -175,7 +175,7 @@ def _laser_states(tp: Toolpath, printer):
     starts with ``M4 S0`` (dynamic power: GRBL scales S by speed / feed) or ``M3 S0``
     (``Role.LASER``, constant power), carries ``S`` = power x [tool] s_max on
     every move, and ends with ``M5``."""
-    if printer is None or printer.tool.channel_kind != "laser":
+    if printer is None or not printer.tool.takes_laser_power:
         return None
     laser_roles = np.isin(tp.role, (int(Role.LASER), int(Role.LASER_DYNAMIC)))
     in_run = tp.working | laser_roles
@@ -1074,7 +1074,7 @@ def _columns(state: _ReadState, printer, cols: _Moves, working, e, tool, moved, 
     to the toolpath, which keeps them rather than copies). start: the point before the first move;
     ratio: the filament rescale (:func:`_source_notes`) or None; retracted: a one-element list, the
     filament retracted and not yet pushed back before the stretch, updated to after it."""
-    laser = printer is not None and printer.tool.channel_kind == "laser"
+    laser = printer is not None and printer.tool.takes_laser_power
     rc = cols.role_comment
     role = np.where(working, np.where(rc >= 0, rc, int(Role.LASER if laser else Role.OTHER)), int(Role.TRAVEL))
     role = np.where(~moved & (e != 0), int(Role.RETRACT), role).astype(np.uint8)
@@ -1137,7 +1137,7 @@ def _apply_dialects(printer, e, kind, power, moved, moved_xy, e_words, bare_word
       G1 rule above switches the laser on at full power (E words never reach here: the reader
       refuses them for a tool that takes no filament).
     """
-    laser = printer is not None and printer.tool.channel_kind == "laser"
+    laser = printer is not None and printer.tool.takes_laser_power
     if laser and laser_seen:
         s_max = getattr(printer.tool, "s_max", 1000.0)
         # the tool channel is a fraction of full power (0..1); max_power (W) is reported only
@@ -1162,7 +1162,7 @@ def _apply_dialects(printer, e, kind, power, moved, moved_xy, e_words, bare_word
 
 def _dialect_note(printer, state: _ReadState) -> str:
     """What :func:`_apply_dialects` makes of a file whose dialect is not the common one, or ""."""
-    laser = printer is not None and printer.tool.channel_kind == "laser"
+    laser = printer is not None and printer.tool.takes_laser_power
     if laser and state.laser_seen:
         return ""
     if state.bare_words and not state.e_words:
@@ -1240,7 +1240,7 @@ def _source_notes(source, printer, shown, say, center) -> float | None:
     """Say where the file's machine differs from ``printer``; returns the area ratio E values
     written with E words are rescaled by for another filament diameter, so the same volume of
     plastic is extruded, retractions kept at their length (:func:`_rescale_filament`), or None."""
-    if printer is None or printer.tool.channel_kind == "laser" or not source:
+    if printer is None or not printer.tool.takes_filament or not source:
         return None
     tool = printer.tool
     ratio = None

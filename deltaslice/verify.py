@@ -437,7 +437,7 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
     from scipy.spatial import cKDTree
 
     work = samples.tool > 0
-    if quantised and printer.tool.channel_kind == "extruder":  # a stream's extruder state is derived from rising counts
+    if quantised and printer.tool.takes_filament:  # a stream's extruder state is derived from rising counts
         work = _close_gaps(work, max(1, int(round(GAP_FILL * len(samples) / max(samples.t[-1] - samples.t[0], 1e-9)))))
     idx = np.flatnonzero(work)
     starts, ends = toolpath.starts, toolpath.xyz
