@@ -284,14 +284,15 @@ def _check_on_bed(toolpath, printer, part) -> None:
         )
 
 
-def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> None:
-    """Write a Toolpath as G-code to ``output``, atomically."""
+def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> int:
+    """Write a Toolpath as G-code to ``output``, atomically. Returns bytes written."""
     from .gcode import gcode_text
 
     _check_toolpath(toolpath)
     text = gcode_text(toolpath, printer)
     with atomic_output(output, "w", encoding="ascii", newline="\n", max_bytes=max_bytes) as f:
         f.write(text)
+    return len(text)  # ASCII: a byte a character
 
 
 def write_firmware_config(printer, output=None) -> str:
@@ -471,8 +472,8 @@ def compile_part(
         t_slice = time.perf_counter() - t0
         s = toolpath.summary()
         if fmt == "gcode":  # G-code is a toolpath output: nothing to plan
-            write_gcode(toolpath, output, printer, max_bytes=max_bytes)
-            return CompileResult(printer.name, str(output), fmt, _size(output), s["layers"], s["moves"], {},
+            size = write_gcode(toolpath, output, printer, max_bytes=max_bytes)  # a pipe (-o -) has no size to stat
+            return CompileResult(printer.name, str(output), fmt, size, s["layers"], s["moves"], {},
                                  "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
         from .planning import plan
 
@@ -519,13 +520,6 @@ def _gcode_stream(part, printer, fmt, planner, options, progress, echo):
         return None  # the reader names the problem
     return gcode.open_gcode(part, printer=printer, echo=echo, center=bool(options.get("center", False)),
                             progress=progress)
-
-
-def _size(output) -> int:
-    try:
-        return Path(output).stat().st_size
-    except OSError:
-        return 0
 
 
 def _watch_progress(watch, progress, duration):
