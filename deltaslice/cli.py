@@ -315,7 +315,8 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
 @main.command("slice")
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code file to write (- for standard output).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="G-code file to write (- for standard output).")
 @placement_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
 def slice_cmd(part, printer_path, overrides, output, scale, rotate, keep_position, quiet):
@@ -342,7 +343,8 @@ def slice_cmd(part, printer_path, overrides, output, scale, rotate, keep_positio
 @main.command("preview")
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG file to write (- for standard output).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="PNG file to write (- for standard output).")
 @click.option("--layer", type=int, default=None, help="Layer to draw (default: the middle layer).")
 @placement_options
 def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, keep_position):
@@ -468,7 +470,8 @@ def verify_cmd(output, printer_path, overrides, toolpath_path, assume_printer, s
     from .pipeline import verify_output
 
     report = _run(verify_output, output, _printer(printer_path, overrides), toolpath=toolpath_path,
-                  assume_printer=assume_printer, engrave=_engrave_dict(**engrave), **_placement(scale, rotate, keep_position))
+                  assume_printer=assume_printer, engrave=_engrave_dict(**engrave),
+                  **_placement(scale, rotate, keep_position))
     if as_json:
         _echo_json(report, ok=report.ok)
     else:

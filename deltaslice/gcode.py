@@ -824,17 +824,17 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                 if not all(math.isfinite(v) and abs(v) < 1e12 for v in target):
                     raise GcodeError(f"{where}: position {target} is not a finite coordinate")
                 if not z_lo <= target[2] <= z_hi:
-                    raise GcodeError(f"{where}: {shown_line!r} moves the tool to x = {target[0]:.2f}, y = {target[1]:.2f}, "
-                                     f"z = {target[2]:.2f} mm, outside the work envelope of {printer.name}: "
-                                     f"{bed.outside(target)}")
+                    raise GcodeError(f"{where}: {shown_line!r} moves the tool to x = {target[0]:.2f}, "
+                                     f"y = {target[1]:.2f}, z = {target[2]:.2f} mm, outside the work envelope of "
+                                     f"{printer.name}: {bed.outside(target)}")
                 de = 0.0
                 bare = "bare" in params
                 moved = target != pos
                 if "E" in params:
                     if not takes_filament:
-                        raise GcodeError(f"{where}: {shown_line!r} extrudes filament (an E amount), but {printer.name}'s "
-                                         f"tool is a {tool.channel_kind}: give it a {tool.channel_kind}'s G-code, an image "
-                                         "or an SVG")
+                        raise GcodeError(f"{where}: {shown_line!r} extrudes filament (an E amount), but "
+                                         f"{printer.name}'s tool is a {tool.channel_kind}: give it a "
+                                         f"{tool.channel_kind}'s G-code, an image or an SVG")
                     e_words = e_words or not bare
                     bare_words = bare_words or bare
                     v = params["E"] * unit
@@ -866,9 +866,10 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         e_most = e_pushed
                     elif e_most - e_pushed > retract_bound:
                         raise GcodeError(
-                            f"{where}: {shown_line!r} retracts the filament {e_most - e_pushed:.2f} mm from where it last "
-                            f"extruded, more than {printer.name}'s [tool] max_retract_length = {retract_bound:g} mm "
-                            "(a filament unload is the firmware's; raise the bound with --set tool.max_retract_length=MM)")
+                            f"{where}: {shown_line!r} retracts the filament {e_most - e_pushed:.2f} mm from where it "
+                            f"last extruded, more than {printer.name}'s [tool] max_retract_length = {retract_bound:g} "
+                            "mm (a filament unload is the firmware's; raise the bound with "
+                            "--set tool.max_retract_length=MM)")
                 if bare_retracted == 1 and moved and not bare:
                     bare_retracted = 2
                 arc = cmd in ("G2", "G3")
@@ -963,8 +964,9 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                 events.append((handed + len(xs), int(kind), float(value)))
             elif cmd in _LASER_M:
                 if not takes_laser_power and cmd != "M5":  # M5 switches a laser off: nothing to refuse
-                    raise GcodeError(f"{where}: {shown_line!r} is a laser command, but {printer.name}'s tool is an "
-                                     f"{tool.channel_kind}: slice the part for it, or compile this file for a laser printer")
+                    raise GcodeError(f"{where}: {shown_line!r} is a laser command, but {printer.name}'s tool is "
+                                     f"an {tool.channel_kind}: slice the part for it, or compile this file for a "
+                                     "laser printer")
                 params = _params(params_w, where, "S")
                 if "S" in params:
                     if params["S"] < 0:
