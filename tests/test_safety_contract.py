@@ -204,6 +204,19 @@ def test_a_retraction_longer_than_the_bound_is_refused_naming_its_line(tmp_path)
     assert raised.e.min() == pytest.approx(-54.0)
 
 
+def test_a_toolpath_from_arrays_is_held_to_the_same_bound():
+    """Another slicer's arrays (docs/library.md) meet the bound where they are planned."""
+    from deltaslice.errors import DeltasliceError
+    from deltaslice.planning import plan
+
+    b = ToolpathBuilder()
+    b.new_layer(0.3)
+    b.add([[0, 0, 0.3], [5, 0, 0.3], [5, 0, 0.3], [5, 5, 0.3]], 20.0, [0.0, 4.0, -54.0, 0.0], [0.0, 1.0, 0.0, 0.0],
+          [Role.TRAVEL, Role.PERIMETER, Role.RETRACT, Role.TRAVEL])
+    with pytest.raises(DeltasliceError, match=r"layer 0: the toolpath retracts the filament 54.00 mm .*max_retract_length"):
+        plan(b.build(), printer("delta_etitc"), workers=1)
+
+
 def _with(p, **tool):
     import dataclasses
 

@@ -91,13 +91,23 @@ LASER_ROLES = (int(Role.LASER), int(Role.LASER_DYNAMIC))
 
 def _check_tool(toolpath: Toolpath, printer) -> None:
     """Refuse a toolpath made for the other kind of tool: filament for a laser, laser burns for
-    an extruder (the channel would carry a meaning its player does not have)."""
+    an extruder (the channel would carry a meaning its player does not have); and one that
+    retracts the filament further than ``[tool] max_retract_length``."""
     laser_moves = np.isin(toolpath.role, LASER_ROLES)
     if not printer.tool.takes_filament and np.any(toolpath.e[toolpath.working] > 0):
         raise DeltasliceError(f"the toolpath extrudes filament but {printer.name} has a laser: "
                               "slice it for an extruder printer, or give the laser an image, an SVG or laser G-code")
     if not printer.tool.takes_laser_power and laser_moves.any():
         raise DeltasliceError(f"the toolpath has {int(laser_moves.sum())} laser moves but {printer.name} has an extruder")
+    # how far the filament is pulled back from the most it was pushed (retractions in a row add up),
+    # as the G-code reader measures it line by line; a stretch of a print (plan_stream) from its own start
+    pushed = np.cumsum(toolpath.e)
+    back = np.maximum.accumulate(np.maximum(pushed, 0.0)) - pushed
+    if len(back) and back.max() > printer.tool.max_retract_length:
+        i = int(np.argmax(back > printer.tool.max_retract_length))
+        raise DeltasliceError(
+            f"layer {int(toolpath.layer[i])}: the toolpath retracts the filament {back[i]:.2f} mm from where it last "
+            f"extruded, more than {printer.name}'s [tool] max_retract_length = {printer.tool.max_retract_length:g} mm")
 
 
 def split_runs(toolpath: Toolpath, laser: bool | None = None):
