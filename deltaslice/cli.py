@@ -5,7 +5,7 @@
     deltaslice preview PART --printer P -o view.png
     deltaslice workspace --printer P [--plot ws.png]
     deltaslice decode STREAM [--units]
-    deltaslice verify OUTPUT --printer P [--toolpath PART]
+    deltaslice verify OUTPUT --printer P [--toolpath PART] [--assume-printer]
     deltaslice printers
 
 P is a printer file or the name of a shipped printer (``deltaslice printers``).
@@ -165,10 +165,17 @@ def _run(fn, *args, **kwargs):
         sys.exit(EXIT_ERROR)
 
 
-def _echo_json(obj, **extra):
+def _echo_json(obj, err=False, **extra):
     data = asdict(obj) if is_dataclass(obj) else dict(obj)
     data.update(extra)
-    click.echo(json.dumps(_jsonable(data), indent=2, allow_nan=False))
+    click.echo(json.dumps(_jsonable(data), indent=2, allow_nan=False), err=err)
+
+
+def _to_stderr(output) -> bool:
+    """Whether a command's own lines go to stderr: its output (``-o -``) is standard output."""
+    from .formats import is_stdout
+
+    return is_stdout(output)
 
 
 def _jsonable(value):
@@ -285,7 +292,8 @@ def main():
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False),
-              help="Output file: .dsl binary stream (default: PART.dsl beside the part), .csv setpoints, .gcode.")
+              help="Output file: .dsl binary stream (default: PART.dsl beside the part), .csv setpoints, .gcode; "
+              "- for standard output (a stream unless --format says otherwise).")
 @click.option("--format", "fmt", type=click.Choice(["csv", "stream", "gcode"]), help="Override the format chosen from the extension.")
 @click.option("--speed-limit", type=click.Choice(["feed", "machine"]), default="feed", show_default=True,
               help="feed: obey the toolpath's feed rates; machine: only the actuators' limits.")
@@ -326,15 +334,16 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
         **_placement(scale, rotate, keep_position),
     )
     if as_json:
-        _echo_json(result)
+        _echo_json(result, err=_to_stderr(output))
     else:
-        click.echo(compile_summary(result))
+        click.echo(compile_summary(result), err=_to_stderr(output))
 
 
 @main.command("slice")
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code file to write.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="G-code file to write (- for standard output).")
 @placement_options
 @click.option("--quiet", is_flag=True, help="No progress output.")
 def slice_cmd(part, printer_path, overrides, output, scale, rotate, keep_position, quiet):
@@ -355,13 +364,14 @@ def slice_cmd(part, printer_path, overrides, output, scale, rotate, keep_positio
         echo=lambda s: click.echo(s, err=True),
         **_placement(scale, rotate, keep_position),
     )
-    click.echo(summary)
+    click.echo(summary, err=_to_stderr(output))
 
 
 @main.command("preview")
 @click.argument("part", type=click.Path(dir_okay=False))
 @printer_options
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG file to write.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="PNG file to write (- for standard output).")
 @click.option("--layer", type=int, default=None, help="Layer to draw (default: the middle layer).")
 @placement_options
 def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, keep_position):
@@ -377,13 +387,13 @@ def preview_cmd(part, printer_path, overrides, output, layer, scale, rotate, kee
     from .pipeline import preview
 
     click.echo(_run(preview, part, _printer(printer_path, overrides), output, layer=layer,
-                    **_placement(scale, rotate, keep_position)))
+                    **_placement(scale, rotate, keep_position)), err=_to_stderr(output))
 
 
 @main.command("workspace")
 @printer_options
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
-              help="PNG to write (default: <printer name>_workspace.png; with --json, none unless given).")
+              help="PNG to write (default: <printer name>_workspace.png; with --json, none unless given; - for standard output).")
 @json_option
 def workspace_cmd(printer_path, overrides, plot_path, as_json):
     """Print the reachable volume, largest cylinder and cube, singularity margin and
@@ -399,9 +409,9 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
     # --json is for programs: a picture only when --plot asks for one
     result = _run(workspace_analysis, _printer(printer_path, overrides), plot_path, draw=not as_json)
     if as_json:
-        _echo_json(result)
+        _echo_json(result, err=_to_stderr(plot_path))
     else:
-        click.echo(workspace_summary(result))
+        click.echo(workspace_summary(result), err=_to_stderr(plot_path))
 
 
 @main.command("send")
@@ -476,7 +486,7 @@ def play_cmd(stream, bus_port, laser_port, baud, ids, protocol, interval, releas
 @main.command("firmware-config")
 @printer_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
-              help="Header file to write (default: print it).")
+              help="Header file to write (default, or -: print it).")
 def firmware_config_cmd(printer_path, overrides, output):
     """Write the C header the firmware players include (dsl_config.h): the printer's fingerprint,
     rest pose and joint-sensor calibration in actuator counts.
@@ -515,10 +525,14 @@ def decode_cmd(stream, units, printer_path):
 @printer_options
 @click.option("--toolpath", "toolpath_path", type=click.Path(dir_okay=False), default=None,
               help="The part or G-code compiled, to check the path deviation (give the same placement options).")
+@click.option("--assume-printer", is_flag=True,
+              help="The file does not say which printer it was made for (a CSV without its '#' header): check it as "
+                   "made for --printer (refused otherwise); the report says the printer was assumed.")
 @placement_options
 @_engrave_options
 @json_option
-def verify_cmd(output, printer_path, overrides, toolpath_path, scale, rotate, keep_position, as_json, **engrave):
+def verify_cmd(output, printer_path, overrides, toolpath_path, assume_printer, scale, rotate, keep_position, as_json,
+               **engrave):
     """Replay a CSV or stream; check joint and tool limits and path deviation. Exit 3 on any violation.
 
     \b
@@ -529,7 +543,8 @@ def verify_cmd(output, printer_path, overrides, toolpath_path, scale, rotate, ke
     from .pipeline import verify_output
 
     report = _run(verify_output, output, _printer(printer_path, overrides), toolpath=toolpath_path,
-                  engrave=_engrave_dict(**engrave), **_placement(scale, rotate, keep_position))
+                  assume_printer=assume_printer, engrave=_engrave_dict(**engrave),
+                  **_placement(scale, rotate, keep_position))
     if as_json:
         _echo_json(report, ok=report.ok)
     else:

@@ -149,7 +149,7 @@ def engrave(path, printer, options: EngraveOptions | dict | None = None) -> Tool
     where = str(path)
     opts = engrave_options(options, where)
     opts.check(where)
-    if printer.tool.channel_kind != "laser":
+    if not printer.tool.takes_laser_power:
         raise EngraveError(f"{where}: printer {printer.name} has no laser ([tool] kind = 'extruder'): images are for lasers")
     if is_svg(path):
         lines, frame = svg_polylines(path, opts.tolerance)

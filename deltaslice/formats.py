@@ -54,8 +54,19 @@ def part_kind(path) -> str:
     )
 
 
+#: An output named so is standard output (``-o -``).
+STDOUT = "-"
+
+
+def is_stdout(path) -> bool:
+    return isinstance(path, str) and path == STDOUT
+
+
 def format_for(path) -> str:
-    """"csv" | "stream" | "gcode" from the output file's extension; DeltasliceError otherwise."""
+    """"csv" | "stream" | "gcode" from the output file's extension, "stream" (the default output's)
+    for standard output; DeltasliceError otherwise."""
+    if is_stdout(path):
+        return "stream"
     suffix = Path(str(path)).suffix.lower()
     try:
         return OUTPUT_SUFFIXES[suffix]

@@ -179,7 +179,7 @@ def _laser_states(tp: Toolpath, printer):
     starts with ``M4 S0`` (dynamic power: GRBL scales S by speed / feed) or ``M3 S0``
     (``Role.LASER``, constant power), carries ``S`` = power x [tool] s_max on
     every move, and ends with ``M5``."""
-    if printer is None or printer.tool.channel_kind != "laser":
+    if printer is None or not printer.tool.takes_laser_power:
         return None
     laser_roles = np.isin(tp.role, (int(Role.LASER), int(Role.LASER_DYNAMIC)))
     in_run = tp.working | laser_roles
@@ -689,6 +689,18 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
     every ``block`` moves and at the end when given, else kept in the returned state."""
     shown = name
     default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") else DEFAULT_FEED
+    bed = getattr(printer, "bed", None)
+    # the heights the printer's bed allows (its work envelope), checked here so a refusal names
+    # the line; the envelope's x-y extent waits for the placement (--center), planning.check_reachable
+    z_lo, z_hi = bed.z_limits() if bed is not None else (-math.inf, math.inf)
+    tool = getattr(printer, "tool", None)
+    # the other kind of tool's words are refused, not reinterpreted: E words fired the laser
+    takes_filament = tool is None or tool.takes_filament
+    takes_laser_power = tool is None or tool.takes_laser_power
+    # filament pushed so far and the most it ever was (mm, the file's amounts): their difference
+    # is how far the filament is pulled back, retractions in a row adding up
+    retract_bound = tool.max_retract_length if tool is not None else math.inf
+    e_pushed = e_most = 0.0
     start = np.zeros(3)
     pos = [0.0, 0.0, 0.0]  # bed frame
     offset = [0.0, 0.0, 0.0]  # bed = file + offset (G92 after the first move)
@@ -835,10 +847,18 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         target[k] = v + offset[k] if abs_xyz else pos[k] + v
                 if not all(math.isfinite(v) and abs(v) < 1e12 for v in target):
                     raise GcodeError(f"{where}: position {target} is not a finite coordinate")
+                if not z_lo <= target[2] <= z_hi:
+                    raise GcodeError(f"{where}: {shown_line!r} moves the tool to x = {target[0]:.2f}, "
+                                     f"y = {target[1]:.2f}, z = {target[2]:.2f} mm, outside the work envelope of "
+                                     f"{printer.name}: {bed.outside(target)}")
                 de = 0.0
                 bare = "bare" in params
                 moved = target != pos
                 if "E" in params:
+                    if not takes_filament:
+                        raise GcodeError(f"{where}: {shown_line!r} extrudes filament (an E amount), but "
+                                         f"{printer.name}'s tool is a {tool.channel_kind}: give it a "
+                                         f"{tool.channel_kind}'s G-code, an image or an SVG")
                     e_words = e_words or not bare
                     bare_words = bare_words or bare
                     v = params["E"] * unit
@@ -871,6 +891,15 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                             f"{MAX_MOVE_FILAMENT / 1000:g} m: is E absolute (M82) or relative (M83) as the slicer "
                             "wrote it, and in mm?"
                         )
+                    e_pushed += de
+                    if e_pushed > e_most:
+                        e_most = e_pushed
+                    elif e_most - e_pushed > retract_bound:
+                        raise GcodeError(
+                            f"{where}: {shown_line!r} retracts the filament {e_most - e_pushed:.2f} mm from where it "
+                            f"last extruded, more than {printer.name}'s [tool] max_retract_length = {retract_bound:g} "
+                            "mm (a filament unload is the firmware's; raise the bound with "
+                            "--set tool.max_retract_length=MM)")
                 if bare_retracted == 1 and moved and not bare:
                     bare_retracted = 2
                 arc = cmd in ("G2", "G3")
@@ -974,6 +1003,10 @@ def _read(lines, n_lines: int, prusa_layers: bool, *, name, printer, echo, progr
                         raise GcodeError(f"{where}: temperature {value:g} C outside 0..1000")
                 events.append((handed + len(xs), int(kind), float(value)))
             elif cmd in _LASER_M:
+                if not takes_laser_power and cmd != "M5":  # M5 switches a laser off: nothing to refuse
+                    raise GcodeError(f"{where}: {shown_line!r} is a laser command, but {printer.name}'s tool is "
+                                     f"an {tool.channel_kind}: slice the part for it, or compile this file for a "
+                                     "laser printer")
                 params = _params(params_w, where, "S")
                 if "S" in params:
                     if params["S"] < 0:
@@ -1083,7 +1116,7 @@ def _columns(state: _ReadState, printer, cols: _Moves, working, e, tool, moved, 
     to the toolpath, which keeps them rather than copies). start: the point before the first move;
     ratio: the filament rescale (:func:`_source_notes`) or None; retracted: a one-element list, the
     filament retracted and not yet pushed back before the stretch, updated to after it."""
-    laser = printer is not None and printer.tool.channel_kind == "laser"
+    laser = printer is not None and printer.tool.takes_laser_power
     rc = cols.role_comment
     role = np.where(working, np.where(rc >= 0, rc, int(Role.LASER if laser else Role.OTHER)), int(Role.TRAVEL))
     role = np.where(~moved & (e != 0), int(Role.RETRACT), role).astype(np.uint8)
@@ -1143,9 +1176,10 @@ def _apply_dialects(printer, e, kind, power, moved, moved_xy, e_words, bare_word
       moving ones that lower the register are wipes (travels).
     * No E at all (hand-written paths, CNC-style files): G1/G2/G3 moves in x-y work, G0 travel.
     * A laser printer: with M3/M4 the power is S / s_max while G1/G2/G3 move; without them the
-      E or G1 rules above switch the laser on at full power.
+      G1 rule above switches the laser on at full power (E words never reach here: the reader
+      refuses them for a tool that takes no filament).
     """
-    laser = printer is not None and printer.tool.channel_kind == "laser"
+    laser = printer is not None and printer.tool.takes_laser_power
     if laser and laser_seen:
         s_max = getattr(printer.tool, "s_max", 1000.0)
         # the tool channel is a fraction of full power (0..1); max_power (W) is reported only
@@ -1170,13 +1204,13 @@ def _apply_dialects(printer, e, kind, power, moved, moved_xy, e_words, bare_word
 
 def _dialect_note(printer, state: _ReadState) -> str:
     """What :func:`_apply_dialects` makes of a file whose dialect is not the common one, or ""."""
-    laser = printer is not None and printer.tool.channel_kind == "laser"
+    laser = printer is not None and printer.tool.takes_laser_power
     if laser and state.laser_seen:
         return ""
     if state.bare_words and not state.e_words:
         return (f"{_SLIC3R_NO_EXTRUSION}: E values without their letter; moves carrying one are work moves"
-                + (" extruded with the printer's own flow model" if not laser else " with the laser on")
-                + ", those lowering it wipes; each unretraction is read from 0 (Slic3r resets its E register "
+                " extruded with the printer's own flow model, those lowering it wipes; each unretraction is read "
+                "from 0 (Slic3r resets its E register "
                 "after a retraction without writing G92 E0)")
     if not state.e_words and not state.bare_words:
         return ("no E words: G1/G2/G3 moves are work moves "
@@ -1248,7 +1282,7 @@ def _source_notes(source, printer, shown, say, center) -> float | None:
     """Say where the file's machine differs from ``printer``; returns the area ratio E values
     written with E words are rescaled by for another filament diameter, so the same volume of
     plastic is extruded, retractions kept at their length (:func:`_rescale_filament`), or None."""
-    if printer is None or printer.tool.channel_kind == "laser" or not source:
+    if printer is None or not printer.tool.takes_filament or not source:
         return None
     tool = printer.tool
     ratio = None

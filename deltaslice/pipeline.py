@@ -23,7 +23,7 @@ import numpy as np
 
 from . import interrupt
 from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError, ToolpathWarning
-from .formats import format_for, holds_samples, part_kind
+from .formats import format_for, holds_samples, is_stdout, part_kind
 from .machine import LimitMonitor, Printer, check_reach, load_printer
 from .machine.limits import TOLERANCE
 from .pool import check_workers, resolve_workers
@@ -80,6 +80,8 @@ def _resolve_output(output, inputs=()) -> tuple[Path, bool]:
     realpath, which would turn ``/dev/stdout`` into ``/proc/.../fd/pipe:[N]``."""
     if output is None or not isinstance(output, (str, os.PathLike)) or not str(output):
         raise OutputError(f"output: expected a file path, got {output!r}")
+    if is_stdout(output):
+        return Path("/dev/stdout"), True  # this process's descriptor 1 (_own_fd), whatever it is
     path = Path(output)
     for src in inputs:
         if src is not None and isinstance(src, (str, os.PathLike)) and _same_file(path, src):
@@ -106,8 +108,14 @@ def _resolve_output(output, inputs=()) -> tuple[Path, bool]:
 def check_output(output, inputs=()) -> Path:
     """Refuse an output before any work: the same file as an input, a missing or read-only
     directory, a directory. Returns the path written (a symlink's target; a device, a pipe or
-    ``/dev/stdout`` as given). Raises OutputError."""
+    ``/dev/stdout`` as given; ``-`` is standard output). Raises OutputError."""
     return _resolve_output(output, inputs)[0]
+
+
+def _printer_file(printer):
+    """The printer file a command reads (a Printer's path, or the path or name given), which no
+    output may replace."""
+    return getattr(printer, "path", printer)
 
 
 class _BoundedFile:
@@ -298,14 +306,15 @@ def _check_on_bed(toolpath, printer, part) -> None:
         )
 
 
-def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> None:
-    """Write a Toolpath as G-code to ``output``, atomically."""
+def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> int:
+    """Write a Toolpath as G-code to ``output``, atomically. Returns bytes written."""
     from .gcode import gcode_text
 
     _check_toolpath(toolpath)
     text = gcode_text(toolpath, printer)
     with atomic_output(output, "w", encoding="ascii", newline="\n", max_bytes=max_bytes) as f:
         f.write(text)
+    return len(text)  # ASCII: a byte a character
 
 
 def write_firmware_config(printer, output=None) -> str:
@@ -313,6 +322,8 @@ def write_firmware_config(printer, output=None) -> str:
     atomically to ``output`` when given. Returns the header text."""
     from .emit.firmware_config import firmware_config
 
+    if output is not None:
+        check_output(output, inputs=[_printer_file(printer)])
     printer = _printer(printer)
     text = firmware_config(printer)
     if output is not None:
@@ -325,7 +336,7 @@ def slice_to_gcode(part, printer, output, *, progress=False, echo=None, workers=
     """Slice a mesh and write G-code (workers: slicing processes, default all cores; the G-code is
     the same for any number). Returns a summary line."""
     _check_path(part, "part")
-    check_output(output, inputs=[part])
+    check_output(output, inputs=[part, _printer_file(printer)])
     printer = _printer(printer)
     t0 = time.perf_counter()
     toolpath = load_toolpath(part, printer, progress=stderr_progress(progress, "slicing layers"), echo=echo,
@@ -447,7 +458,7 @@ def compile_part(
     if output is None:
         output = default_output(part)
     fmt = fmt or format_for(output)  # a wrong extension fails before any slicing
-    check_output(output, inputs=[part, getattr(printer, "path", printer)])
+    check_output(output, inputs=[part, _printer_file(printer)])
     workers = resolve_workers(workers, "compile_part")
     kind = part_kind(part)
     # A mesh's printer is checked (check_reach: numba's first load) while the slicing workers start
@@ -484,8 +495,8 @@ def compile_part(
         t_slice = time.perf_counter() - t0
         s = toolpath.summary()
         if fmt == "gcode":  # G-code is a toolpath output: nothing to plan
-            write_gcode(toolpath, output, printer, max_bytes=max_bytes)
-            return CompileResult(printer.name, str(output), fmt, _size(output), s["layers"], s["moves"], {},
+            size = write_gcode(toolpath, output, printer, max_bytes=max_bytes)  # a pipe (-o -) has no size to stat
+            return CompileResult(printer.name, str(output), fmt, size, s["layers"], s["moves"], {},
                                  "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
         from .planning import plan
 
@@ -541,13 +552,6 @@ def _gcode_stream(part, printer, fmt, planner, options, progress, echo):
                             progress=progress)
 
 
-def _size(output) -> int:
-    try:
-        return Path(output).stat().st_size
-    except OSError:
-        return 0
-
-
 def _watch_progress(watch, progress, duration):
     """Compose the limit monitor with a 'writing' progress bar over the trajectory's time."""
     bar = stderr_progress(progress, "writing output", unit="s")
@@ -565,11 +569,13 @@ def _watch_progress(watch, progress, duration):
     return watched
 
 
-def verify_output(output, printer, toolpath=None, **mesh_options):
+def verify_output(output, printer, toolpath=None, *, assume_printer=False, **mesh_options):
     """Read a setpoints CSV or binary stream and check it against the printer (path, name or Printer).
 
     toolpath: the part (mesh) or G-code that was compiled, to check path deviation; give the
-    placement options (scale, rotate, keep_position) the compile had.
+    placement options (scale, rotate, keep_position) the compile had. assume_printer: check a file
+    that does not say which printer it was made for (a CSV without its ``#`` header) as made for
+    ``printer`` (refused otherwise); the report says the printer was assumed.
     Returns a :class:`~deltaslice.verify.VerifyReport`."""
     from .verify import verify_samples
 
@@ -584,7 +590,8 @@ def verify_output(output, printer, toolpath=None, **mesh_options):
     except (TypeError, ValueError):
         raise StreamError(f"{output}: rate_hz {raw!r} is not a number") from None
     tp = None if toolpath is None else load_toolpath(toolpath, printer, **mesh_options)
-    return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output))
+    return verify_samples(samples, printer, rate=rate, fmt=fmt, meta=meta, toolpath=tp, output=str(output),
+                          assume_printer=assume_printer)
 
 
 # verify holds every sample at once: about this many bytes per sample and channel (+3 for time,
@@ -759,11 +766,11 @@ def shipped_printers() -> list[dict]:
     return rows
 
 
-def _check_png(path) -> None:
+def _check_png(path, inputs=()) -> None:
     _check_path(path, "plot")
-    if Path(path).suffix.lower() != ".png":
-        raise OutputError(f"{path}: expected a .png file name")
-    check_output(path)
+    if Path(path).suffix.lower() != ".png" and not is_stdout(path):
+        raise OutputError(f"{path}: expected a .png file name (or - for standard output)")
+    check_output(path, inputs)
 
 
 def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
@@ -773,12 +780,11 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
     from . import preview as draw
 
     _check_path(part, "part")
-    _check_png(output)
+    _check_png(output, inputs=[part, _printer_file(printer)])
     if layer is not None and (isinstance(layer, bool) or not isinstance(layer, (int, np.integer))):
         raise DeltasliceError(f"preview: layer = {layer!r}: expected a layer index (an integer) or None")
     if not Path(part).exists():
         raise DeltasliceError(f"{part}: no such file")
-    check_output(output, inputs=[part])
     printer = _printer(printer)
     if holds_samples(part):
         meta, samples = read_output(part)
@@ -808,7 +814,7 @@ def workspace_analysis(printer, plot_path=None, *, draw=True):
     draw = draw or plot_path is not None
     plot_path = (plot_path or f"{printer.name}_workspace.png") if draw else None
     if draw:
-        _check_png(plot_path)
+        _check_png(plot_path, inputs=[printer.path])
     kin = printer.kinematics()
     cpu = np.abs(printer.limits.counts_per_unit[: printer.n_joints])
     z_range = (-0.25 * printer.bed.max_height - 10.0, 2.0 * printer.bed.max_height + 20.0)

@@ -436,7 +436,7 @@ def centred(toolpath: Toolpath) -> tuple[Toolpath, np.ndarray]:
 
 def fits_centred(toolpath: Toolpath, printer) -> bool:
     """True when every point of the toolpath, centred by :func:`centred`, is within the
-    printer's reach (what ``--center`` would give)."""
+    printer's work envelope and reach (what ``--center`` would give)."""
     tp, _ = centred(toolpath)
     pts = np.concatenate([tp.start[None], tp.xyz])
-    return bool(printer.kinematics().reachable(pts).all())
+    return bool(printer.bed.contains(pts).all() and printer.kinematics().reachable(pts).all())

@@ -2,7 +2,9 @@
 
 Checks, over every sample:
 
-* the file was compiled for this printer (fingerprint),
+* the file was compiled for this printer (fingerprint); a file that does not say which printer
+  it was made for (a CSV without its ``#`` header) is refused unless the caller assumes the
+  printer (``assume_printer``), and the report then says the printer was assumed,
 * uniform time steps at the file's rate (a squeezed or stretched step is a violation),
 * every joint's position limits (plus half a count of quantisation for streams),
 * every joint's velocity and acceleration limits, and the tool channel's: an extruder's
@@ -129,6 +131,8 @@ class VerifyReport:
     notes: tuple[str, ...] = field(default_factory=tuple)
     planner_margin: float = 0.0
     rows: tuple[CheckRow, ...] = field(default_factory=tuple)
+    #: the file does not say which printer it was made for: checked as ``printer``'s because the caller said so
+    printer_assumed: bool = False
 
     @property
     def ok(self) -> bool:
@@ -152,7 +156,9 @@ class VerifyReport:
 
     def text(self) -> str:
         lines = [
-            f"verify {self.output}: {self.format}, printer {self.printer}, {self.n_samples} samples, "
+            f"verify {self.output}: {self.format}, printer {self.printer}"
+            + (" (assumed: the file does not say which printer it was made for)" if self.printer_assumed else "")
+            + f", {self.n_samples} samples, "
             f"{self.duration:.3f} s at {self.rate:g} Hz",
             f"limits allowed {100 * MARGIN:g} % above their value (the planner keeps {100 * self.planner_margin:g} %); "
             "differences over windows "
@@ -229,9 +235,14 @@ def _nan_argmax(x) -> int:
 
 
 def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None = None, toolpath=None,
-                   output: str = "<samples>") -> VerifyReport:
+                   output: str = "<samples>", assume_printer: bool = False) -> VerifyReport:
     """Check Samples against the printer (see the module docstring). ``fmt`` "csv" or "stream"
     sets the quantisation assumed. rate: the file's sample rate, Hz (finite, > 0).
+
+    meta: the file's metadata (``read_output``), whose fingerprint must confirm the printer; a
+    file's metadata without one is refused (StreamError) unless ``assume_printer``: the caller
+    names ``printer`` as the one the file was made for, and the report says so. None: samples
+    that come from no file (nothing to confirm).
 
     Fails (violations, not exceptions) on: no samples, any non-finite value, a rate below
     MIN_RATE, non-uniform time steps, and every limit. Raises StreamError on arguments that
@@ -251,6 +262,12 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         raise StreamError(f"{output}: rate_hz = {rate:g}: expected a finite rate > 0 Hz")
     if fmt not in ("csv", "stream"):
         raise StreamError(f"{output}: format {fmt!r}: expected 'csv' or 'stream'")
+    assumed = meta is not None and meta.get("fingerprint") is None
+    if assumed and not assume_printer:
+        raise StreamError(
+            f"{output}: the file does not say which printer it was made for (no fingerprint: a CSV's '#' header "
+            f"lines are missing), so it cannot be confirmed as made for {printer.name}; if it was, say so with "
+            "--assume-printer (assume_printer=True)")
     meta = meta or {}
     n = len(samples)
     if samples.n_joints != printer.n_joints:
@@ -294,6 +311,9 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
                               f"(file made for {meta.get('printer', '?')!r}, fingerprint {fp}, not 0x{printer.fingerprint():08x})"))
         rows.append(CheckRow("printer fingerprint", str(meta.get("printer", "?")), "", float(fp_val or 0),
                              float(printer.fingerprint()), None, 0.0, -1, None, not col.failed("fingerprint", "printer")))
+    elif assumed:
+        notes.append(f"the printer was assumed: the file does not say which printer it was made for; checked as made "
+                     f"for {printer.name} (--assume-printer)")
     if abs(rate - printer.planning.output_rate) > 1e-9 * rate:
         notes.append(f"file rate {rate:g} Hz differs from the printer's output_rate {printer.planning.output_rate:g} Hz")
 
@@ -407,7 +427,7 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         output=str(output), printer=printer.name, format=fmt, n_samples=n, rate=rate,
         duration=float(t[-1] - t[0]) if n > 1 else 0.0, channels=tuple(stats), violations=tuple(col.items),
         violation_count=col.count, max_deviation=max_dev, deviation_tolerance=tol_max, deviation_samples=n_dev,
-        notes=tuple(notes), planner_margin=printer.planning.limit_margin, rows=tuple(rows),
+        notes=tuple(notes), planner_margin=printer.planning.limit_margin, rows=tuple(rows), printer_assumed=assumed,
     )
 
 
@@ -456,7 +476,7 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
     from scipy.spatial import cKDTree
 
     work = samples.tool > 0
-    if quantised and printer.tool.channel_kind == "extruder":  # a stream's extruder state is derived from rising counts
+    if quantised and printer.tool.takes_filament:  # a stream's extruder state is derived from rising counts
         work = _close_gaps(work, max(1, int(round(GAP_FILL * len(samples) / max(samples.t[-1] - samples.t[0], 1e-9)))))
     idx = np.flatnonzero(work)
     starts, ends = toolpath.starts, toolpath.xyz

@@ -74,6 +74,7 @@ DOCS = {
     ("tool", "max_volumetric_flow"): ("mm³/s", "Hot end's melt limit: caps the filament speed while printing.", None),
     ("tool", "max_filament_acceleration"): ("mm/s²", "Extruder motor's filament acceleration limit.", None),
     ("tool", "retract_length"): ("mm", "Filament pulled back before a travel (0: no retracts).", None),
+    ("tool", "max_retract_length"): ("mm", "Longest retraction a G-code may ask for: filament pulled back below where it last extruded (retractions in a row add up); a longer one is refused naming its line. The default is Marlin's FWRETRACT `MAX_AUTORETRACT` (10 mm: longer standing E moves are filament loads, not retractions). At least `retract_length`.", None),
     ("tool", "retract_speed"): ("mm/s", "Filament speed of retracts and re-primes (the extruder's idle speed limit).", None),
     ("tool", "z_hop"): ("mm", "Lift of the nozzle during retracted travels.", None),
     ("tool", "retract_min_travel"): ("mm", "Travels shorter than this do not retract.", None),
@@ -87,10 +88,10 @@ DOCS = {
     ("tool", "bed_temperature"): ("deg C", "Bed temperature a sliced part is printed at; 0: an unheated bed (no bed events).", None),
     # bed
     ("bed", "shape"): ("", "`circle` (deltas) or `rectangle`.", None),
-    ("bed", "radius"): ("mm", "Printable radius of a circular bed; every printing move must lie within it.", None),
-    ("bed", "size_x"): ("mm", "Printable width of a rectangular bed (centred on the origin).", None),
-    ("bed", "size_y"): ("mm", "Printable depth of a rectangular bed.", None),
-    ("bed", "max_height"): ("mm", "Tallest part the machine prints (z above the bed).", None),
+    ("bed", "radius"): ("mm", "Printable radius of a circular bed: the work envelope's edge; every commanded point (travels included) must lie within it.", None),
+    ("bed", "size_x"): ("mm", "Printable width of a rectangular bed (centred on the origin): the work envelope's extent in x.", None),
+    ("bed", "size_y"): ("mm", "Printable depth of a rectangular bed: the work envelope's extent in y.", None),
+    ("bed", "max_height"): ("mm", "Tallest part the machine prints (z above the bed): the top of the work envelope; a commanded point above it, or below the bed surface, is refused.", None),
     # slicing
     ("slicing", "layer_height"): ("mm", "Layer height after the first.", None),
     ("slicing", "first_layer_height"): ("mm", "First layer's height.", "layer_height"),

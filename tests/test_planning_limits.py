@@ -333,11 +333,13 @@ def test_prusaslicer_gcode_of_a_mechanical_part_compiles(prusa_gcode, name):
 
     printer = load_printer(ROOT / "printers" / f"{name}.toml")
     toolpath = load_toolpath(str(prusa_gcode), printer)
-    # Centre the part on the bed and put its first layer at the bed's usual first height.
+    # Centre the part on the bed and put its first layer at the bed's usual first height; the start
+    # (on the bed surface) is not lowered with it: a point below the bed is refused.
     on = toolpath.e > 0
     lo, hi = toolpath.xyz[on].min(axis=0), toolpath.xyz[on].max(axis=0)
     shift = np.array([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, Z0[name] - lo[2]])
-    toolpath = dataclasses.replace(toolpath, xyz=toolpath.xyz + shift, start=toolpath.start + shift, layer_z=toolpath.layer_z + shift[2])
+    start = toolpath.start + shift * (1.0, 1.0, float(shift[2] > 0))
+    toolpath = dataclasses.replace(toolpath, xyz=toolpath.xyz + shift, start=start, layer_z=toolpath.layer_z + shift[2])
     for mode in ("feed", "machine"):
         traj = plan(toolpath, printer, speed_limit=mode, workers=2)
         sv, sa = traj.stage_maxima()

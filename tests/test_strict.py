@@ -47,7 +47,8 @@ def _csv(tmp_path, p, s, name="x"):
 def _raw_csv(tmp_path, p, s, name="raw"):
     """A CSV whose values are written as they are (the writer refuses non-finite values)."""
     path = tmp_path / f"{name}.csv"
-    header = f"# printer: {p.name}\n# rate_hz: {p.planning.output_rate:g}\nt,q1,q2,q3,e,tool\n"
+    header = (f"# printer: {p.name}\n# fingerprint: 0x{p.fingerprint():08x}\n# rate_hz: {p.planning.output_rate:g}\n"
+              "t,q1,q2,q3,e,tool\n")
     rows = np.column_stack([s.t, s.q, s.e, s.tool])
     buf = io.StringIO()
     np.savetxt(buf, rows, delimiter=",", fmt="%.10g")
@@ -84,7 +85,8 @@ def test_verify_fails_on_an_all_nan_file(good, tmp_path):
 
 def test_verify_fails_on_a_header_only_file(tmp_path):
     path = tmp_path / "empty.csv"
-    path.write_text("# printer: delta_etitc\n# rate_hz: 1000\nt,q1,q2,q3,e,tool\n")
+    fingerprint = printer("delta_etitc").fingerprint()
+    path.write_text(f"# printer: delta_etitc\n# fingerprint: 0x{fingerprint:08x}\n# rate_hz: 1000\nt,q1,q2,q3,e,tool\n")
     r = _verify_cli(path)
     assert r.exit_code == 3 and "FAIL" in r.output and "samples" in r.output
 

@@ -132,12 +132,15 @@ def _read_tool(sec: Section) -> Tool:
             s_max=sec.getfloat("s_max", 1000.0, above=0),
         )
     nozzle = sec.getfloat("nozzle_diameter", above=0, maxval=5)
-    return Extruder(
+    extruder = Extruder(
         nozzle_diameter=nozzle,
         filament_diameter=sec.getfloat("filament_diameter", minval=0.1, maxval=5),  # its square divides
         max_volumetric_flow=sec.getfloat("max_volumetric_flow", above=0),
         max_filament_acceleration=sec.getfloat("max_filament_acceleration", above=0),
         retract_length=sec.getfloat("retract_length", 0.0, minval=0),
+        # Marlin's FWRETRACT takes standing E moves up to MAX_AUTORETRACT = 10 mm as retractions; a
+        # longer pull is a filament unload, not something a print asks for
+        max_retract_length=sec.getfloat("max_retract_length", 10.0, above=0),
         retract_speed=sec.getfloat("retract_speed", 30.0, above=0),
         z_hop=sec.getfloat("z_hop", 0.0, minval=0),
         retract_min_travel=sec.getfloat("retract_min_travel", 2.0, minval=0),
@@ -145,6 +148,10 @@ def _read_tool(sec: Section) -> Tool:
         hotend_temperature=sec.getfloat("hotend_temperature", 200.0, minval=0, maxval=500),
         bed_temperature=sec.getfloat("bed_temperature", 0.0, minval=0, maxval=200),
     )
+    if extruder.max_retract_length < extruder.retract_length:
+        sec.fail("max_retract_length", extruder.max_retract_length,
+                 f"a length >= [tool] retract_length ({extruder.retract_length:g} mm)")
+    return extruder
 
 
 def _number(value, fallback: float) -> float:

@@ -6,6 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: How far outside the work envelope (below the bed, above max_height, off its edge) a commanded
+#: point may be, mm: coordinates written to a micron, offsets summed in floating point.
+ENVELOPE_TOLERANCE = 1e-6
+
 
 @dataclass(frozen=True)
 class Bed:
@@ -23,6 +27,32 @@ class Bed:
         if self.shape == "circle":
             return np.hypot(xy[:, 0], xy[:, 1]) <= self.radius + 1e-9
         return (np.abs(xy[:, 0]) <= self.size_x / 2 + 1e-9) & (np.abs(xy[:, 1]) <= self.size_y / 2 + 1e-9)
+
+    def z_limits(self) -> tuple[float, float]:
+        """(lowest, highest) z a commanded tool point may have, mm: the bed surface and max_height,
+        each with :data:`ENVELOPE_TOLERANCE` (a file's coordinates are rounded)."""
+        return -ENVELOPE_TOLERANCE, self.max_height + ENVELOPE_TOLERANCE
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """The work envelope: points (n, 3) mm -> (n,) bool, on or above the bed surface, at most
+        max_height above it and over the bed (the declared build volume)."""
+        points = np.asarray(points, dtype=float)
+        lo, hi = self.z_limits()
+        return (points[:, 2] >= lo) & (points[:, 2] <= hi) & self.contains_xy(points[:, :2])
+
+    def outside(self, point) -> str:
+        """Why ``point`` (3,) mm is outside the work envelope (:meth:`contains`), or "" when it is not."""
+        x, y, z = (float(v) for v in point)
+        lo, hi = self.z_limits()
+        if not z >= lo:
+            return f"{-z:.2f} mm below the bed surface"
+        if not z <= hi:
+            return f"{z - self.max_height:.2f} mm above [bed] max_height = {self.max_height:g} mm"
+        if not self.contains_xy(np.array([[x, y]]))[0]:
+            what = (f"a circle of radius {self.radius:g} mm" if self.shape == "circle"
+                    else f"{self.size_x:g} x {self.size_y:g} mm")
+            return f"off the bed ({what} about its centre)"
+        return ""
 
 
 @dataclass(frozen=True)

@@ -29,12 +29,17 @@ class Extruder:
     #: Temperatures deltaslice's slicer sets and waits for at the start, degrees C (bed 0: unheated).
     hotend_temperature: float = 200.0
     bed_temperature: float = 0.0
+    #: Longest retraction an input may ask for, mm: filament pulled back below where it last extruded.
+    max_retract_length: float = 10.0
 
     channel_kind = "extruder"
     channel_name = "filament"
     channel_unit = "mm"
     #: Events (EventKind names) set to 0 when every job ends: heaters and part fan off.
     off_events = ("hotend_set", "bed_set", "fan")
+    #: What an input may ask of the tool: filament (G-code E words) and laser power (M3/M4).
+    takes_filament = True
+    takes_laser_power = False
 
     @property
     def filament_area(self) -> float:
@@ -92,7 +97,10 @@ class Laser:
     channel_name = "laser"
     channel_unit = "0..1"
     off_events = ("laser_mode", "fan")  # M5 and the air assist off when every job ends
+    takes_filament = False
+    takes_laser_power = True
     retract_min_travel = 0.0  # a laser never retracts: every travel lifts
+    max_retract_length = 0.0  # nor takes filament to pull back
 
     @property
     def counts_per_unit(self) -> float:

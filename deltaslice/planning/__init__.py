@@ -41,39 +41,51 @@ STREAM_RUN = 50_000
 
 
 def check_reachable(toolpath: Toolpath, printer, hint: bool = True) -> None:
-    """Raise UnreachableError naming the layer and position of the first point out of reach;
-    hint: say whether the part would fit centred (False for a stretch of a part, which cannot
-    tell: then only that --center exists)."""
+    """Raise UnreachableError naming the layer and position of the first point outside the work
+    envelope (below the bed, above max_height or off the bed: ``printer.bed.contains``) or out of
+    reach; hint: say whether the part would fit centred (False for a stretch of a part, which
+    cannot tell: then only that --center exists)."""
     kin = printer.kinematics()
     pts = np.concatenate([toolpath.start[None], toolpath.xyz])
-    ok = kin.reachable(pts)
-    if not ok.all():
-        i = int(np.flatnonzero(~ok)[0])
-        layer = int(toolpath.layer[max(i - 1, 0)]) if len(toolpath) else 0
-        p = pts[i]
-        q = kin.inverse(p[None])[0]
-        why = "no real inverse kinematics"
-        if np.all(np.isfinite(q)):
-            lo, hi = kin.position_min, kin.position_max
-            bad = np.flatnonzero((q < lo - 1e-9) | (q > hi + 1e-9))
-            if bad.size:
-                j = int(bad[0])
-                why = f"joint {j + 1} would be at {q[j]:.4g}, outside {lo[j]:.4g}..{hi[j]:.4g}"
-            elif kin.condition(q[None])[0] >= kin.singularity_limit:
-                why = f"too close to a singularity (Jacobian condition {kin.condition(q[None])[0]:.0f})"
-            else:
-                why = "beyond a mechanical limit (ball-joint tilt)"
-        from ..toolpath import fits_centred
+    ok = printer.bed.contains(pts)
+    ok[ok] = kin.reachable(pts[ok])
+    if ok.all():
+        return
+    i = int(np.flatnonzero(~ok)[0])
+    layer = int(toolpath.layer[max(i - 1, 0)]) if len(toolpath) else 0
+    p = pts[i]
+    where = f"layer {layer}: x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm"
+    lo, hi = printer.bed.z_limits()
+    if not lo <= p[2] <= hi:  # no placement on the bed moves a point back into the z range
+        raise UnreachableError(f"{where} is outside the work envelope of {printer.name}: {printer.bed.outside(p)}")
+    if not kin.reachable(p[None])[0]:
+        problem = f"is out of reach of {printer.name} ({_why_unreachable(kin, p)})"
+    else:
+        problem = f"is outside the work envelope of {printer.name}: {printer.bed.outside(p)}"
+    from ..toolpath import fits_centred
 
-        if not hint:
-            hint = "; if the file was placed for another bed, --center (center=True) moves it to this one's centre"
-        elif fits_centred(toolpath, printer):
-            hint = "; the part would fit centred on the bed: use --center (center=True)"
-        else:
-            hint = "; it would not fit centred on the bed either"
-        raise UnreachableError(
-            f"layer {layer}: x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm is out of reach of {printer.name} ({why}){hint}"
-        )
+    if not hint:
+        hint = "; if the file was placed for another bed, --center (center=True) moves it to this one's centre"
+    elif fits_centred(toolpath, printer):
+        hint = "; the part would fit centred on the bed: use --center (center=True)"
+    else:
+        hint = "; it would not fit centred on the bed either"
+    raise UnreachableError(f"{where} {problem}{hint}")
+
+
+def _why_unreachable(kin, p) -> str:
+    """Which of the kinematics' limits the point (3,) mm breaks."""
+    q = kin.inverse(p[None])[0]
+    if not np.all(np.isfinite(q)):
+        return "no real inverse kinematics"
+    lo, hi = kin.position_min, kin.position_max
+    bad = np.flatnonzero((q < lo - 1e-9) | (q > hi + 1e-9))
+    if bad.size:
+        j = int(bad[0])
+        return f"joint {j + 1} would be at {q[j]:.4g}, outside {lo[j]:.4g}..{hi[j]:.4g}"
+    if kin.condition(q[None])[0] >= kin.singularity_limit:
+        return f"too close to a singularity (Jacobian condition {kin.condition(q[None])[0]:.0f})"
+    return "beyond a mechanical limit (ball-joint tilt)"
 
 
 LASER_ROLES = (int(Role.LASER), int(Role.LASER_DYNAMIC))
@@ -151,13 +163,23 @@ def _printed_top(toolpath: Toolpath) -> float:
 
 def _check_tool(toolpath: Toolpath, printer) -> None:
     """Refuse a toolpath made for the other kind of tool: filament for a laser, laser burns for
-    an extruder (the channel would carry a meaning its player does not have)."""
+    an extruder (the channel would carry a meaning its player does not have); and one that
+    retracts the filament further than ``[tool] max_retract_length``."""
     laser_moves = np.isin(toolpath.role, LASER_ROLES)
-    if printer.tool.channel_kind == "laser" and np.any(toolpath.e[toolpath.working] > 0):
+    if not printer.tool.takes_filament and np.any(toolpath.e[toolpath.working] > 0):
         raise DeltasliceError(f"the toolpath extrudes filament but {printer.name} has a laser: "
                               "slice it for an extruder printer, or give the laser an image, an SVG or laser G-code")
-    if printer.tool.channel_kind != "laser" and laser_moves.any():
+    if not printer.tool.takes_laser_power and laser_moves.any():
         raise DeltasliceError(f"the toolpath has {int(laser_moves.sum())} laser moves but {printer.name} has an extruder")
+    # how far the filament is pulled back from the most it was pushed (retractions in a row add up),
+    # as the G-code reader measures it line by line; a stretch of a print (plan_stream) from its own start
+    pushed = np.cumsum(toolpath.e)
+    back = np.maximum.accumulate(np.maximum(pushed, 0.0)) - pushed
+    if len(back) and back.max() > printer.tool.max_retract_length:
+        i = int(np.argmax(back > printer.tool.max_retract_length))
+        raise DeltasliceError(
+            f"layer {int(toolpath.layer[i])}: the toolpath retracts the filament {back[i]:.2f} mm from where it last "
+            f"extruded, more than {printer.name}'s [tool] max_retract_length = {printer.tool.max_retract_length:g} mm")
 
 
 def split_runs(toolpath: Toolpath, laser: bool | None = None):

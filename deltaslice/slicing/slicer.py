@@ -47,7 +47,7 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     """
     s = settings
     check_workers(workers, "slice_mesh")
-    if tool.channel_kind != "extruder":
+    if not tool.takes_filament:
         raise DeltasliceError(
             f"{name}: slicing a mesh needs an extruder, this printer has a {tool.channel_kind}: "
             "give it an image or G-code instead"
