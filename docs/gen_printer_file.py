@@ -117,6 +117,15 @@ DOCS = {
     ("slicing", "bridge_speed"): ("mm/s", "Speed of bridge infill over air.", "perimeter_speed"),
     ("slicing", "bridge_flow"): ("", "Multiplier on the round bead of nozzle diameter laid over air.", None),
     ("slicing", "overhang_speed"): ("mm/s", "Speed of perimeters over air.", "half the external perimeter speed"),
+    # cooling (PrusaSlicer's names and defaults)
+    ("cooling", "min_fan_speed"): ("%", "Part-fan speed of layers that take `fan_below_layer_time` or longer (the fan stays on, as PrusaSlicer's fan_always_on).", None),
+    ("cooling", "max_fan_speed"): ("%", "Part-fan speed of layers quicker than `slowdown_below_layer_time`; between the two times the speed falls linearly to `min_fan_speed`. 0 with the other speeds: a machine without a part fan.", None),
+    ("cooling", "bridge_fan_speed"): ("%", "Part-fan speed while bridge infill prints.", None),
+    ("cooling", "overhang_fan_speed"): ("%", "Part-fan speed while overhang perimeters print (PrusaSlicer 2.5 uses its bridge fan speed there).", None),
+    ("cooling", "disable_fan_first_layers"): ("layers", "The fan stays off on this many first layers (bridges and overhangs included).", None),
+    ("cooling", "fan_below_layer_time"): ("s", "Layers quicker than this run the fan above `min_fan_speed`.", None),
+    ("cooling", "slowdown_below_layer_time"): ("s", "Minimum layer time: a quicker layer's printing moves are slowed by one factor until it takes this long (times at the requested feeds, travels included); 0: no slowdown.", None),
+    ("cooling", "min_print_speed"): ("mm/s", "The slowdown never takes a printing move below this speed.", None),
     # planning
     ("planning", "output_rate"): ("Hz", "Setpoint rate of the outputs (the firmware's control loop rate).", None),
     ("planning", "blend_tolerance"): ("mm", "Largest distance a blended corner leaves the toolpath's corner point.", None),
@@ -126,7 +135,7 @@ DOCS = {
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",
-                 "bed", "slicing", "planning"]
+                 "bed", "slicing", "cooling", "planning"]
 
 
 def collect():

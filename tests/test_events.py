@@ -167,7 +167,10 @@ def test_sliced_part_carries_heater_events_to_csv_and_stream(tmp_path):
     for out in (tmp_path / "box.csv", tmp_path / "box.dsl"):
         compile_part(part, kossel, output=str(out), workers=1)
         meta, s = read_output(out)
-        assert meta["events"] == ((0, 3, 60.0), (0, 1, 200.0), (0, 4, 60.0), (0, 2, 200.0))
+        heaters = tuple(e for e in meta["events"] if e[1] != EventKind.FAN)
+        assert heaters[:4] == ((0, 3, 60.0), (0, 1, 200.0), (0, 4, 60.0), (0, 2, 200.0))
+        # the part fan ([cooling]): on, full, after the first three layers of the five
+        assert [e[2] for e in meta["events"] if e[1] == EventKind.FAN][:1] == [255.0]
     etitc = printer("delta_etitc")  # an unheated bed: hot-end events only
     compile_part(part, etitc, output=str(tmp_path / "e.csv"), workers=1)
     assert read_output(tmp_path / "e.csv")[0]["events"] == ((0, 1, 200.0), (0, 2, 200.0))

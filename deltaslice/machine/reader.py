@@ -24,7 +24,7 @@ from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
 from .limits import Limits
 from .printer import Printer
-from .settings import Bed, PlanningSettings, SlicingSettings
+from .settings import Bed, CoolingSettings, PlanningSettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
@@ -184,6 +184,28 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
     return s
 
 
+def _read_cooling(sec: Section) -> CoolingSettings:
+    """``[cooling]``: PrusaSlicer's names and defaults (fan speeds in percent)."""
+    d = CoolingSettings()
+    pct = {"minval": 0, "maxval": 100}
+    low = sec.getfloat("min_fan_speed", d.min_fan_speed, **pct)
+    high = sec.getfloat("max_fan_speed", d.max_fan_speed, **pct)
+    c = CoolingSettings(
+        min_fan_speed=low,
+        max_fan_speed=high,
+        bridge_fan_speed=sec.getfloat("bridge_fan_speed", d.bridge_fan_speed, **pct),
+        overhang_fan_speed=sec.getfloat("overhang_fan_speed", d.overhang_fan_speed, **pct),
+        disable_fan_first_layers=sec.getint("disable_fan_first_layers", d.disable_fan_first_layers, minval=0, maxval=1000),
+        fan_below_layer_time=sec.getfloat("fan_below_layer_time", d.fan_below_layer_time, minval=0, maxval=3600),
+        slowdown_below_layer_time=sec.getfloat("slowdown_below_layer_time", d.slowdown_below_layer_time, minval=0,
+                                               maxval=3600),
+        min_print_speed=sec.getfloat("min_print_speed", d.min_print_speed, above=0),
+    )
+    if low > high:
+        sec.fail("min_fan_speed", low, f"a speed <= max_fan_speed ({high:g} %)")
+    return c
+
+
 def _read_planning(sec: Section) -> PlanningSettings:
     return PlanningSettings(
         output_rate=sec.getfloat("output_rate", 1000.0, minval=50, maxval=100000),
@@ -208,7 +230,7 @@ def _read_bed(sec: Section) -> Bed:
     )
 
 
-SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "sources")
+SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "cooling", "planning", "sources")
 
 
 def resolve_printer(path) -> Path:
@@ -317,6 +339,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
 
     ksec, jsec, tsec = section("kinematics"), section("joints"), section("tool")
     bsec, ssec, psec = section("bed"), section("slicing"), section("planning", default={})
+    csec = section("cooling", default={})
 
     family_name = module = None
     if ksec is not None:
@@ -334,12 +357,14 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     bed = read(bsec, _read_bed)
     slicing = read(ssec, _read_slicing, tool) if tool is not None else read(ssec, _read_slicing, Laser(1.0, 1.0, 0.0))
     planning = read(psec, _read_planning)
+    cooling = read(csec, _read_cooling)
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
         problems.add("sources", None, '[sources] expected a table of key = "where the number comes from"')
     problems.raise_if_any()
 
+    slicing = replace(slicing, cooling=cooling)
     limits = _limits(joints, tool)
     J = limits.n_joints
     kinematics = make_kinematics(geometry, limits.position_min[:J], limits.position_max[:J], planning.singularity_limit)

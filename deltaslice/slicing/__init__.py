@@ -7,7 +7,8 @@ cross-sections: manifold3d for a closed part, open meshes cut triangle by triang
 along the medial axis), :mod:`.bridges` (solid regions over air, lines across the span),
 :mod:`.infill` (solid regions from neighbouring layers, rectilinear lines), :mod:`.skirt`,
 :mod:`.ordering` (path order, travels, retracts), :mod:`.extrusion` (filament amounts, feeds),
-:mod:`.heaters` (hot-end and bed set-and-wait events at the start).
+:mod:`.heaters` (hot-end and bed set-and-wait events at the start), :mod:`.cooling` (minimum layer
+time and part-fan events, on the finished toolpath).
 """
 
 from .slicer import slice_mesh

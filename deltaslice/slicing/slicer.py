@@ -13,6 +13,7 @@ from ..errors import DeltasliceError, MeshError
 from ..pool import can_fork, check_workers, forked_map, inherited
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .bridges import bridge_angle, bridge_region
+from .cooling import apply_cooling
 from .extrusion import bead_spacing, bridge_flow
 from .gapfill import medial_lines, to_shapely
 from .heaters import start_heating
@@ -43,7 +44,8 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
     the skirt (first layer), then island by island perimeters (innermost first,
     external last, overhang segments flagged), gap fill, then bridges, solid
-    (top and internal) and sparse infill.
+    (top and internal) and sparse infill; quick layers slowed to the minimum layer time and
+    part-fan events added (:mod:`.cooling`, the settings' ``cooling``).
     """
     s = settings
     check_workers(workers, "slice_mesh")
@@ -73,7 +75,7 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
         if progress is not None:
             progress(li + 1, n)
     writer.finish()
-    return builder.build()
+    return apply_cooling(builder.build(), s.cooling)
 
 
 @dataclass(frozen=True)
