@@ -117,6 +117,7 @@ DOCS = {
     ("slicing", "bridge_speed"): ("mm/s", "Speed of bridge infill over air.", "perimeter_speed"),
     ("slicing", "bridge_flow"): ("", "Multiplier on the round bead of nozzle diameter laid over air.", None),
     ("slicing", "overhang_speed"): ("mm/s", "Speed of perimeters over air.", "half the external perimeter speed"),
+    ("slicing", "brim_width"): ("mm", "Width of the brim: loops touching the outer outline of every island of the first layer, from the part outward (PrusaSlicer's outer-only brim, no gap); the skirt goes around it. 0: no brim.", None),
     # cooling (PrusaSlicer's names and defaults)
     ("cooling", "min_fan_speed"): ("%", "Part-fan speed of layers that take `fan_below_layer_time` or longer (the fan stays on, as PrusaSlicer's fan_always_on).", None),
     ("cooling", "max_fan_speed"): ("%", "Part-fan speed of layers quicker than `slowdown_below_layer_time`; between the two times the speed falls linearly to `min_fan_speed`. 0 with the other speeds: a machine without a part fan.", None),

@@ -178,6 +178,7 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
         bridge_flow=sec.getfloat("bridge_flow", 1.0, above=0, maxval=3),
         overhang_speed=sec.getfloat("overhang_speed", 0.5 * _number(sec.data.get("external_perimeter_speed",
                                                                                  sec.data.get("perimeter_speed")), 30.0), above=0),
+        brim_width=sec.getfloat("brim_width", 0.0, minval=0, maxval=100),
     )
     if s.first_layer_height > 0 and isinstance(tool, Extruder) and s.layer_height > tool.nozzle_diameter * 1.5:
         sec.fail("layer_height", layer, f"a layer height <= 1.5 x nozzle diameter ({1.5 * tool.nozzle_diameter:g} mm)")

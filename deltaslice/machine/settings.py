@@ -76,6 +76,7 @@ class SlicingSettings:
     bridge_speed: float = 30.0  # mm/s
     bridge_flow: float = 1.0  # multiplier on a round bead of nozzle diameter over air
     overhang_speed: float = 15.0  # mm/s: perimeters over air
+    brim_width: float = 0.0  # mm: brim loops around the first layer's outer outlines (0: none)
     cooling: CoolingSettings = CoolingSettings()  # the printer file's [cooling] table
 
 

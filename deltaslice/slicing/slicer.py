@@ -22,7 +22,7 @@ from .layers import layer_heights
 from .ordering import MoveWriter, Path, nearest_order
 from .perimeters import infill_boundary, overhang_segments, perimeter_loops
 from .sections import mesh_sections
-from .skirt import skirt_loops
+from .skirt import brim_extent, brim_loops, skirt_loops
 
 INFILL_ANCHOR_MAX = 50.0  # mm: infill lines are joined along the outline up to this far apart (PrusaSlicer's infill_anchor_max)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
@@ -94,11 +94,12 @@ class _Island:
 
 @dataclass(frozen=True)
 class _LayerPlan:
-    """A layer's paths, independent of where the tool comes from: the skirt (first layer only)
-    and the islands."""
+    """A layer's paths, independent of where the tool comes from: the skirt and the brim (first
+    layer only) and the islands."""
 
     skirt: list
     islands: list
+    brim: list = ()
 
 
 class _Layers:
@@ -189,9 +190,13 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
     angle = s.fill_angle + (math.pi / 2 if li % 2 else 0.0)
     res = float(s.gcode_resolution)
 
-    skirt = []
+    skirt, brim = [], []
+    if first and s.brim_width > 0:
+        brim = [Path(p, Role.SKIRT, w_p, closed=True) for p in brim_loops(here, s.brim_width, w_p, sp_p)]
     if first and s.skirt_loops > 0:
-        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(here, s.skirt_loops, s.skirt_distance, w_p)]
+        # the skirt keeps its distance from the brim's outer edge
+        gap = s.skirt_distance + brim_extent(s.brim_width, w_p, sp_p)
+        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(here, s.skirt_loops, gap, w_p)]
 
     exposed = here - sections[li + 1] if li + 1 < len(sections) else here
     below = sections[li - 1] if li > 0 else CrossSection()
@@ -276,14 +281,16 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
                 if layers.sparse_infill:
                     sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
-    return _LayerPlan(skirt, islands), _union(sparse_all)
+    return _LayerPlan(skirt, islands, brim), _union(sparse_all)
 
 
 def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
-    """Write a layer's paths: the skirt, then the islands nearest first (by their bounding-box
+    """Write a layer's paths: the skirt, the brim, then the islands nearest first (by their bounding-box
     centre), each from where the tool is: perimeters, gap fill, infill groups."""
     if plan.skirt:
         _emit(writer, nearest_order(plan.skirt, writer.pos, "nearest"), h)
+    if plan.brim:
+        _emit(writer, nearest_order(list(plan.brim), writer.pos, "nearest"), h)
     islands = plan.islands
     centres = np.array([isl.centre for isl in islands]).reshape(-1, 2)
     alive = np.ones(len(islands), bool)
