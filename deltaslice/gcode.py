@@ -46,6 +46,8 @@ _ROLE_NAMES = {
     Role.OVERHANG_PERIMETER: "Overhang perimeter",
     Role.BRIDGE_INFILL: "Bridge infill",
     Role.GAP_FILL: "Gap fill",
+    Role.SUPPORT: "Support material",
+    Role.SUPPORT_INTERFACE: "Support material interface",
 }
 _TYPE_TO_ROLE = {name.upper(): role for role, name in _ROLE_NAMES.items()}
 _TYPE_TO_ROLE.update(

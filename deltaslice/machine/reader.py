@@ -179,7 +179,18 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
         overhang_speed=sec.getfloat("overhang_speed", 0.5 * _number(sec.data.get("external_perimeter_speed",
                                                                                  sec.data.get("perimeter_speed")), 30.0), above=0),
         brim_width=sec.getfloat("brim_width", 0.0, minval=0, maxval=100),
+        support=sec.getstr("support", "none", choices=("none", "auto"), required=False),
+        support_angle=math.radians(sec.getfloat("support_angle", 50.0, minval=0, maxval=89)),
+        support_z_gap=sec.getfloat("support_z_gap", layer, minval=0, maxval=5),
+        support_xy_gap=sec.getfloat("support_xy_gap", 0.5 * _number(sec.data.get("perimeter_width"), nozzle * 1.125),
+                                    minval=0, maxval=20),
+        support_interface_layers=sec.getint("support_interface_layers", 3, minval=0, maxval=50),
+        support_spacing=sec.getfloat("support_spacing", 2.5, above=0, maxval=50),
+        support_type=sec.getstr("support_type", "everywhere", choices=("everywhere", "buildplate"), required=False),
+        support_pattern=sec.getstr("support_pattern", "rectilinear", choices=("rectilinear", "grid"), required=False),
     )
+    if s.support_spacing < s.infill_width:
+        sec.fail("support_spacing", s.support_spacing, f"a spacing >= infill_width ({s.infill_width:g} mm): lines that far apart")
     if s.first_layer_height > 0 and isinstance(tool, Extruder) and s.layer_height > tool.nozzle_diameter * 1.5:
         sec.fail("layer_height", layer, f"a layer height <= 1.5 x nozzle diameter ({1.5 * tool.nozzle_diameter:g} mm)")
     return s

@@ -77,6 +77,14 @@ class SlicingSettings:
     bridge_flow: float = 1.0  # multiplier on a round bead of nozzle diameter over air
     overhang_speed: float = 15.0  # mm/s: perimeters over air
     brim_width: float = 0.0  # mm: brim loops around the first layer's outer outlines (0: none)
+    support: str = "none"  # "none" | "auto": support under overhangs flatter than support_angle
+    support_angle: float = 0.8726646259971648  # rad from vertical (50 deg)
+    support_z_gap: float = 0.2  # mm between a support's top and the part
+    support_xy_gap: float = 0.25  # mm between a support's lines and the part's edge
+    support_interface_layers: int = 3  # dense layers at the top of each support
+    support_spacing: float = 2.5  # mm between the centre lines of the support's body
+    support_type: str = "everywhere"  # "everywhere" | "buildplate" (only columns standing on the bed)
+    support_pattern: str = "rectilinear"  # "rectilinear" (one direction) | "grid" (alternating by layer)
     cooling: CoolingSettings = CoolingSettings()  # the printer file's [cooling] table
 
 

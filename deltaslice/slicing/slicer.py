@@ -23,10 +23,12 @@ from .ordering import MoveWriter, Path, nearest_order
 from .perimeters import infill_boundary, overhang_segments, perimeter_loops
 from .sections import mesh_sections
 from .skirt import brim_extent, brim_loops, skirt_loops
+from .support import support_layers
 
 INFILL_ANCHOR_MAX = 50.0  # mm: infill lines are joined along the outline up to this far apart (PrusaSlicer's infill_anchor_max)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
 LAYERS_PER_TASK = 4  # layers a slicing worker plans at a time (each range recomputes one sparse region)
+SUPPORT_INTERFACE_GAP = 0.2  # mm of air between interface beads (PrusaSlicer's support_material_interface_spacing)
 STARTED_TASKS = 4  # ranges in flight per worker while slice_mesh's ``started`` runs (about half a second)
 
 
@@ -95,11 +97,12 @@ class _Island:
 @dataclass(frozen=True)
 class _LayerPlan:
     """A layer's paths, independent of where the tool comes from: the skirt and the brim (first
-    layer only) and the islands."""
+    layer only), the support and the islands."""
 
     skirt: list
     islands: list
     brim: list = ()
+    support: list = ()
 
 
 class _Layers:
@@ -116,12 +119,14 @@ class _Layers:
         # whether the sparse region is infill the next layer's bridges do not count as support
         # (none at 0 %, solid lines at 100 %)
         self.sparse_infill = 0 < min(float(s.fill_density), 1.0) < 0.999
+        # every layer's support regions, in one pass down the layers (before any worker forks)
+        self.support = support_layers(sections, thick, s.layer_height, s, s.infill_width)
 
     def plan(self, li: int, prev_sparse: CrossSection) -> tuple[_LayerPlan, CrossSection]:
         """Layer ``li``'s plan and its sparse infill region (what the next layer's internal
         bridges count as no support); prev_sparse: the layer below's."""
         if self.sections[li].is_empty():
-            return _LayerPlan([], []), CrossSection()
+            return _LayerPlan([], [], support=_support_paths(self, li)), CrossSection()
         return _layer_plan(self, li, prev_sparse)
 
     def sparse(self, li: int) -> CrossSection:
@@ -281,16 +286,36 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
                 if layers.sparse_infill:
                     sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
-    return _LayerPlan(skirt, islands, brim), _union(sparse_all)
+    return _LayerPlan(skirt, islands, brim, _support_paths(layers, li)), _union(sparse_all)
+
+
+def _support_paths(layers: _Layers, li: int) -> list:
+    """Layer ``li``'s support paths: the body's lines ``support_spacing`` apart (at the infill
+    angle; ``grid``: turned 90 deg every other layer), the interface's across them, a
+    ``SUPPORT_INTERFACE_GAP`` of air between neighbouring beads."""
+    sup = layers.support[li]
+    if sup.body.is_empty() and sup.interface.is_empty():
+        return []
+    s = layers.s
+    h = float(layers.thick[li])
+    w = s.first_layer_width if li == 0 else s.infill_width
+    sp = bead_spacing(w, h)
+    angle = s.fill_angle + (math.pi / 2 if s.support_pattern == "grid" and li % 2 else 0.0)
+    paths = [Path(p, Role.SUPPORT, w) for p in rectilinear(sup.body, angle, max(s.support_spacing, sp), w, INFILL_ANCHOR_MAX)]
+    paths += [Path(p, Role.SUPPORT_INTERFACE, w)
+              for p in rectilinear(sup.interface, angle + math.pi / 2, sp + SUPPORT_INTERFACE_GAP, w, INFILL_ANCHOR_MAX)]
+    return paths
 
 
 def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
-    """Write a layer's paths: the skirt, the brim, then the islands nearest first (by their bounding-box
+    """Write a layer's paths: the skirt, the brim, the support, then the islands nearest first (by their bounding-box
     centre), each from where the tool is: perimeters, gap fill, infill groups."""
     if plan.skirt:
         _emit(writer, nearest_order(plan.skirt, writer.pos, "nearest"), h)
     if plan.brim:
         _emit(writer, nearest_order(list(plan.brim), writer.pos, "nearest"), h)
+    if plan.support:
+        _emit(writer, nearest_order(list(plan.support), writer.pos), h)
     islands = plan.islands
     centres = np.array([isl.centre for isl in islands]).reshape(-1, 2)
     alive = np.ones(len(islands), bool)
