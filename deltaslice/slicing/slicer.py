@@ -14,10 +14,10 @@ from ..pool import can_fork, check_workers, forked_map, inherited
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .bridges import bridge_angle, bridge_region
 from .cooling import apply_cooling
-from .extrusion import bead_spacing, bridge_flow
+from .extrusion import bead_spacing, bridge_flow, filament_per_mm
 from .gapfill import medial_lines, to_shapely
 from .heaters import start_heating
-from .infill import clean, rectilinear, solid_masks
+from .infill import clean, dense_flow_scale, rectilinear, solid_masks
 from .layers import layer_heights
 from .ordering import MoveWriter, Path, nearest_order
 from .perimeters import infill_boundary, overhang_segments, perimeter_loops
@@ -245,6 +245,8 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         # (printed right after the perimeters, as PrusaSlicer does)
         fill, solid, sparse, scraps = g.fill_regions(island)
         covered = _coverage(loops, sp_p)
+        # what the infill must fill: the island less the perimeter beads (before the infill's own band)
+        to_fill = island - covered if not covered.is_empty() else island
         if not fill.is_empty():
             covered = covered + fill.offset(sp_i / 2, JoinType.Miter, 3.0)
         gap = island - covered if not covered.is_empty() else island
@@ -277,14 +279,23 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
             internal = solid - top_region if not top_region.is_empty() else solid
             if not scraps.is_empty():
                 internal = internal + scraps
-            groups.append([Path(p, role, w_i) for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL))
-                           for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX)])
-            if s.fill_density > 0 and not sparse.is_empty():
-                dens = min(float(s.fill_density), 1.0)
-                role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
-                groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
-                if layers.sparse_infill:
-                    sparse_all.append(sparse)
+            dens = min(float(s.fill_density), 1.0)
+            dense = [(top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL)]
+            if dens >= 0.999 and not sparse.is_empty():
+                dense.append((sparse, Role.SOLID_INFILL))  # 100 % sparse infill is solid lines too
+            lines = [(rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX), role) for region, role in dense]
+            # dense lines overlap the perimeters (infill_overlap) and run along the outline: their
+            # flow is scaled so they lay what the region between the perimeters holds, no more
+            fpm = filament_per_mm(w_i, h, layers.tool.filament_area, s.extrusion_multiplier) * dense_flow_scale(
+                _union([r for r, _ in dense]), to_fill - bridge if not bridge.is_empty() else to_fill,
+                [p for ps, _ in lines for p in ps], sp_i)
+            groups.append([Path(p, role, w_i, flow=fpm) for ps, role in lines[:2] for p in ps])
+            if len(lines) > 2:
+                groups.append([Path(p, Role.SOLID_INFILL, w_i, flow=fpm) for p in lines[2][0]])
+            elif s.fill_density > 0 and not sparse.is_empty():
+                groups.append([Path(p, Role.INFILL, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
+            if layers.sparse_infill and not sparse.is_empty():
+                sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
     return _LayerPlan(skirt, islands, brim, _support_paths(layers, li)), _union(sparse_all)
 
