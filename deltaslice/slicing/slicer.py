@@ -45,7 +45,7 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     workers do not need; what it raises stops the slicing.
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
     the skirt (first layer), then island by island perimeters (innermost first,
-    external last, overhang segments flagged), gap fill, then bridges, solid
+    external last, segments over air flagged on every loop), gap fill, then bridges, solid
     (top and internal) and sparse infill; quick layers slowed to the minimum layer time and
     part-fan events added (:mod:`.cooling`, the settings' ``cooling``).
     """
@@ -222,8 +222,8 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         inner = island.offset(-w_p / 4, JoinType.Miter, 3.0)
         inside = None if inner.is_empty() else to_shapely(inner)
 
-        # perimeters: innermost depth first, the external loop last; external segments over air
-        # are overhang perimeters
+        # perimeters: innermost depth first, the external loop last; segments of any loop over
+        # air are overhang perimeters (an inner loop of a cantilever has nothing under it either)
         loops = perimeter_loops(island, w_p, layers.P, sp_p)
         perimeters = []
         for depth in sorted({d for d, _ in loops}, reverse=True):
@@ -232,7 +232,7 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
                 if d != depth:
                     continue
                 role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
-                if depth == 0 and overhang_test is not None:
+                if overhang_test is not None:
                     dense, over = overhang_segments(p, overhang_test, w_p / 4)
                     if over.any():
                         p = dense
