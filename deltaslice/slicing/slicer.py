@@ -44,10 +44,11 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     are planned here): work this process does meanwhile, such as loading numba, which the
     workers do not need; what it raises stops the slicing.
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
-    the skirt (first layer), then island by island perimeters (innermost first,
-    external last, segments over air flagged on every loop), gap fill, then bridges, solid
-    (top and internal) and sparse infill; quick layers slowed to the minimum layer time and
-    part-fan events added (:mod:`.cooling`, the settings' ``cooling``).
+    the skirt and brim (first layer), the support, then island by island perimeters (a hole's
+    or outline's loops together, innermost first, external last, segments over air flagged on
+    every loop), gap fill, then bridges, and solid (top and internal) and sparse infill
+    ordered together; quick layers slowed to the minimum layer time and part-fan events added
+    (:mod:`.cooling`, the settings' ``cooling``).
     """
     s = settings
     check_workers(workers, "slice_mesh")
@@ -84,8 +85,10 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
 class _Island:
     """What one island of a layer prints, before it is ordered: ``centre`` (2,) mm of its
     bounding box (islands are visited nearest first); ``inside``: the shapely region travels may
-    cross without retracting, or None; perimeter paths by depth (innermost first), gap-fill
-    paths, and the infill groups printed one after the other (bridges, solid, sparse)."""
+    cross without retracting, or None; perimeter groups (an outline or a hole: its external loop
+    and the inner loops nearest it), each its paths by depth (innermost first); gap-fill paths,
+    and the infill groups printed one after the other (bridges, then solid and sparse
+    together)."""
 
     centre: np.ndarray
     inside: object
@@ -225,20 +228,24 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         # perimeters: innermost depth first, the external loop last; segments of any loop over
         # air are overhang perimeters (an inner loop of a cantilever has nothing under it either)
         loops = perimeter_loops(island, w_p, layers.P, sp_p)
+        owner = _loop_groups(loops)
         perimeters = []
-        for depth in sorted({d for d, _ in loops}, reverse=True):
-            paths = []
-            for d, p in loops:
-                if d != depth:
-                    continue
-                role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
-                if overhang_test is not None:
-                    dense, over = overhang_segments(p, overhang_test, w_p / 4)
-                    if over.any():
-                        p = dense
-                        role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
-                paths.append(Path(p, role, w_p, closed=True))
-            perimeters.append(paths)
+        for group in range(int(owner.max()) + 1 if len(owner) else 0):
+            by_depth = []
+            for depth in sorted({d for (d, _), o in zip(loops, owner) if o == group}, reverse=True):
+                paths = []
+                for (d, p), o in zip(loops, owner):
+                    if d != depth or o != group:
+                        continue
+                    role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
+                    if overhang_test is not None:
+                        dense, over = overhang_segments(p, overhang_test, w_p / 4)
+                        if over.any():
+                            p = dense
+                            role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
+                    paths.append(Path(p, role, w_p, closed=True))
+                by_depth.append(paths)
+            perimeters.append(by_depth)
 
         # gap fill: what neither the perimeter beads nor the infill reach (narrow walls, thin
         # features, tiny islands), one variable-width line down its middle
@@ -262,7 +269,7 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
                 flow = widths * h / layers.tool.filament_area * s.extrusion_multiplier
                 gaps.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
 
-        groups: list[list[Path]] = []  # printed group after group: bridges, solid, sparse
+        groups: list[list[Path]] = []  # printed group after group: bridges, then solid and sparse
         if not fill.is_empty():
             bridge = CrossSection()
             if li > 0 and not solid.is_empty():
@@ -289,11 +296,13 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
             fpm = filament_per_mm(w_i, h, layers.tool.filament_area, s.extrusion_multiplier) * dense_flow_scale(
                 _union([r for r, _ in dense]), to_fill - bridge if not bridge.is_empty() else to_fill,
                 [p for ps, _ in lines for p in ps], sp_i)
-            groups.append([Path(p, role, w_i, flow=fpm) for ps, role in lines[:2] for p in ps])
-            if len(lines) > 2:
-                groups.append([Path(p, Role.SOLID_INFILL, w_i, flow=fpm) for p in lines[2][0]])
-            elif s.fill_density > 0 and not sparse.is_empty():
-                groups.append([Path(p, Role.INFILL, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
+            # solid and sparse lines in one group, ordered together from where the perimeters end
+            # (PrusaSlicer chains a region's fills together): a solid strip across the island
+            # need not cost a travel there and back
+            fills = [Path(p, role, w_i, flow=fpm) for ps, role in lines for p in ps]
+            if len(lines) == 2 and s.fill_density > 0 and not sparse.is_empty():
+                fills += [Path(p, Role.INFILL, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)]
+            groups.append(fills)
             if layers.sparse_infill and not sparse.is_empty():
                 sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
@@ -318,9 +327,45 @@ def _support_paths(layers: _Layers, li: int) -> list:
     return paths
 
 
+def _loop_groups(loops: list) -> np.ndarray:
+    """(len(loops),) int: the group of each ``(depth, polygon)`` loop: the index of the external
+    (depth 0) loop nearest its first vertex; one group when there is no external loop."""
+    ext = [i for i, (d, _) in enumerate(loops) if d == 0]
+    owner = np.zeros(len(loops), np.intp)
+    if len(ext) < 2:
+        return owner
+    rings = np.array([shapely.LinearRing(loops[i][1]) for i in ext], dtype=object)
+    for i, (d, p) in enumerate(loops):
+        owner[i] = ext.index(i) if d == 0 else int(np.argmin(shapely.distance(rings, shapely.Point(p[0]))))
+    return owner
+
+
+def _nearest_groups(groups: list, position: np.ndarray):
+    """Perimeter groups (lists of path lists by depth) greedily nearest first from
+    ``position``: the next is the one with a vertex of its first loops nearest where the
+    previous group ended (its external loop)."""
+    if len(groups) < 2:
+        yield from groups
+        return
+    pos = np.asarray(position[:2], float)
+    firsts = [np.concatenate([p.points for p in g[0]]) if g and g[0] else np.zeros((1, 2)) for g in groups]
+    lasts = [np.concatenate([p.points for p in g[-1]]) if g and g[-1] else np.zeros((1, 2)) for g in groups]
+    alive = list(range(len(groups)))
+    while alive:
+        j = min(alive, key=lambda k: float(np.min(np.sum((firsts[k] - pos) ** 2, axis=1))))
+        alive.remove(j)
+        yield groups[j]
+        # the group ends on its external loop, somewhere on it: its vertex nearest the next start is
+        # not known yet, so go on from the loop's nearest vertex to the old position
+        last = lasts[j]
+        pos = last[int(np.argmin(np.sum((last - pos) ** 2, axis=1)))]
+
+
 def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
     """Write a layer's paths: the skirt, the brim, the support, then the islands nearest first (by their bounding-box
-    centre), each from where the tool is: perimeters, gap fill, infill groups."""
+    centre), each from where the tool is: perimeter groups nearest first (each innermost loop
+    first, its external loop last, as PrusaSlicer prints a hole's loops before moving on), gap
+    fill, infill groups."""
     if plan.skirt:
         _emit(writer, nearest_order(plan.skirt, writer.pos, "nearest"), h)
     if plan.brim:
@@ -339,8 +384,9 @@ def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
         writer.inside = island.inside
         if writer.inside is not None:
             shapely.prepare(writer.inside)
-        for paths in island.perimeters:
-            _emit(writer, nearest_order(paths, writer.pos, s.seam), h)
+        for group in _nearest_groups(island.perimeters, writer.pos):
+            for paths in group:
+                _emit(writer, nearest_order(paths, writer.pos, s.seam), h)
         _emit(writer, nearest_order(island.gaps, writer.pos), h)
         for group in island.groups:
             _emit(writer, nearest_order(group, writer.pos), h)
