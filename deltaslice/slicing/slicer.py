@@ -28,6 +28,7 @@ from .support import support_layers
 INFILL_ANCHOR_MAX = 50.0  # mm: infill lines are joined along the outline up to this far apart (PrusaSlicer's infill_anchor_max)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
 LAYERS_PER_TASK = 4  # layers a slicing worker plans at a time (each range recomputes one sparse region)
+BRIDGE_ANCHOR = 3.0  # mm a bridge reaches into the solid infill around it (PrusaSlicer's EXTERNAL_INFILL_MARGIN)
 SUPPORT_INTERFACE_GAP = 0.2  # mm of air between interface beads (PrusaSlicer's support_material_interface_spacing)
 STARTED_TASKS = 4  # ranges in flight per worker while slice_mesh's ``started`` runs (about half a second)
 
@@ -273,15 +274,26 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         if not fill.is_empty():
             bridge = CrossSection()
             if li > 0 and not solid.is_empty():
-                bridge, _ = bridge_region(solid, support, 2 * w_i, w_i)
+                bridge, air = bridge_region(solid, support, BRIDGE_ANCHOR, w_i)
+                over_nothing = air - below if not below.is_empty() else air
+                if not over_nothing.is_empty():
+                    # a bridge over air is anchored in whatever infill surrounds it, sparse too (PrusaSlicer
+                    # expands bridges into internal surfaces); one over sparse infill stays in the solid
+                    bridge = bridge + (over_nothing.offset(BRIDGE_ANCHOR, JoinType.Miter, 3.0) ^ fill)
                 if not bridge.is_empty() and support_sh is None and not support.is_empty():
                     support_sh = to_shapely(support)
                     shapely.prepare(support_sh)
                 if not bridge.is_empty():
-                    b_angle = bridge_angle(bridge, support_sh, nozzle, angle)
+                    air_sh = to_shapely(air)
+                    shapely.prepare(air_sh)
+                    b_angle = bridge_angle(bridge, support_sh, nozzle, angle, air_sh)
                     groups.append([Path(p, Role.BRIDGE_INFILL, nozzle, flow=bridge_fpm)
                                    for p in rectilinear(bridge, b_angle, nozzle, nozzle)])
                     solid = solid - bridge
+                    if not sparse.is_empty():
+                        sparse = sparse - bridge
+                    if not scraps.is_empty():
+                        scraps = scraps - bridge
             top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
             internal = solid - top_region if not top_region.is_empty() else solid
             if not scraps.is_empty():
