@@ -62,8 +62,8 @@ _TYPE_TO_ROLE.update(
         "SKIN": Role.SOLID_INFILL,
         "TOP-SURFACE": Role.TOP_SOLID_INFILL,
         "PRIME-TOWER": Role.OTHER,
-        "SUPPORT": Role.OTHER,
-        "SUPPORT-INTERFACE": Role.OTHER,
+        "SUPPORT": Role.SUPPORT,
+        "SUPPORT-INTERFACE": Role.SUPPORT_INTERFACE,
     }
 )
 

@@ -168,3 +168,17 @@ def test_u_overhang_cantilever_is_supported_on_every_layer_below_it():
         assert xy[:, 1].min() >= lo[1] + 1.0 + s.support_xy_gap - 0.02  # beside the wall, not in it
         assert xy[:, 1].max() > hi[1] - s.support_spacing
     _check_clear_of_the_part(tp, mesh, p)
+
+
+def test_support_roles_survive_a_gcode_round_trip():
+    from deltaslice.gcode import gcode_text, parse_gcode
+
+    p = _printer()
+    tp = slice_mesh(cantilever(), p.slicing, p.tool)
+    text = gcode_text(tp, p)
+    assert ";TYPE:Support material\n" in text and ";TYPE:Support material interface\n" in text
+    back = parse_gcode(text, printer=p)
+    for role in SUPPORT:
+        assert np.sum(back.working & (back.role == role)) == np.sum(tp.working & (tp.role == role))
+    cura = parse_gcode(";TYPE:SUPPORT\nG1 X1 Y0 Z0.2 E0.1 F600\n;TYPE:SUPPORT-INTERFACE\nG1 X2 Y0 E0.2\n", printer=p)
+    assert cura.role[cura.working].tolist() == [Role.SUPPORT, Role.SUPPORT_INTERFACE]
