@@ -212,8 +212,10 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
     # what holds up a solid layer: the layer below, except where that layer is sparse infill
     support = (below - prev_sparse) if not prev_sparse.is_empty() else below
     overhang_test = None
+    below_grown = CrossSection()
     if not below.is_empty():
-        overhang_test = to_shapely(below.offset(w_p / 2, JoinType.Miter, 3.0))
+        below_grown = below.offset(w_p / 2, JoinType.Miter, 3.0)
+        overhang_test = to_shapely(below_grown)
         shapely.prepare(overhang_test)
     bridge_fpm = bridge_flow(nozzle, layers.tool.filament_area, s.bridge_flow)
     support_sh = None
@@ -230,6 +232,8 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         # air are overhang perimeters (an inner loop of a cantilever has nothing under it either)
         loops = perimeter_loops(island, w_p, layers.P, sp_p)
         owner = _loop_groups(loops)
+        # an island wholly over the grown layer below has no loop over air: no loop to test
+        test = overhang_test if overhang_test is not None and not (island - below_grown).is_empty() else None
         perimeters = []
         for group in range(int(owner.max()) + 1 if len(owner) else 0):
             by_depth = []
@@ -239,8 +243,8 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
                     if d != depth or o != group:
                         continue
                     role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
-                    if overhang_test is not None:
-                        dense, over = overhang_segments(p, overhang_test, w_p / 4)
+                    if test is not None:
+                        dense, over = overhang_segments(p, test, w_p / 4)
                         if over.any():
                             p = dense
                             role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
