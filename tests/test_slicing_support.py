@@ -182,3 +182,26 @@ def test_support_roles_survive_a_gcode_round_trip():
         assert np.sum(back.working & (back.role == role)) == np.sum(tp.working & (tp.role == role))
     cura = parse_gcode(";TYPE:SUPPORT\nG1 X1 Y0 Z0.2 E0.1 F600\n;TYPE:SUPPORT-INTERFACE\nG1 X2 Y0 E0.2\n", printer=p)
     assert cura.role[cura.working].tolist() == [Role.SUPPORT, Role.SUPPORT_INTERFACE]
+
+
+def test_the_skirt_goes_around_the_first_layers_support():
+    p = load_printer("linear_kossel", {"slicing.support": "auto", "slicing.skirt_loops": 1})
+    tp = slice_mesh(cantilever(), p.slicing, p.tool)
+    first = tp.working & (tp.layer == 0)
+    sup = _points(tp, first & np.isin(tp.role, [int(r) for r in SUPPORT]))[:, :2]
+    skirt = _points(tp, first & (tp.role == Role.SKIRT))[:, :2]
+    assert len(sup) and len(skirt)
+    hull = shapely.MultiPoint(sup).convex_hull
+    d = shapely.distance(hull, shapely.points(skirt))
+    assert d.min() >= p.slicing.skirt_distance, d.min()
+
+
+def test_support_sliced_in_workers_is_the_support_sliced_here():
+    from deltaslice.pool import can_fork
+
+    if not can_fork():
+        pytest.skip("no fork here")
+    p = _printer()
+    one = slice_mesh(cantilever(), p.slicing, p.tool)
+    two = slice_mesh(cantilever(), p.slicing, p.tool, workers=2)
+    assert one.equals(two, atol=0)

@@ -203,9 +203,14 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
     if first and s.brim_width > 0:
         brim = [Path(p, Role.SKIRT, w_p, closed=True) for p in brim_loops(here, s.brim_width, w_p, sp_p)]
     if first and s.skirt_loops > 0:
-        # the skirt keeps its distance from the brim's outer edge
-        gap = s.skirt_distance + brim_extent(s.brim_width, w_p, sp_p)
-        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(here, s.skirt_loops, gap, w_p)]
+        # the skirt keeps its distance from the brim's outer edge and from the support's first layer
+        extent = brim_extent(s.brim_width, w_p, sp_p)
+        around = here.offset(extent, JoinType.Round, 2.0, 72) if extent > 0 else here
+        sup = layers.support[0]
+        for region in (sup.body, sup.interface):
+            if not region.is_empty():
+                around = around + region.offset(w_p / 2, JoinType.Miter, 3.0)
+        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(around, s.skirt_loops, s.skirt_distance, w_p)]
 
     exposed = here - sections[li + 1] if li + 1 < len(sections) else here
     below = sections[li - 1] if li > 0 else CrossSection()
