@@ -117,6 +117,7 @@ DOCS = {
     ("slicing", "bridge_speed"): ("mm/s", "Speed of bridge infill over air.", "perimeter_speed"),
     ("slicing", "bridge_flow"): ("", "Multiplier on the round bead of nozzle diameter laid over air.", None),
     ("slicing", "overhang_speed"): ("mm/s", "Speed of perimeters over air.", "half the external perimeter speed"),
+    ("slicing", "fill_pattern"): ("", "Sparse infill: `rectilinear` (lines one way, turned 90 deg every layer) or `grid` (both ways on every layer, each set twice as far apart: the same plastic, a stiffer lattice; PrusaSlicer's grid).", None),
     ("slicing", "brim_width"): ("mm", "Width of the brim: loops touching the outer outline of every island of the first layer, from the part outward (PrusaSlicer's outer-only brim, no gap); the skirt goes around it. 0: no brim.", None),
     ("slicing", "support"): ("", "`auto`: support under every overhang flatter than `support_angle` (cantilevers, flat undersides, bridges), built from the bed or the part below; `none`: no support.", None),
     ("slicing", "support_angle"): ("deg from vertical", "Walls leaning further than this from vertical are supported (each layer reaching more than `h x tan(angle)` beyond the one below); Cura's support_angle.", None),

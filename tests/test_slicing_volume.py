@@ -61,3 +61,24 @@ def test_real_solid_parts_extrude_their_mesh_volume(name, scale):
     mesh = load_mesh(PARTS / name, scale=scale)
     _, of_mesh, _ = _ratio(mesh, _solid("delta_etitc"))
     assert 0.98 <= of_mesh <= 1.02, (name, of_mesh)
+
+
+def test_grid_infill_lays_both_directions_on_every_layer_with_the_same_plastic():
+    base = {"slicing.skirt_loops": 0, "slicing.top_solid_layers": 0, "slicing.bottom_solid_layers": 0}
+    lines = load_printer("linear_kossel", base)
+    grid = load_printer("linear_kossel", {**base, "slicing.fill_pattern": "grid"})
+    mesh = meshes.box(30, 30, 3)
+    a = slice_mesh(mesh, lines.slicing, lines.tool)
+    b = slice_mesh(mesh, grid.slicing, grid.tool)
+    for tp in (a, b):
+        assert np.any(tp.working & (tp.role == Role.INFILL))
+    va = a.e[a.working & (a.role == Role.INFILL)].sum()
+    vb = b.e[b.working & (b.role == Role.INFILL)].sum()
+    # the same lines' plastic, plus a second set of links along the outline (10 % on a 30 mm square)
+    assert va < vb < 1.15 * va
+    for li in (3, 4):
+        m = b.working & (b.role == Role.INFILL) & (b.layer == li)
+        d = (b.xyz - b.starts)[m, :2]
+        long = np.hypot(d[:, 0], d[:, 1]) > 5.0
+        angles = set((np.round(np.degrees(np.arctan2(d[long, 1], d[long, 0]))) % 180).astype(int).tolist())
+        assert {45, 135} <= angles, angles

@@ -178,6 +178,7 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
         bridge_flow=sec.getfloat("bridge_flow", 1.0, above=0, maxval=3),
         overhang_speed=sec.getfloat("overhang_speed", 0.5 * _number(sec.data.get("external_perimeter_speed",
                                                                                  sec.data.get("perimeter_speed")), 30.0), above=0),
+        fill_pattern=sec.getstr("fill_pattern", "rectilinear", choices=("rectilinear", "grid"), required=False),
         brim_width=sec.getfloat("brim_width", 0.0, minval=0, maxval=100),
         support=sec.getstr("support", "none", choices=("none", "auto"), required=False),
         support_angle=math.radians(sec.getfloat("support_angle", 50.0, minval=0, maxval=89)),

@@ -76,6 +76,7 @@ class SlicingSettings:
     bridge_speed: float = 30.0  # mm/s
     bridge_flow: float = 1.0  # multiplier on a round bead of nozzle diameter over air
     overhang_speed: float = 15.0  # mm/s: perimeters over air
+    fill_pattern: str = "rectilinear"  # sparse infill: "rectilinear" | "grid"
     brim_width: float = 0.0  # mm: brim loops around the first layer's outer outlines (0: none)
     support: str = "none"  # "none" | "auto": support under overhangs flatter than support_angle
     support_angle: float = 0.8726646259971648  # rad from vertical (50 deg)

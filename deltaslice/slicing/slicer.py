@@ -322,12 +322,21 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
             # need not cost a travel there and back
             fills = [Path(p, role, w_i, flow=fpm) for ps, role in lines for p in ps]
             if len(lines) == 2 and s.fill_density > 0 and not sparse.is_empty():
-                fills += [Path(p, Role.INFILL, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)]
+                fills += [Path(p, Role.INFILL, w_i) for p in _sparse_lines(sparse, angle, sp_i / dens, w_i, s.fill_pattern)]
             groups.append(fills)
             if layers.sparse_infill and not sparse.is_empty():
                 sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
     return _LayerPlan(skirt, islands, brim, _support_paths(layers, li)), _union(sparse_all)
+
+
+def _sparse_lines(region: CrossSection, angle: float, spacing: float, width: float, pattern: str) -> list:
+    """Sparse infill polylines ((k, 2) mm) at ``spacing`` for the density: ``rectilinear`` lines
+    at ``angle`` (the slicer turns it 90 deg every layer), or ``grid``: lines both ways on every
+    layer, each set twice as far apart (the same plastic, a stiffer lattice; PrusaSlicer's grid)."""
+    if pattern == "grid":
+        return [p for a in (angle, angle + math.pi / 2) for p in rectilinear(region, a, 2 * spacing, width, INFILL_ANCHOR_MAX)]
+    return rectilinear(region, angle, spacing, width, INFILL_ANCHOR_MAX)
 
 
 def _support_paths(layers: _Layers, li: int) -> list:
