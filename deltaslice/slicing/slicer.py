@@ -351,9 +351,10 @@ def _support_paths(layers: _Layers, li: int) -> list:
     w = s.first_layer_width if li == 0 else s.infill_width
     sp = bead_spacing(w, h)
     angle = s.fill_angle + (math.pi / 2 if s.support_pattern == "grid" and li % 2 else 0.0)
-    paths = [Path(p, Role.SUPPORT, w) for p in rectilinear(sup.body, angle, max(s.support_spacing, sp), w, INFILL_ANCHOR_MAX)]
-    paths += [Path(p, Role.SUPPORT_INTERFACE, w)
-              for p in rectilinear(sup.interface, angle + math.pi / 2, sp + SUPPORT_INTERFACE_GAP, w, INFILL_ANCHOR_MAX)]
+    # zig-zag lines without links along the outline: a support's outline is ragged (cut by the part
+    # and by every overhang above) and its lines are meant to break away one by one
+    paths = [Path(p, Role.SUPPORT, w) for p in rectilinear(sup.body, angle, max(s.support_spacing, sp), w)]
+    paths += [Path(p, Role.SUPPORT_INTERFACE, w) for p in rectilinear(sup.interface, angle + math.pi / 2, sp + SUPPORT_INTERFACE_GAP, w)]
     return paths
 
 
