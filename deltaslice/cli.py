@@ -38,8 +38,7 @@ from .pool import keep_freed_memory  # noqa: E402
 
 # The compile's parallelism is its worker processes. OpenBLAS (numpy's and scipy's, each) would
 # start a thread per core that spins whenever woken, on the workers' cores, for BLAS calls too small
-# to share out: featuretype's compile took 5-8 % longer. Set before numpy loads; the user's own
-# setting stands.
+# to share out, taking CPU from the workers. Set before numpy loads; the user's own setting stands.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_VERIFY_FAILED, EXIT_INTERRUPTED = 0, 1, 2, 3, interrupt.EXIT_INTERRUPTED
@@ -488,8 +487,8 @@ def run():
     """The console script: :data:`main`, then leaving at once with its status, without the
     interpreter's teardown. Every output is written, closed and renamed into place, every worker
     pool shut down and every temporary file unlinked when it was made (before main returns), so
-    the teardown only frees memory: it walked numba's and llvmlite's object graphs and joined
-    threads for 50-70 ms of a compile's last, single-core stretch. Leaving at once also keeps an
+    the teardown only frees memory: it would walk numba's and llvmlite's object graphs and join
+    threads in the compile's last, single-core stretch. Leaving at once also keeps an
     interrupt's 130: Python kills itself with SIGINT at exit when a KeyboardInterrupt ever passed
     through C code (an extension's import) even if it was handled ("killed by signal").
     An exception other than SystemExit leaves as usual, with its traceback. Freed memory is kept

@@ -68,11 +68,10 @@ def keep_freed_memory() -> bool:
     """Have glibc's malloc keep freed memory for the next allocations of this process and of the
     workers it forks. By default an array over 128 KB is mapped on its own and unmapped when
     freed (the threshold then grows with the arrays freed) and the heap's top is given back past
-    128 KB free (twice the grown threshold), so the planning workers' kernels wrote into fresh
-    pages the kernel zeroes: about 90,000 of the 190,000 page faults of featuretype at 20 (0.35 s
-    of system time). Here arrays up to 32 MB come from the heap and at most 64 MB free at the top
-    of each arena (the main one and each thread's) is kept, per process: a compile's largest
-    process grew 5-10 MB (featuretype); a worker can keep up to 64 MB more. For the console script,
+    128 KB free (twice the grown threshold), so the planning workers' kernels would write into
+    fresh pages the kernel zeroes, a page fault each. Here arrays up to 32 MB come from the heap
+    and at most 64 MB free at the top of each arena (the main one and each thread's) is kept, per
+    process: each process can hold up to 64 MB more than it uses. For the console script,
     which owns its process (its pools fork: :func:`start_pool`); a program that imports deltaslice
     keeps its own allocator settings. Returns whether the settings were taken (False without
     glibc: other systems have no mallopt; musl's ignores them)."""

@@ -8,6 +8,10 @@ Checks, over every sample:
 * every joint's velocity and acceleration limits, and the tool channel's: an extruder's
   filament speed (its melt-flow limit while extruding; retracts may reach the retract
   speed) and acceleration, a laser's power within 0..1,
+* where the printer file has a ``[dynamics]`` table, each actuator's torque (or force) read back
+  through the family's inverse dynamics (accelerations averaged over 5 ms) against its stall
+  torque, and the share of samples past the speed-torque curve: reported, not enforced (the
+  planner does not plan to torque yet, issue 56),
 * given the part or G-code that was compiled, the Cartesian deviation of the
   replayed path (forward kinematics of the samples) from the toolpath polyline,
   for the working samples (tool on), against blend tolerance + quantisation. A
@@ -103,6 +107,7 @@ class CheckRow:
     index: int
     place: tuple | None
     ok: bool
+    informational: bool = False  # reported, not checked: the table says INFO, never FAIL
 
 
 @dataclass(frozen=True)
@@ -139,7 +144,7 @@ class VerifyReport:
                 where += " at ({:.1f}, {:.1f}, {:.1f})".format(*r.place)
             lines.append(
                 f"{r.check:<22} {r.channel:<14} {r.peak * k:>11.5g} {r.limit * k:>11.5g} {unit:<8} {use:>7}  {where:<36} "
-                f"{'PASS' if r.ok else 'FAIL'}"
+                f"{'INFO' if r.informational else 'PASS' if r.ok else 'FAIL'}"
             )
         return lines
 
@@ -382,6 +387,9 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         rows.append(CheckRow("tool state 0..1", "tool", "", float(np.nanmax(np.abs(tl))) if np.isfinite(tl).any() else 0.0,
                              1.0, None, 0.0, -1, None, not col.failed("tool", "tool")))
 
+    if n > 2 and printer.dynamics is not None and np.isfinite(samples.q).all():
+        _torque_rows(samples.q, t, rate, printer, rows, notes)
+
     max_dev = tol_max = None
     n_dev = 0
     if toolpath is not None and n:
@@ -397,6 +405,33 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         violation_count=col.count, max_deviation=max_dev, deviation_tolerance=tol_max, deviation_samples=n_dev,
         notes=tuple(notes), planner_margin=printer.planning.limit_margin, rows=tuple(rows),
     )
+
+
+def _torque_rows(q, t, rate, printer, rows, notes):
+    """An INFO row per actuator, its peak torque (N m) or force (N) read back through the printer's
+    inverse dynamics against its stall torque, and a note on the samples past the curves."""
+    from .machine.dynamics import ACCELERATION_WINDOW, torque_blocks
+
+    act = printer.dynamics.actuators
+    J = printer.n_joints
+    peak, where = np.zeros(J), np.full(J, -1)
+    over_stall = over_line = 0
+    for start, tau, qd in torque_blocks(printer, q, rate):
+        mag = np.where(np.isfinite(tau), np.abs(tau), np.inf)  # a pose the model cannot close is its worst
+        k = np.argmax(mag, axis=0)
+        better = mag[k, np.arange(J)] > peak
+        peak[better], where[better] = mag[k, np.arange(J)][better], start + k[better]
+        over_stall += int(np.any(mag > np.array(act.stall), axis=1).sum())
+        over_line += int(np.any(act.over_line(qd, tau), axis=1).sum())
+    for j, joint in enumerate(printer.limits.joints):
+        k = int(where[j])
+        unit = "N m" if joint.kind == "revolute" else "N"
+        name = f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}"
+        rows.append(CheckRow("torque (model)", name, unit, float(peak[j]), act.stall[j], 100.0 * peak[j] / act.stall[j],
+                             float(t[k]) if k >= 0 else 0.0, k, None, True, informational=True))
+    notes.append(f"torque (model): [dynamics] read back with accelerations averaged over {1e3 * ACCELERATION_WINDOW:g} ms; "
+                 f"an actuator over its stall torque on {100 * over_stall / len(q):.1f} % of the samples, past its "
+                 f"speed-torque curve on {100 * over_line / len(q):.1f} %; reported, not yet planned to (issue 56)")
 
 
 def _with_places(rows, samples, printer):

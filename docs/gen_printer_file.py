@@ -18,6 +18,7 @@ sys.path.insert(0, str(ROOT))
 
 from deltaslice.config import Problems, Section, _Stop, recording  # noqa: E402
 from deltaslice.kinematics import FAMILIES, family  # noqa: E402
+from deltaslice.machine.dynamics import CURVES, read_actuators  # noqa: E402
 from deltaslice.machine import load_printer  # noqa: E402
 from deltaslice.printers import shipped_names  # noqa: E402
 
@@ -136,6 +137,36 @@ DOCS = {
     ("cooling", "fan_below_layer_time"): ("s", "Layers quicker than this run the fan above `min_fan_speed`.", None),
     ("cooling", "slowdown_below_layer_time"): ("s", "Minimum layer time: a quicker layer's printing moves are slowed by one factor until it takes this long (times at the requested feeds, travels included); 0: no slowdown.", None),
     ("cooling", "min_print_speed"): ("mm/s", "The slowdown never takes a printing move below this speed.", None),
+    # dynamics: the actuators (every family)
+    ("dynamics", "stall_torque"): ("N m (N)", "Each actuator's torque at rest, at the joint (a linear joint's force): stall for a DC motor or servo, pull-out at low speed for a stepper.", None),
+    ("dynamics", "no_load_speed"): (JOINT + "/s", "Joint speed at which the actuator gives no torque any more (a servo's rated 60 deg time: 60 / t).", None),
+    ("dynamics", "speed_torque_curve"): ("", "Torque available while driving: `linear`, stall to none at no_load_speed (servo, DC motor, Dynamixel); `pull_out` (stepper: stall_torque to corner_speed, then x corner_speed / speed, none from no_load_speed); `table` (curve_points). Braking: stall torque.", "`pull_out` for `actuator = \"stepper\"`, else `linear`"),
+    ("dynamics", "corner_speed"): (JOINT + "/s", "`pull_out` only: the speed up to which a stepper keeps its low-speed pull-out torque.", None),
+    ("dynamics", "curve_points"): ("fractions", "`table` only: `[[speed / no_load_speed, torque / stall_torque], ...]` from `[0, 1]`, speeds increasing; linear between points, none beyond the last.", None),
+    # dynamics: rotary delta
+    ("rotary_delta dynamics", "upper_arm_mass"): ("kg", "One upper arm (shoulder to elbow), for its gravity torque.", None),
+    ("rotary_delta dynamics", "upper_arm_inertia"): ("kg m²", "One upper arm's inertia about its shoulder axis.", "a uniform bar: upper_arm_mass x upper_arm² / 3"),
+    ("rotary_delta dynamics", "upper_arm_com"): ("mm", "Shoulder axis to the upper arm's centre of mass, along the arm.", "upper_arm / 2"),
+    ("rotary_delta dynamics", "elbow_mass"): ("kg", "What moves with one elbow point: the elbow-side rod ends, nuts, axle.", None),
+    ("rotary_delta dynamics", "forearm_mass"): ("kg", "Both rods of one forearm parallelogram (modelled as uniform rods between the ball-joint centres).", None),
+    ("rotary_delta dynamics", "platform_mass"): ("kg", "The moving platform with the platform-side rod ends, nuts and axles (the tool apart).", None),
+    ("rotary_delta dynamics", "tool_mass"): ("kg", "The tool on the platform (extruder, hot end, laser module).", None),
+    ("rotary_delta dynamics", "rotor_inertia"): ("kg m²", "Each motor's rotor and gears reflected to the joint (rotor inertia x gear ratio²).", None),
+    # dynamics: linear delta
+    ("linear_delta dynamics", "carriage_mass"): ("kg", "One carriage with its rollers or bearings and the carriage-side rod ends.", None),
+    ("linear_delta dynamics", "rod_mass"): ("kg", "Both rods of one carriage (modelled as uniform rods between the joint centres).", None),
+    ("linear_delta dynamics", "effector_mass"): ("kg", "The effector with the effector-side rod ends (the tool apart).", None),
+    ("linear_delta dynamics", "tool_mass"): ("kg", "The tool on the effector (hot end, fan, probe).", None),
+    ("linear_delta dynamics", "drive_mass"): ("kg", "Each motor's rotor and pulley reflected to its carriage (inertia / pulley radius²) plus the belt.", None),
+    # dynamics: five-bar
+    ("five_bar dynamics", "proximal_mass"): ("kg", "Link A-B (and C-D), each.", None),
+    ("five_bar dynamics", "proximal_inertia"): ("kg m²", "Links A-B and C-D, each about its motor axis.", "a uniform bar: proximal_mass x link length² / 3, per link"),
+    ("five_bar dynamics", "elbow_mass"): ("kg", "The joint hardware at B and at D, each.", None),
+    ("five_bar dynamics", "distal_mass"): ("kg", "Link B-P (and D-P), each (modelled as a uniform rod).", None),
+    ("five_bar dynamics", "tool_mass"): ("kg", "What rides at P: the print head.", None),
+    ("five_bar dynamics", "z_mass"): ("kg", "What the lead screw lifts, with the rotor and screw reflected (rotor inertia x (2 pi / lead)²).", None),
+    ("five_bar dynamics", "z_carries"): ("", "`bed` (it moves down as the part grows) or `head`: which way gravity loads the screw.", None),
+    ("five_bar dynamics", "rotor_inertia"): ("kg m²", "Each arm motor's rotor and reduction reflected to the arm joint.", None),
     # planning
     ("planning", "output_rate"): ("Hz", "Setpoint rate of the outputs (the firmware's control loop rate).", None),
     ("planning", "blend_tolerance"): ("mm", "Largest distance a blended corner leaves the toolpath's corner point.", None),
@@ -145,15 +176,18 @@ DOCS = {
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",
-                 "bed", "slicing", "cooling", "planning"]
+                 "bed", "slicing", "cooling", "planning", "dynamics", "rotary_delta dynamics", "linear_delta dynamics",
+                 "five_bar dynamics"]
 
 
 def collect():
     """{(section, key): KeySpec} over the shipped printers and every family's geometry reader."""
     found = {}
+    geometries = {}  # a shipped geometry per family, which a family's dynamics defaults are taken from
     with recording() as calls:
         for name in shipped_names():
-            load_printer(name)
+            p = load_printer(name)
+            geometries.setdefault(p.family, p.geometry)
     with recording() as family_calls:
         for fam in FAMILIES:
             sec = Section("<empty>", "kinematics", {}, Problems("<empty>"))
@@ -164,8 +198,24 @@ def collect():
             for spec in family_calls:
                 found.setdefault((fam, spec.key), spec)
             family_calls.clear()
+    with recording() as dynamics_calls:
+        for fam, geometry in geometries.items():
+            reader = getattr(family(fam), "read_dynamics", None)
+            if reader is not None:
+                reader(Section("<empty>", "dynamics", {}, Problems("<empty>")), geometry)
+                for spec in dynamics_calls:
+                    found.setdefault((f"{fam} dynamics", spec.key), spec)
+            dynamics_calls.clear()
+        for curve in CURVES:  # every curve's keys, used by a shipped file or not
+            try:
+                read_actuators(Section("<empty>", "dynamics", {"speed_torque_curve": curve}, Problems("<empty>")),
+                               ("revolute",) * 3)
+            except _Stop:
+                pass
+        for spec in dynamics_calls:
+            found.setdefault(("dynamics", spec.key), spec)
     for spec in calls:
-        if spec.section == "kinematics" and spec.key != "family":
+        if (spec.section == "kinematics" and spec.key != "family") or spec.section == "dynamics":
             continue  # listed per family, from the family readers
         found.setdefault((spec.section, spec.key), spec)
     return found
@@ -221,7 +271,11 @@ def render() -> str:
               "rotary_delta": "[kinematics] of `family = \"rotary_delta\"` (Clavel delta, rotary motors)",
               "linear_delta": "[kinematics] of `family = \"linear_delta\"` (Kossel-style towers)",
               "five_bar": "[kinematics] of `family = \"five_bar\"` (planar 5R + lead-screw z)",
-              "cartesian": "[kinematics] of `family = \"cartesian\"`"}
+              "cartesian": "[kinematics] of `family = \"cartesian\"`",
+              "dynamics": "[dynamics] (optional): the actuators",
+              "rotary_delta dynamics": "[dynamics] of a rotary delta: its moving parts",
+              "linear_delta dynamics": "[dynamics] of a linear delta: its moving parts",
+              "five_bar dynamics": "[dynamics] of a five-bar: its moving parts"}
     for section in SECTION_ORDER:
         keys = [k for (s, k) in found if s == section]
         if not keys:

@@ -111,15 +111,58 @@ def test_read_prusaslicer_dialect(tmp_path):
     # chords within the tolerance: sagitta of each chord
     chord = lens[arc].max()
     assert 10 - np.sqrt(10**2 - (chord / 2) ** 2) <= ARC_TOLERANCE + 1e-9
-    # G2 with R: clockwise half circle from (30,10) to (40,0) centred at (40,10) ... points stay at r = 10
+    # G2 R10 from (30,10) to (40,0): R > 0 is the short (quarter) arc, clockwise about (30, 0);
+    # about (40, 10) the clockwise arc would be the long one (three quarters)
     g2 = work & (tp.xyz[:, 0] > 30) & (tp.xyz[:, 1] < 10.0 - 1e-9) & (tp.role == Role.EXTERNAL_PERIMETER)
-    c = np.array([40.0, 10.0]) if np.allclose(np.hypot(tp.xyz[g2, 0] - 40, tp.xyz[g2, 1] - 10), 10) else np.array([30.0, 0.0])
-    assert np.allclose(np.hypot(tp.xyz[g2, 0] - c[0], tp.xyz[g2, 1] - c[1]), 10)
+    assert g2.sum() > 10
+    assert np.allclose(np.hypot(tp.xyz[g2, 0] - 30, tp.xyz[g2, 1]), 10)
+    assert lens[g2].sum() == pytest.approx(np.pi / 2 * 10, rel=2e-3)
     # arc E spread along the chords in proportion to length
     assert tp.e[arc].sum() == pytest.approx(0.8)
     assert set(tp.role[work].tolist()) == {Role.EXTERNAL_PERIMETER, Role.SOLID_INFILL}
     assert np.allclose(tp.feed[work], 20.0)  # F1200 modal
     assert tp.layer[-1] == 1 and tp.xyz[-1, 2] == pytest.approx(0.4)
+
+
+def _r_arc_reference(start, end, r_word, clockwise):
+    """The centre and signed sweep (rad, negative clockwise) of an R arc by the G-code standard
+    (NIST RS274NGC 3.5.3.2): R > 0 the arc of at most half a turn, R < 0 the longer one; the centre
+    found from the two circles of radius |R| about the ends, the sweep from the angles."""
+    (x0, y0), (x1, y1) = start, end
+    r = abs(r_word)
+    mx, my, d = (x0 + x1) / 2, (y0 + y1) / 2, np.hypot(x1 - x0, y1 - y0)
+    h = np.sqrt(r * r - d * d / 4)
+    best = None
+    for side in (1, -1):  # the two centres, either side of the chord
+        cx, cy = mx + side * h * (y0 - y1) / d, my + side * h * (x1 - x0) / d
+        a0, a1 = np.arctan2(y0 - cy, x0 - cx), np.arctan2(y1 - cy, x1 - cx)
+        sweep = (a1 - a0) % (2 * np.pi)  # counter-clockwise, in [0, 2 pi)
+        if clockwise:
+            sweep -= 2 * np.pi
+        if (abs(sweep) <= np.pi) == (r_word > 0):
+            best = (np.array([cx, cy]), sweep)
+    return best
+
+
+@pytest.mark.parametrize("cmd", ["G2", "G3"])
+@pytest.mark.parametrize("r_word", [10.0, -10.0, 6.0, -6.0])
+def test_r_arcs_take_the_centre_and_sweep_of_the_standard(tmp_path, cmd, r_word):
+    """G2/G3 with R from (0, 0) to (10, 2): R > 0 the short arc, R < 0 the long one, each about
+    the centre the standard gives (a dropped sign, or a centre on the wrong side, fails)."""
+    start, end = (0.0, 0.0), (10.0, 2.0)
+    text = f"G21\nG90\nM83\nG1 X0 Y0 Z0.2 F1200\n{cmd} X10 Y2 R{r_word:g} E1\n"
+    tp = read_gcode(write(tmp_path, text))
+    arc = tp.working
+    pts = tp.xyz[arc][:, :2]
+    centre, sweep = _r_arc_reference(start, end, r_word, cmd == "G2")
+    assert len(pts) > 10
+    assert np.allclose(pts[-1], end)
+    assert np.allclose(np.hypot(*(pts - centre).T), abs(r_word), atol=1e-9)
+    assert tp.lengths[arc].sum() == pytest.approx(abs(r_word * sweep), rel=1e-3)
+    # the direction: chords turn clockwise for G2, counter-clockwise for G3
+    chords = np.diff(np.vstack([start, pts]), axis=0)
+    turn = chords[:-1, 0] * chords[1:, 1] - chords[:-1, 1] * chords[1:, 0]
+    assert np.all(np.sign(turn) == np.sign(sweep))
 
 
 CURA = """\

@@ -32,18 +32,28 @@ from conftest import PRINTER_NAMES, printer
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
 
 CARTESIAN = Cartesian(CartesianGeometry(offset_x=110.0, offset_y=-7.5, offset_z=3.0), [0.0, -120.0, 0.0], [220.0, 105.0, 200.0])
-CASES = PRINTER_NAMES + ["cartesian"]
+# The Kossel with its tool tip 12 mm below the effector's joints: every shipped linear delta has a
+# tool_offset of 0, which hides the offset's sign.
+_KOSSEL = printer("linear_kossel").kinematics()
+KOSSEL_OFFSET = LinearDelta(dataclasses.replace(_KOSSEL.geometry, tool_offset=12.0), _KOSSEL.position_min,
+                            _KOSSEL.position_max, _KOSSEL.singularity_limit)
+BUILT = {"cartesian": CARTESIAN, "linear_kossel_offset": KOSSEL_OFFSET}  # machines built here, not shipped
+CASES = PRINTER_NAMES + list(BUILT)
 
 
 def kin_of(name):
-    return CARTESIAN if name == "cartesian" else printer(name).kinematics()
+    return BUILT[name] if name in BUILT else printer(name).kinematics()
+
+
+def family_of(name):
+    return kin_of(name).__module__.rsplit(".", 1)[1]
 
 
 def box_of(name):
     """A box of tool points that mostly lies in the workspace: the bed up to max_height."""
     if name == "cartesian":
         return np.array([-110.0, -110.0, 0.0]), np.array([110.0, 110.0, 195.0])
-    bed = printer(name).bed
+    bed = printer("linear_kossel" if name == "linear_kossel_offset" else name).bed
     hx, hy = (bed.radius, bed.radius) if bed.shape == "circle" else (bed.size_x / 2, bed.size_y / 2)
     return np.array([-hx, -hy, 0.0]), np.array([hx, hy, bed.max_height])
 
@@ -314,7 +324,7 @@ def test_far_and_invalid_points(name):
     assert _quiet(kin.reachable, np.empty((0, 3))).shape == (0,)
 
 
-@pytest.mark.parametrize("name", [n for n in CASES if n != "cartesian" and printer(n).family in ("rotary_delta", "linear_delta")])
+@pytest.mark.parametrize("name", [n for n in CASES if family_of(n) in ("rotary_delta", "linear_delta")])
 def test_compiled_inverse_refuses_rows_not_of_three(name):
     """The compiled families' kernels read three columns unchecked: rows of two (or a bare
     list of four numbers) are refused, not read past their ends into garbage angles."""
@@ -377,7 +387,7 @@ def test_batch_equals_point_by_point(name, data):
             np.testing.assert_allclose(getattr(kin, f)(qg[i : i + 1])[0], value[i], rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("name", [n for n in CASES if n != "cartesian" and printer(n).family == "rotary_delta"])
+@pytest.mark.parametrize("name", [n for n in CASES if family_of(n) == "rotary_delta"])
 def test_rotary_kernels_equal_point_by_point_across_their_blocks(name):
     """The rotary delta's compiled kernels go a block of points at a time (rotary_delta.BLOCK, for
     vector instructions): across block ends, with unreachable rows at and beside them (the
@@ -410,7 +420,7 @@ def test_rotary_kernels_equal_point_by_point_across_their_blocks(name):
     assert not d1[:, 3].any() and not d2[:, 3].any()
 
 
-@pytest.mark.parametrize("name", [n for n in CASES if n != "cartesian" and printer(n).family == "rotary_delta"])
+@pytest.mark.parametrize("name", [n for n in CASES if family_of(n) == "rotary_delta"])
 def test_rotary_inverse_is_the_knee_outward_root_in_its_range(name):
     """The compiled inverse (its own atan2, then moved into (-2 pi, pi]) against
     the module's formula per arm in numpy, theta = atan2(b, a) - acos(c / hypot(a, b)), over a box
@@ -530,6 +540,32 @@ def test_linear_delta_forward_never_puts_a_carriage_below_the_effector():
     assert np.all(q[good] - pts[good, 2:3] - kin.t > 0)
     np.testing.assert_allclose(kin.inverse(pts[good]), q[good], atol=1e-9)
     assert isinstance(kin, LinearDelta)
+
+
+def test_linear_delta_tool_offset_puts_the_tool_below_the_effector_joints():
+    """Independent of the kernels: with the tool tip t below the effector's joints, every rod from
+    a carriage's joint (tower i at i x 120 deg, delta_radius out, height q_i) to the effector's joint
+    (the tool point raised by t) is diagonal_rod long and rises to the carriage; forward gives the
+    tool point back. A sign of the offset flipped in inverse, forward or the derivatives fails."""
+    kin, g = KOSSEL_OFFSET, KOSSEL_OFFSET.geometry
+    assert g.tool_offset == 12.0
+    rng = np.random.default_rng(7)
+    pts = np.column_stack([rng.uniform(-60, 60, 200), rng.uniform(-60, 60, 200), rng.uniform(0, 150, 200)])
+    q = kin.inverse(pts)
+    assert np.all(np.isfinite(q))
+    angles = np.radians([0.0, 120.0, 240.0])
+    carriages = np.stack([np.broadcast_to(g.delta_radius * np.cos(angles), q.shape),
+                          np.broadcast_to(g.delta_radius * np.sin(angles), q.shape), q], axis=2)  # (N, 3 towers, xyz)
+    joint = pts + [0.0, 0.0, g.tool_offset]
+    rods = carriages - joint[:, None, :]
+    np.testing.assert_allclose(np.linalg.norm(rods, axis=2), g.diagonal_rod, rtol=0, atol=1e-9)
+    assert np.all(rods[..., 2] > 0)
+    np.testing.assert_allclose(kin.forward(q), pts, rtol=0, atol=1e-9)
+    # the joints' derivatives along a line: d q_i / ds = t_z - (w_i . t_xy) / h_i, h_i the rod's rise
+    tangent = np.broadcast_to([0.6, 0.0, 0.8], pts.shape)
+    q1, _ = kin.path_derivatives(pts, q, tangent, np.zeros_like(pts))
+    w = joint[:, None, :2] - carriages[..., :2]
+    np.testing.assert_allclose(q1, 0.8 - (w @ tangent[0, :2]) / rods[..., 2], rtol=0, atol=1e-9)
 
 
 def test_cartesian_is_an_offset():

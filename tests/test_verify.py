@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +11,7 @@ from click.testing import CliRunner
 from trajectories import ROOT, blocks, printer, realistic
 
 from deltaslice.cli import main
+from deltaslice.machine import load_printer, printer_from_dict
 from deltaslice.pipeline import read_output, write_samples
 from deltaslice.samples import Samples
 from deltaslice.pipeline import verify_output
@@ -205,3 +208,23 @@ def test_the_limits_own_the_sampled_thresholds():
     vmax, per_window = lim.sampled_tool_velocity(tool, 1e-10, rate)
     assert vmax == working and len(per_window) == len(tool) - 1
     assert per_window[0] == working and per_window[500] == idle and per_window[-1] == working
+
+
+def test_torque_use_is_reported_not_enforced(good, tmp_path):
+    """With a [dynamics] table, one INFO row per joint (its peak model torque against its stall
+    torque) and a note; a plan over stall still verifies (the planner does not plan to torque yet);
+    without the table, no torque rows."""
+    p, s, tp = good
+    meta, back = read_output(_write(tmp_path, p, s, "csv"))
+    heavy = load_printer(p.path, {"dynamics.tool_mass": 50.0})  # 50 kg: far over the servos' stall
+    rep = verify_samples(back, heavy, rate=1000.0, fmt="csv", meta=meta)
+    rows = [r for r in rep.rows if r.check == "torque (model)"]
+    assert [r.channel for r in rows] == ["q1/theta1", "q2/theta2", "q3/theta3"]
+    assert all(r.informational and r.unit == "N m" and r.percent > 100 for r in rows)
+    assert rep.ok and "INFO" in rep.text() and any("torque (model)" in n for n in rep.notes)
+    light = verify_samples(back, p, rate=1000.0, fmt="csv", meta=meta)
+    assert max(r.peak for r in light.rows if r.check == "torque (model)") < min(r.peak for r in rows)
+    data = tomllib.loads(Path(p.path).read_text())
+    del data["dynamics"]
+    bare = printer_from_dict(data, p.path)
+    assert not [r for r in verify_samples(back, bare, rate=1000.0, fmt="csv", meta=meta).rows if r.check == "torque (model)"]

@@ -17,6 +17,11 @@ limits. Everything is vectorised over N points:
 * ``reachable(points (N,3)) -> (N,) bool``: real inverse, joint limits and any
   family-specific limit (ball-joint tilt), and not near a singularity.
 
+A family with a dynamics model also has ``read_dynamics(section, geometry)`` (its masses from the
+printer file's ``[dynamics]`` table, a frozen dataclass) and ``inverse_dynamics(masses, q, qd, qdd)
+-> (N,J)`` joint torques (N m) or forces (N) from joint positions, velocities and accelerations
+(N,J) in joint units; :func:`path_coefficients` splits them along a path (see the notes below).
+
 Points are in the bed frame: x, y on the bed with the origin at its centre, z up
 from the bed surface, tool tip. Hot loops get masks, never exceptions.
 """
@@ -177,6 +182,13 @@ class Kinematics:
         out1[bad] = out2[bad] = np.nan
         return int(np.flatnonzero(bad)[0]) if bad.any() else -1
 
+    def torque_coefficients(self, masses, points, q, dq, ddq):
+        """The joint torques along a path as ``A sdd + B sd^2 + C`` (N m or N), (A, B, C) each
+        (N,J), at points (N,3) mm with q = inverse(points), dq = dq/ds, ddq = d2q/ds2 (N,J): by
+        default :func:`path_coefficients` of the family's ``inverse_dynamics`` (the reference a family's
+        compiled form is tested against)."""
+        return path_coefficients(lambda *x: self.inverse_dynamics(masses, *x), q, dq, ddq)
+
     def extra_ok(self, points: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Family-specific limits beyond joint positions (default: none). (N,) bool."""
         return np.ones(len(points), dtype=bool)
@@ -251,3 +263,58 @@ class Kinematics:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             det = np.einsum("ni,ni->n", ji[:, 0], adj[:, 0])
             return np.sqrt(np.einsum("nij,nij->n", ji, ji) * np.einsum("nij,nij->n", adj, adj)) / np.abs(det)
+
+
+# -- dynamics ------------------------------------------------------------------------------------
+# Every family models its moving parts as rigid bodies turning about a joint's fixed axis (an
+# upper arm, a rotor) plus point masses whose positions follow from the joints (elbows, platforms,
+# carriages, and each uniform rod as three points: m/6 at either end and 2m/3 at its middle, which
+# gives a thin rod's kinetic energy m/6 (|v_a|^2 + v_a.v_b + |v_b|^2) and its centre of mass
+# exactly, where the usual half-and-half split overstates its kinetic energy by m/12 |v_a - v_b|^2).
+# d'Alembert over the point masses, tau = sum_k J_k^T m_k (a_k - g), with a_k = J_k qdd + Jdot_k qd
+# from the closure equations, is then the exact rigid-body inverse dynamics of that model, velocity
+# terms included.
+
+GRAVITY = 9.80665  # m/s^2, standard gravity; the bed frame's z is up
+MM = 1e-3  # m per mm: positions and Jacobians are in mm, the dynamics in SI (a revolute joint's
+# Jacobian column times MM is m/rad, its torque N m; a prismatic one's is mm/mm, its force N)
+
+
+def closure_motion(d, de, dde, qd, qdd):
+    """Velocity Jacobian and acceleration of a point held by one rigid link per joint.
+
+    Joint i moves its link's near end e_i(q_i) (a function of q_i alone); the link's far end is the
+    point p (plus a constant) and keeps |d_i| constant, d_i = p + c_i - e_i. d: (N, J, k) links, mm;
+    de, dde: (N, J, k) e_i's first and second derivatives in q_i (mm per joint unit, per unit^2);
+    qd, qdd: (N, J) joint velocities and accelerations (units/s, units/s^2). Returns (jac (N, k, J)
+    dp/dq in mm per unit, acc (N, k) mm/s^2); NaN where the links' matrix is singular.
+
+    From d_i.(v - e_i' qd_i) = 0 and, differentiated, |v - e_i' qd_i|^2 + d_i.(a - e_i' qdd_i -
+    e_i'' qd_i^2) = 0: D jac = diag(d_i.e_i') and D a = (d_i.e_i') qdd_i + (d_i.e_i'') qd_i^2 -
+    |v - e_i' qd_i|^2, D with rows d_i."""
+    g = np.einsum("njk,njk->nj", d, de)
+    jac = solve_rows(d, g[:, :, None] * np.eye(d.shape[1])[None])
+    v = np.einsum("nkj,nj->nk", jac, qd)
+    rel = v[:, None, :] - de * qd[..., None]
+    rhs = g * qdd + np.einsum("njk,njk->nj", d, dde) * qd**2 - np.einsum("njk,njk->nj", rel, rel)
+    return jac, solve_rows(d, rhs[:, :, None])[..., 0]
+
+
+def point_forces(mass, acc):
+    """mass kg, acc (N, 3) mm/s^2 -> (N, 3) N: m (a - g), what d'Alembert loads a point mass with."""
+    f = acc * MM
+    f[:, 2] += GRAVITY
+    return mass * f
+
+
+def path_coefficients(dynamics, q, dq, ddq):
+    """The torque along a path q(s) as ``tau = A sdd + B sd^2 + C``, the form of the planner's
+    joint-acceleration constraint, from any inverse dynamics ``dynamics(q, qd, qdd)`` that is
+    linear in qdd and quadratic in qd (a rigid-body model is: tau = M(q) qdd + c(q, qd) + g(q)).
+
+    q, dq = dq/ds, ddq = d2q/ds2: (N, J). With qd = dq sd and qdd = dq sdd + ddq sd^2:
+    A = M dq, B = M ddq + c(q, dq), C = g(q), evaluated as C = tau(q, 0, 0), A = tau(q, 0, dq) - C,
+    B = tau(q, dq, ddq) - C. Returns (A, B, C), each (N, J) in the dynamics' units (N m or N)."""
+    zero = np.zeros_like(np.asarray(q, dtype=float))
+    c = dynamics(q, zero, zero)
+    return dynamics(q, zero, dq) - c, dynamics(q, dq, ddq) - c, c

@@ -24,7 +24,8 @@ import numpy as np
 
 from ..config import Section
 from ..jit import njit
-from .base import Kinematics, check_out, lower_sphere_intersection, rows3, solve_rows
+from .base import (GRAVITY, MM, Kinematics, check_out, closure_motion, lower_sphere_intersection, point_forces, rows3,
+                   solve_rows)
 
 _ANGLES = np.radians([0.0, 120.0, 240.0])
 U = np.stack([np.cos(_ANGLES), np.sin(_ANGLES), np.zeros(3)], axis=1)  # (3 arms, 3) radial unit vectors
@@ -70,6 +71,43 @@ def read_geometry(sec: Section) -> RotaryDeltaGeometry:
     if g.forearm <= g.upper_arm * 0.5:
         sec.fail("forearm", g.forearm, f"a forearm longer than half the upper arm ({g.upper_arm / 2:g} mm)")
     return g
+
+
+@dataclass(frozen=True)
+class RotaryDeltaMasses:
+    """The moving parts of a rotary delta, per arm (the ``[dynamics]`` table). kg, kg m^2, mm.
+
+    ``upper_arm_inertia`` is about the shoulder axis, ``upper_arm_com`` the distance from that axis
+    to the arm's centre of mass along the arm (shoulder to elbow). ``elbow_mass``: what moves with
+    the elbow point (rod ends, nuts, axle). ``forearm_mass``: both rods of one parallelogram,
+    taken as uniform rods between the ball-joint centres. ``platform_mass``: the platform with
+    everything rigidly on it, the tool (``tool_mass``) and the platform-side rod ends included.
+    ``rotor_inertia``: the motor and gear train reflected to the joint."""
+
+    upper_arm_mass: float
+    upper_arm_inertia: float
+    upper_arm_com: float
+    elbow_mass: float
+    forearm_mass: float
+    platform_mass: float
+    rotor_inertia: float = 0.0
+
+
+def read_dynamics(sec: Section, geometry: RotaryDeltaGeometry) -> RotaryDeltaMasses:
+    """The family's keys of the ``[dynamics]`` table (masses kg, inertias kg m^2, lengths mm).
+    An upper arm of unknown shape defaults to a uniform bar from the shoulder axis to the elbow."""
+    L1 = geometry.upper_arm
+    arm = sec.getfloat("upper_arm_mass", minval=0, maxval=100)
+    return RotaryDeltaMasses(
+        upper_arm_mass=arm,
+        upper_arm_inertia=sec.getfloat("upper_arm_inertia", arm * (L1 * MM) ** 2 / 3, minval=0, maxval=100),
+        upper_arm_com=sec.getfloat("upper_arm_com", L1 / 2, minval=0),
+        elbow_mass=sec.getfloat("elbow_mass", 0.0, minval=0, maxval=100),
+        forearm_mass=sec.getfloat("forearm_mass", minval=0, maxval=100),
+        platform_mass=sec.getfloat("platform_mass", minval=0, maxval=1000) + sec.getfloat("tool_mass", 0.0, minval=0,
+                                                                                             maxval=1000),
+        rotor_inertia=sec.getfloat("rotor_inertia", 0.0, minval=0, maxval=100),
+    )
 
 
 class RotaryDelta(Kinematics):
@@ -167,6 +205,46 @@ class RotaryDelta(Kinematics):
                                  f"expected float64 ({len(points)}, 3)")
         return int(_scaled_rates_kernel(points, t, kappa, self._offsets, self.L1, self.L2, float(scale), out1, out2))
 
+    def inverse_dynamics(self, masses: RotaryDeltaMasses, q, qd, qdd):
+        """Joint torques (N, 3) N m that move the arms along q (N,3) rad with velocities qd
+        (rad/s) and accelerations qdd (rad/s^2) against gravity; NaN where the mechanism cannot
+        close or is singular. Exact for the rigid-body model of :class:`RotaryDeltaMasses`
+        (:mod:`.base`'s notes): each upper arm turns about its shoulder axis (inertia and gravity
+        of its centre of mass), the elbow and the platform are point masses, each forearm pair is
+        three point masses (elbow end, middle, platform end); Coriolis and centripetal terms come
+        in through the platform's and the elbows' accelerations."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(v, dtype=float)) for v in (q, qd, qdd))
+        m = masses
+        c, s = np.cos(q)[..., None], np.sin(q)[..., None]
+        de = self.L1 * (-s * U[None] - c * Z)  # elbow rate d e_i / d q_i, (N, 3 arms, 3) mm/rad
+        dde = self.L1 * (-c * U[None] + s * Z)
+        d = self.forward(q)[:, None, :] + (self.r * U + self.t * Z)[None] - self.elbows(q)
+        jac, acc = closure_motion(d, de, dde, qd, qdd)  # of the platform (the ball joints move with it)
+        acc_e = de * qdd[..., None] + dde * (qd**2)[..., None]
+        rod = m.forearm_mass
+        # the middle of rod pair i is (e_i + p) / 2: half its force goes to each end's Jacobian
+        f_mid = point_forces(2 * rod / 3, 0.5 * (acc_e + acc[:, None, :]).reshape(-1, 3)).reshape(acc_e.shape)
+        f_p = point_forces(m.platform_mass + 3 * rod / 6, acc) + 0.5 * f_mid.sum(axis=1)
+        f_e = point_forces(m.elbow_mass + rod / 6, acc_e.reshape(-1, 3)).reshape(acc_e.shape) + 0.5 * f_mid
+        tau = MM * (np.einsum("nkj,nk->nj", jac, f_p) + np.einsum("njk,njk->nj", de, f_e))
+        # upper arm about its fixed axis: its centre of mass is upper_arm_com (cos q u - sin q z) from it
+        tau += (m.upper_arm_inertia + m.rotor_inertia) * qdd - m.upper_arm_mass * GRAVITY * m.upper_arm_com * MM * np.cos(q)
+        return tau
+
+    def torque_coefficients(self, masses: RotaryDeltaMasses, points, q, dq, ddq):
+        """The joint torques along a path as ``A sdd + B sd^2 + C`` (N m) in one compiled pass, what
+        :func:`.base.path_coefficients` gives from :meth:`inverse_dynamics` (the reference it is
+        tested against) in about 1 % of its time (a planner's grid): points (N,3) mm on the path,
+        q = inverse(points) (N,3) rad, dq = dq/ds, ddq = d2q/ds2 (N,3). Returns (A, B, C), each
+        (N,3); NaN where the forearms' matrix is singular."""
+        points, q, dq, ddq = (rows3(v, name) for v, name in ((points, "points"), (q, "q"), (dq, "dq"), (ddq, "ddq")))
+        m = masses
+        out = np.empty((3, len(q), 3))
+        params = np.array([m.platform_mass, m.elbow_mass, m.forearm_mass, m.upper_arm_inertia + m.rotor_inertia,
+                           m.upper_arm_mass * m.upper_arm_com * MM, GRAVITY])
+        _torque_coefficients_kernel(points, q, dq, ddq, self._offsets, self.L1, params, out)
+        return out[0], out[1], out[2]
+
     def ball_joint_tilt(self, points, q):
         """Sideways tilt of each forearm out of its arm's vertical plane: (N,3) rad."""
         d, _ = self._closure(q, points)
@@ -262,6 +340,83 @@ def _condition_bound_kernel(q, offsets, L1, L2, out):
             f2 += ji[i, 0] * ji[i, 0] + ji[i, 1] * ji[i, 1] + ji[i, 2] * ji[i, 2]
             a2 += cx * cx + cy * cy + cz * cz
         out[n] = math.sqrt(f2 * a2) / abs(det)
+
+
+@njit
+def _arm_geometry(p, cq, sq, offsets, L1, work):
+    """Into work (7, 3, 3) scratch: the forearms d_i (rows of D), the elbows' rates e'_i and e''_i,
+    g_i = d_i.e'_i, h_i = d_i.e''_i and D^-1, at the tool point p (3,) mm with cos q, sin q (3,)."""
+    d, e1, e2, inv = work[0], work[1], work[2], work[3]
+    g, h = work[5, 0], work[5, 1]
+    for i in range(3):
+        dx, dy, dz, ex, ey, ez = _arm(p[0] + offsets[i, 0], p[1] + offsets[i, 1], p[2] + offsets[i, 2], U[i, 0], U[i, 1],
+                                      L1, cq[i], sq[i])
+        d[i, 0], d[i, 1], d[i, 2] = dx, dy, dz
+        e1[i, 0], e1[i, 1], e1[i, 2] = ex, ey, ez
+        e2[i, 0], e2[i, 1], e2[i, 2] = -L1 * cq[i] * U[i, 0], -L1 * cq[i] * U[i, 1], L1 * sq[i]
+        g[i] = dx * ex + dy * ey + dz * ez
+        h[i] = dx * e2[i, 0] + dy * e2[i, 1] + dz * e2[i, 2]
+    # D^-1 = adj(D) / det(D): column k of inv is (row k+1 x row k+2) / det
+    for k in range(3):
+        a, b = (k + 1) % 3, (k + 2) % 3
+        inv[0, k] = d[a, 1] * d[b, 2] - d[a, 2] * d[b, 1]
+        inv[1, k] = d[a, 2] * d[b, 0] - d[a, 0] * d[b, 2]
+        inv[2, k] = d[a, 0] * d[b, 1] - d[a, 1] * d[b, 0]
+    det = d[0, 0] * inv[0, 0] + d[0, 1] * inv[1, 0] + d[0, 2] * inv[2, 0]
+    for r in range(3):
+        for c in range(3):
+            inv[r, c] /= det
+
+
+@njit
+def _arm_torques(cq, params, x, y, gravity, work, tau):
+    """tau (3,) N m of :meth:`RotaryDelta.inverse_dynamics` with joint velocities x (rad/s) and
+    accelerations y (rad/s^2) where :func:`_arm_geometry` filled work; gravity 1.0 or 0.0 (0: the
+    torques' velocity and acceleration part alone). The platform's acceleration solves
+    D a = g y + h x^2 - |v - e' x|^2, v = D^-1 (g x); its force goes to the joints through
+    J^T = diag(g) D^-T."""
+    e1, e2, inv, fe = work[1], work[2], work[3], work[4]
+    g, h, v, rhs, ap, fp = work[5, 0], work[5, 1], work[5, 2], work[6, 0], work[6, 1], work[6, 2]
+    for r in range(3):
+        v[r] = inv[r, 0] * g[0] * x[0] + inv[r, 1] * g[1] * x[1] + inv[r, 2] * g[2] * x[2]
+    for i in range(3):
+        rx, ry, rz = v[0] - e1[i, 0] * x[i], v[1] - e1[i, 1] * x[i], v[2] - e1[i, 2] * x[i]
+        rhs[i] = g[i] * y[i] + h[i] * x[i] * x[i] - (rx * rx + ry * ry + rz * rz)
+    for r in range(3):
+        ap[r] = inv[r, 0] * rhs[0] + inv[r, 1] * rhs[1] + inv[r, 2] * rhs[2]
+    m_p, m_e, rod, inertia, arm_moment, grav = params[0], params[1], params[2], params[3], params[4], params[5]
+    lift = grav * gravity
+    for c in range(3):
+        fp[c] = (m_p + rod / 2) * (ap[c] * MM + (lift if c == 2 else 0.0))
+    for i in range(3):
+        for c in range(3):
+            ae = e1[i, c] * y[i] + e2[i, c] * x[i] * x[i]
+            up = lift if c == 2 else 0.0
+            fmid = (2 * rod / 3) * (0.5 * (ae + ap[c]) * MM + up)
+            fp[c] += 0.5 * fmid
+            fe[i, c] = (m_e + rod / 6) * (ae * MM + up) + 0.5 * fmid
+    for j in range(3):
+        w = inv[0, j] * fp[0] + inv[1, j] * fp[1] + inv[2, j] * fp[2]  # (D^-T fp)_j
+        tau[j] = MM * (g[j] * w + e1[j, 0] * fe[j, 0] + e1[j, 1] * fe[j, 1] + e1[j, 2] * fe[j, 2]) + inertia * y[j] \
+            - gravity * arm_moment * grav * cq[j]
+
+
+@njit
+def _torque_coefficients_kernel(points, q, dq, ddq, offsets, L1, params, out):
+    """out[0], out[1], out[2] (N,3): A, B, C of :meth:`RotaryDelta.torque_coefficients`: C the
+    static torques, A the torques of accelerations dq, B of velocities dq with accelerations ddq
+    (no gravity in A and B: the torques are affine in the accelerations and quadratic in the
+    velocities). The geometry once per point for the three."""
+    cq, sq = np.empty(3), np.empty(3)
+    zero = np.zeros(3)
+    work = np.empty((7, 3, 3))
+    for n in range(q.shape[0]):
+        for i in range(3):
+            cq[i], sq[i] = math.cos(q[n, i]), math.sin(q[n, i])
+        _arm_geometry(points[n], cq, sq, offsets, L1, work)
+        _arm_torques(cq, params, zero, dq[n], 0.0, work, out[0, n])
+        _arm_torques(cq, params, dq[n], ddq[n], 0.0, work, out[1, n])
+        _arm_torques(cq, params, zero, zero, 1.0, work, out[2, n])
 
 
 @njit

@@ -10,6 +10,7 @@ workers start).
 
 from __future__ import annotations
 
+from .dynamics import ActuatorCurves, Dynamics
 from .limits import ChannelLimits, LimitMonitor, Limits
 from .printer import Printer
 from .reader import ACTUATOR_KINDS, check_reach, load_printer, printer_from_dict
@@ -20,6 +21,6 @@ load_machine = load_printer
 Machine = Printer
 
 __all__ = [
-    "ACTUATOR_KINDS", "Bed", "ChannelLimits", "Extruder", "Laser", "LimitMonitor", "Limits", "Machine", "PlanningSettings",
-    "Printer", "SlicingSettings", "Tool", "check_reach", "load_machine", "load_printer", "printer_from_dict",
+    "ACTUATOR_KINDS", "ActuatorCurves", "Bed", "ChannelLimits", "Dynamics", "Extruder", "Laser", "LimitMonitor", "Limits",
+    "Machine", "PlanningSettings", "Printer", "SlicingSettings", "Tool", "check_reach", "load_machine", "load_printer", "printer_from_dict",
 ]

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..kinematics import Kinematics
+from .dynamics import Dynamics
 from .limits import ChannelLimits, Limits
 from .settings import Bed, PlanningSettings, SlicingSettings
 from .tool import Tool
@@ -21,7 +22,8 @@ class Printer:
     singularity limit; ``limits`` holds every channel's limits and counts (joints, then
     the tool channel); ``rest_pose`` (J,) joint units: where every trajectory starts and ends;
     ``sensor_table`` per joint: ``((reading, joint value), ...)`` sorted by reading, joint units
-    (rad or mm), () for a joint without an absolute sensor."""
+    (rad or mm), () for a joint without an absolute sensor; ``dynamics``: the ``[dynamics]`` table
+    (masses and actuator curves), None where the file has none."""
 
     name: str
     path: str
@@ -37,6 +39,7 @@ class Printer:
     kinematics_: Kinematics = field(repr=False, compare=False)
     rest_pose: np.ndarray = field(repr=False, compare=False, default=None)
     sensor_table: tuple = ()
+    dynamics: Dynamics | None = None
     sources: dict = field(default_factory=dict, compare=False, hash=False)
     # False for a printer read with load_printer(reach_checks=False) and not yet through
     # machine.check_reach: its rest pose may be unset and nothing plans with it
@@ -58,6 +61,25 @@ class Printer:
     def kinematics(self) -> Kinematics:
         """The kinematics object of this printer's family (built once, at load)."""
         return self.kinematics_
+
+    def joint_torques(self, q, qd, qdd) -> np.ndarray:
+        """Joint torques (N m) or forces (N), (N, J), that move the joints along q (N, J) rad or mm
+        with velocities qd and accelerations qdd (per s, per s^2), from the family's inverse
+        dynamics with this printer's masses. ValueError where the file has no ``[dynamics]``."""
+        if self.dynamics is None:
+            raise ValueError(f"{self.name} has no [dynamics] table")
+        return self.kinematics_.inverse_dynamics(self.dynamics.masses, q, qd, qdd)
+
+    def torque_path_coefficients(self, q, dq, ddq, points=None):
+        """The joint torques along a path q(s) as ``A sdd + B sd^2 + C`` (the form of the planner's
+        acceleration constraint): q, dq = dq/ds, ddq = d2q/ds2 (N, J), points (N, 3) mm the tool
+        tips at q (forward kinematics when not given) -> (A, B, C), each (N, J) N m or N, from the
+        family's ``torque_coefficients``. ValueError where the file has no ``[dynamics]``."""
+        if self.dynamics is None:
+            raise ValueError(f"{self.name} has no [dynamics] table")
+        kin = self.kinematics_
+        points = kin.forward(q) if points is None else points
+        return kin.torque_coefficients(self.dynamics.masses, points, q, dq, ddq)
 
     def joint_from_sensor(self, joint: int, readings) -> np.ndarray:
         """Joint values (joint units) of raw sensor readings of one joint, interpolated

@@ -22,6 +22,7 @@ import numpy as np
 from ..config import MISSING, Problems, Section, _Stop
 from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
+from .dynamics import Dynamics, read_actuators
 from .limits import Limits
 from .printer import Printer
 from .settings import Bed, CoolingSettings, PlanningSettings, SlicingSettings
@@ -219,6 +220,21 @@ def _read_cooling(sec: Section) -> CoolingSettings:
     return c
 
 
+def _read_dynamics(sec: Section, module, geometry, actuator) -> Dynamics | None:
+    """``[dynamics]``: the family's masses (its module's ``read_dynamics``) and the actuators' curves."""
+    reader = getattr(module, "read_dynamics", None)
+    masses = None
+    if reader is None:
+        sec.used.update(sec.data)
+        sec.fail(None, sec.data, f"no [dynamics] table: the {module.FAMILY} family has no dynamics model")
+    if geometry is not None:
+        masses = sec._soft(lambda: reader(sec, geometry), None)
+    else:
+        sec.used.update(sec.data)  # the geometry's problems are reported; the masses need it
+    actuators = read_actuators(sec, module.KINEMATICS.joint_kinds, actuator)
+    return None if masses is None else Dynamics(masses=masses, actuators=actuators)
+
+
 def _read_planning(sec: Section) -> PlanningSettings:
     return PlanningSettings(
         output_rate=sec.getfloat("output_rate", 1000.0, minval=50, maxval=100000),
@@ -243,7 +259,7 @@ def _read_bed(sec: Section) -> Bed:
     )
 
 
-SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "cooling", "planning", "sources")
+SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "cooling", "planning", "dynamics", "sources")
 
 
 def resolve_printer(path) -> Path:
@@ -371,6 +387,10 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     slicing = read(ssec, _read_slicing, tool) if tool is not None else read(ssec, _read_slicing, Laser(1.0, 1.0, 0.0))
     planning = read(psec, _read_planning)
     cooling = read(csec, _read_cooling)
+    dynamics = None
+    if "dynamics" in data:
+        dsec = section("dynamics")
+        dynamics = read(dsec, _read_dynamics, module, geometry, actuator) if module is not None else None
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
@@ -398,6 +418,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
         kinematics_=kinematics,
         rest_pose=rest,
         sensor_table=tuple(joints["sensor_table"]),
+        dynamics=dynamics,
         sources=dict(sources),
         reach_checked=False,
     )

@@ -30,7 +30,8 @@ __all__ = ["plan", "plan_stream", "Piece", "Trajectory", "split_runs", "check_re
 _WORKER = {}
 # Jobs per chunk handed to a worker: an eighth of the print's (small prints still make 8 chunks), at
 # most CHUNK_MAX: a chunk's runs and travels are solved in batches, each with a set-up of a few
-# milliseconds, and 128 rather than 64 took featuretype's planning 4 % less CPU (the same bytes).
+# milliseconds that a larger chunk shares over more jobs; the cap keeps the last chunk, which one
+# worker may plan while the other is done, short.
 CHUNKS_PER_PRINT = 8
 CHUNK_MAX = 128
 WARM_UP_JOBS = 8  # the first chunk's jobs planned in the parent before the pool forks (its kernels)
@@ -380,8 +381,8 @@ def _jobs(toolpath: Toolpath, ranges, laser: bool, offset: int = 0, printed_top:
     another; ``tops["before"]``, when given, is set to the printed top before each job yielded.
     by_index: each job the moves it is made from, (i, j) of a run and (i, j, printed_top) of a
     travel (:func:`_job_args` makes it where it is planned, from the toolpath the planning
-    workers inherit: making and pickling every job's arrays in the parent cost it 0.17 CPU-s on
-    featuretype, beside the workers)."""
+    workers inherit: making and pickling every job's arrays in the parent would take the CPU the
+    workers plan with)."""
     pos = toolpath.start
     prev_end = 0
     tops = {} if tops is None else tops
@@ -602,7 +603,7 @@ def _travel_args(toolpath, i, j, pos, printed_top) -> dict:
     """plan_travel's keywords for the non-working moves [i, j) that go from pos to the start of move j."""
     target = toolpath.xyz[j - 1]
     layer = int(toolpath.layer[min(j, len(toolpath) - 1)])
-    if j - i == 1:  # four travels in five (featuretype): the same values from the move's scalars
+    if j - i == 1:  # most travels are one move: the same values from the move's scalars
         e = float(toolpath.e[i])
         # a step of nonzero length: a sum of squares is zero only where every square is
         moved = any(d * d > 0.0 for d in (toolpath.xyz[i] - pos).tolist())

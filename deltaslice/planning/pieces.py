@@ -308,8 +308,8 @@ class PieceBatch:
     """Lists of pieces (``groups``: one list per job) that pickle column by column.
 
     A RunPiece holds about fifteen arrays, and numpy pickles each with a few microseconds of
-    Python around it: handing featuretype's 4,500 runs from the planning workers to the parent
-    cost about 0.45 s to pickle and 0.3 s to unpickle, more than copying their 80 MB. Here the
+    Python around it: handing thousands of runs from the planning workers to the parent that way
+    costs more than copying their arrays. Here the
     runs' arrays of one field travel as one array with their lengths beside it, and come back as
     views of it: the same values, C-contiguous and writable, as the compiled kernels took them.
     Other pieces are pickled as they are, and so is a batch where two runs share a path (pickle

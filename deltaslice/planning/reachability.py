@@ -16,9 +16,9 @@ eliminating u (Fourier-Motzkin: every pair of a lower and an upper bound on u gi
 only the bounds that can lie on their envelope over the stage's range of x are paired: the range
 every pair gives, from a few pairs instead of ~22 x 22; every pair where it comes out empty or a
 pair is nearly parallel), and the whole loop runs compiled: 0.5-1 us a stage (measured on the
-shared 2-core machine) against toppra's ~20 us, and no per-call set-up. The first
-call in a fresh install compiles (~6 s; cached in __pycache__ after, ~0.7 s to load per process).
-Without numba the same code runs as plain Python (correct, slow; :mod:`deltaslice.jit`).
+shared 2-core machine) against toppra's ~20 us, and no per-call set-up. The first call in a fresh
+install compiles it; later processes load it from numba's cache. Without numba the same code runs
+as plain Python (correct, slow; :mod:`deltaslice.jit`).
 """
 
 from __future__ import annotations
