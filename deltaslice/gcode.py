@@ -50,6 +50,8 @@ _ROLE_NAMES = {
     Role.OVERHANG_PERIMETER: "Overhang perimeter",
     Role.BRIDGE_INFILL: "Bridge infill",
     Role.GAP_FILL: "Gap fill",
+    Role.SUPPORT: "Support material",
+    Role.SUPPORT_INTERFACE: "Support material interface",
 }
 _TYPE_TO_ROLE = {name.upper(): role for role, name in _ROLE_NAMES.items()}
 _TYPE_TO_ROLE.update(
@@ -64,8 +66,8 @@ _TYPE_TO_ROLE.update(
         "SKIN": Role.SOLID_INFILL,
         "TOP-SURFACE": Role.TOP_SOLID_INFILL,
         "PRIME-TOWER": Role.OTHER,
-        "SUPPORT": Role.OTHER,
-        "SUPPORT-INTERFACE": Role.OTHER,
+        "SUPPORT": Role.SUPPORT,
+        "SUPPORT-INTERFACE": Role.SUPPORT_INTERFACE,
     }
 )
 

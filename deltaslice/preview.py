@@ -21,7 +21,12 @@ ROLE_STYLE = {  # role: (colour, label)
     Role.INFILL: ("#2ca02c", "infill"),
     Role.SOLID_INFILL: ("#1f77b4", "solid infill"),
     Role.TOP_SOLID_INFILL: ("#9467bd", "top solid infill"),
-    Role.SKIRT: ("#8c564b", "skirt"),
+    Role.SKIRT: ("#8c564b", "skirt / brim"),
+    Role.OVERHANG_PERIMETER: ("#e6550d", "overhang perimeter"),
+    Role.BRIDGE_INFILL: ("#17becf", "bridge infill"),
+    Role.GAP_FILL: ("#bcbd22", "gap fill"),
+    Role.SUPPORT: ("#636363", "support"),
+    Role.SUPPORT_INTERFACE: ("#c49c94", "support interface"),
     Role.LASER: ("#e377c2", "laser"),
     Role.OTHER: ("#7f7f7f", "other"),
 }

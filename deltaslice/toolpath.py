@@ -81,6 +81,8 @@ class Role(enum.IntEnum):
     OVERHANG_PERIMETER = 11  # a perimeter over air (slower)
     BRIDGE_INFILL = 12  # solid lines across air or over sparse infill, round bead of nozzle diameter
     GAP_FILL = 13  # variable-width lines along the medial axis of regions too narrow for a loop
+    SUPPORT = 14  # support under overhangs: sparse lines, not part of the part
+    SUPPORT_INTERFACE = 15  # the dense top layers of a support, right under the part
 
 
 MIN_FEED = 1e-3  # mm/s (0.06 mm/min): slower is a units mistake, and a print of years

@@ -119,6 +119,25 @@ DOCS = {
     ("slicing", "bridge_speed"): ("mm/s", "Speed of bridge infill over air.", "perimeter_speed"),
     ("slicing", "bridge_flow"): ("", "Multiplier on the round bead of nozzle diameter laid over air.", None),
     ("slicing", "overhang_speed"): ("mm/s", "Speed of perimeters over air.", "half the external perimeter speed"),
+    ("slicing", "fill_pattern"): ("", "Sparse infill: `rectilinear` (lines one way, turned 90 deg every layer) or `grid` (both ways on every layer, each set twice as far apart: the same plastic, a stiffer lattice; PrusaSlicer's grid).", None),
+    ("slicing", "brim_width"): ("mm", "Width of the brim: loops touching the outer outline of every island of the first layer, from the part outward (PrusaSlicer's outer-only brim, no gap); the skirt goes around it. 0: no brim.", None),
+    ("slicing", "support"): ("", "`auto`: support under every overhang flatter than `support_angle` (cantilevers, flat undersides, bridges), built from the bed or the part below; `none`: no support.", None),
+    ("slicing", "support_angle"): ("deg from vertical", "Walls leaning further than this from vertical are supported (each layer reaching more than `h x tan(angle)` beyond the one below); Cura's support_angle.", None),
+    ("slicing", "support_z_gap"): ("mm", "Air between a support's top and the part above it (and between the part's top and a support standing on it), rounded to whole layers; PrusaSlicer's support_material_contact_distance.", "layer_height"),
+    ("slicing", "support_xy_gap"): ("mm", "Gap between support lines' edges and the part's side; PrusaSlicer's support_material_xy_spacing (50 % of the perimeter width).", "half the perimeter_width"),
+    ("slicing", "support_interface_layers"): ("", "Dense layers at the top of each support, lines across the body's (the face the overhang is printed on); PrusaSlicer's support_material_interface_layers.", None),
+    ("slicing", "support_spacing"): ("mm", "Distance between the centre lines of the support's body; PrusaSlicer's support_material_spacing.", None),
+    ("slicing", "support_type"): ("", "`everywhere`: supports stand on the bed or on the part; `buildplate`: only where nothing of the part lies below (Cura's support_type).", None),
+    ("slicing", "support_pattern"): ("", "`rectilinear`: the body's lines in one direction on every layer (they stack into thin walls that break away line by line, and keep each layer's moves short and straight); `grid`: the direction alternates by layer (stiffer, harder to remove).", None),
+    # cooling (PrusaSlicer's names and defaults)
+    ("cooling", "min_fan_speed"): ("%", "Part-fan speed of layers that take `fan_below_layer_time` or longer (the fan stays on, as PrusaSlicer's fan_always_on).", None),
+    ("cooling", "max_fan_speed"): ("%", "Part-fan speed of layers quicker than `slowdown_below_layer_time`; between the two times the speed falls linearly to `min_fan_speed`. 0 with the other speeds: a machine without a part fan.", None),
+    ("cooling", "bridge_fan_speed"): ("%", "Part-fan speed while bridge infill prints.", None),
+    ("cooling", "overhang_fan_speed"): ("%", "Part-fan speed while overhang perimeters print (PrusaSlicer 2.5 uses its bridge fan speed there).", None),
+    ("cooling", "disable_fan_first_layers"): ("layers", "The fan stays off on this many first layers (bridges and overhangs included).", None),
+    ("cooling", "fan_below_layer_time"): ("s", "Layers quicker than this run the fan above `min_fan_speed`.", None),
+    ("cooling", "slowdown_below_layer_time"): ("s", "Minimum layer time: a quicker layer's printing moves are slowed by one factor until it takes this long (times at the requested feeds, travels included); 0: no slowdown.", None),
+    ("cooling", "min_print_speed"): ("mm/s", "The slowdown never takes a printing move below this speed.", None),
     # dynamics: the actuators (every family)
     ("dynamics", "stall_torque"): ("N m (N)", "Each actuator's torque at rest, at the joint (a linear joint's force): stall for a DC motor or servo, pull-out at low speed for a stepper.", None),
     ("dynamics", "no_load_speed"): (JOINT + "/s", "Joint speed at which the actuator gives no torque any more (a servo's rated 60 deg time: 60 / t).", None),
@@ -160,7 +179,7 @@ DOCS = {
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",
-                 "bed", "slicing", "planning", "dynamics", "rotary_delta dynamics", "linear_delta dynamics",
+                 "bed", "slicing", "cooling", "planning", "dynamics", "rotary_delta dynamics", "linear_delta dynamics",
                  "five_bar dynamics"]
 
 

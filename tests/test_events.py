@@ -172,9 +172,12 @@ def test_sliced_part_carries_heater_events_to_csv_and_stream(tmp_path):
     for out in (tmp_path / "box.csv", tmp_path / "box.dsl"):
         compile_part(part, kossel, output=str(out), workers=1)
         meta, s = read_output(out)
-        # heated at rest, then hot end, bed and fan off where the last move ends (before the park)
-        ends = meta["events"][4:]
-        assert meta["events"][:4] == ((0, 3, 60.0), (0, 1, 200.0), (0, 4, 60.0), (0, 2, 200.0))
+        heaters = tuple(e for e in meta["events"] if e[1] != EventKind.FAN)
+        assert heaters[:4] == ((0, 3, 60.0), (0, 1, 200.0), (0, 4, 60.0), (0, 2, 200.0))
+        # the part fan ([cooling]): on, full, after the first three layers of the five
+        assert [e[2] for e in meta["events"] if e[1] == EventKind.FAN][:1] == [255.0]
+        # hot end, bed and fan off where the last move ends (before the park)
+        ends = meta["events"][-3:]
         assert [(k, v) for _i, k, v in ends] == [(1, 0.0), (3, 0.0), (5, 0.0)]
         assert len({i for i, _k, _v in ends}) == 1 and 0 < ends[0][0] < len(s.t) - 1
     etitc = printer("delta_etitc")  # an unheated bed: hot-end events only at the start

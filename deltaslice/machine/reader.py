@@ -26,7 +26,7 @@ from ..kinematics import FAMILIES, family, make_kinematics
 from .dynamics import Dynamics, read_actuators
 from .limits import Limits
 from .printer import Printer
-from .settings import Bed, PlanningSettings, SlicingSettings
+from .settings import Bed, CoolingSettings, PlanningSettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
@@ -193,10 +193,45 @@ def _read_slicing(sec: Section, tool: Tool) -> SlicingSettings:
         bridge_flow=sec.getfloat("bridge_flow", 1.0, above=0, maxval=3),
         overhang_speed=sec.getfloat("overhang_speed", 0.5 * _number(sec.data.get("external_perimeter_speed",
                                                                                  sec.data.get("perimeter_speed")), 30.0), above=0),
+        fill_pattern=sec.getstr("fill_pattern", "rectilinear", choices=("rectilinear", "grid"), required=False),
+        brim_width=sec.getfloat("brim_width", 0.0, minval=0, maxval=100),
+        support=sec.getstr("support", "none", choices=("none", "auto"), required=False),
+        support_angle=math.radians(sec.getfloat("support_angle", 50.0, minval=0, maxval=89)),
+        support_z_gap=sec.getfloat("support_z_gap", layer, minval=0, maxval=5),
+        support_xy_gap=sec.getfloat("support_xy_gap", 0.5 * _number(sec.data.get("perimeter_width"), nozzle * 1.125),
+                                    minval=0, maxval=20),
+        support_interface_layers=sec.getint("support_interface_layers", 3, minval=0, maxval=50),
+        support_spacing=sec.getfloat("support_spacing", 2.5, above=0, maxval=50),
+        support_type=sec.getstr("support_type", "everywhere", choices=("everywhere", "buildplate"), required=False),
+        support_pattern=sec.getstr("support_pattern", "rectilinear", choices=("rectilinear", "grid"), required=False),
     )
+    if s.support_spacing < s.infill_width:
+        sec.fail("support_spacing", s.support_spacing, f"a spacing >= infill_width ({s.infill_width:g} mm): lines that far apart")
     if s.first_layer_height > 0 and isinstance(tool, Extruder) and s.layer_height > tool.nozzle_diameter * 1.5:
         sec.fail("layer_height", layer, f"a layer height <= 1.5 x nozzle diameter ({1.5 * tool.nozzle_diameter:g} mm)")
     return s
+
+
+def _read_cooling(sec: Section) -> CoolingSettings:
+    """``[cooling]``: PrusaSlicer's names and defaults (fan speeds in percent)."""
+    d = CoolingSettings()
+    pct = {"minval": 0, "maxval": 100}
+    low = sec.getfloat("min_fan_speed", d.min_fan_speed, **pct)
+    high = sec.getfloat("max_fan_speed", d.max_fan_speed, **pct)
+    c = CoolingSettings(
+        min_fan_speed=low,
+        max_fan_speed=high,
+        bridge_fan_speed=sec.getfloat("bridge_fan_speed", d.bridge_fan_speed, **pct),
+        overhang_fan_speed=sec.getfloat("overhang_fan_speed", d.overhang_fan_speed, **pct),
+        disable_fan_first_layers=sec.getint("disable_fan_first_layers", d.disable_fan_first_layers, minval=0, maxval=1000),
+        fan_below_layer_time=sec.getfloat("fan_below_layer_time", d.fan_below_layer_time, minval=0, maxval=3600),
+        slowdown_below_layer_time=sec.getfloat("slowdown_below_layer_time", d.slowdown_below_layer_time, minval=0,
+                                               maxval=3600),
+        min_print_speed=sec.getfloat("min_print_speed", d.min_print_speed, above=0),
+    )
+    if low > high:
+        sec.fail("min_fan_speed", low, f"a speed <= max_fan_speed ({high:g} %)")
+    return c
 
 
 def _read_dynamics(sec: Section, module, geometry, actuator) -> Dynamics | None:
@@ -241,7 +276,7 @@ def _read_bed(sec: Section) -> Bed:
     )
 
 
-SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "dynamics", "sources")
+SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "cooling", "planning", "dynamics", "sources")
 
 
 def resolve_printer(path) -> Path:
@@ -367,6 +402,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
 
     ksec, jsec, tsec = section("kinematics"), section("joints"), section("tool")
     bsec, ssec, psec = section("bed"), section("slicing"), section("planning", default={})
+    csec = section("cooling", default={})
 
     family_name = module = None
     if ksec is not None:
@@ -384,6 +420,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     bed = read(bsec, _read_bed)
     slicing = read(ssec, _read_slicing, tool) if tool is not None else read(ssec, _read_slicing, Laser(1.0, 1.0, 0.0))
     planning = read(psec, _read_planning)
+    cooling = read(csec, _read_cooling)
     dynamics = None
     if "dynamics" in data:
         dsec = section("dynamics")
@@ -394,6 +431,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
         problems.add("sources", None, '[sources] expected a table of key = "where the number comes from"')
     problems.raise_if_any()
 
+    slicing = replace(slicing, cooling=cooling)
     limits = _limits(joints, tool)
     J = limits.n_joints
     kinematics = make_kinematics(geometry, limits.position_min[:J], limits.position_max[:J], planning.singularity_limit)

@@ -56,6 +56,27 @@ class Bed:
 
 
 @dataclass(frozen=True)
+class CoolingSettings:
+    """Part-cooling fan and minimum layer time (PrusaSlicer's cooling options, its defaults).
+
+    Fan speeds are percent 0..100 (PrusaSlicer's units; events carry 0..255); times s; speeds
+    mm/s. A layer printed faster than ``slowdown_below_layer_time`` is slowed down to take that
+    long, no move below ``min_print_speed``; the fan runs at ``max_fan_speed`` for such a layer,
+    falls linearly to ``min_fan_speed`` at ``fan_below_layer_time`` and stays there for longer
+    layers; it is off on the first ``disable_fan_first_layers`` layers. Bridges and overhang
+    perimeters run it at their own speeds. A machine without a part fan: every speed 0."""
+
+    min_fan_speed: float = 35.0
+    max_fan_speed: float = 100.0
+    bridge_fan_speed: float = 100.0
+    overhang_fan_speed: float = 100.0
+    disable_fan_first_layers: int = 3
+    fan_below_layer_time: float = 60.0
+    slowdown_below_layer_time: float = 5.0
+    min_print_speed: float = 10.0
+
+
+@dataclass(frozen=True)
 class SlicingSettings:
     """Default slicing settings. mm, mm/s, fractions; ``fill_angle`` rad."""
 
@@ -85,6 +106,17 @@ class SlicingSettings:
     bridge_speed: float = 30.0  # mm/s
     bridge_flow: float = 1.0  # multiplier on a round bead of nozzle diameter over air
     overhang_speed: float = 15.0  # mm/s: perimeters over air
+    fill_pattern: str = "rectilinear"  # sparse infill: "rectilinear" | "grid"
+    brim_width: float = 0.0  # mm: brim loops around the first layer's outer outlines (0: none)
+    support: str = "none"  # "none" | "auto": support under overhangs flatter than support_angle
+    support_angle: float = 0.8726646259971648  # rad from vertical (50 deg)
+    support_z_gap: float = 0.2  # mm between a support's top and the part
+    support_xy_gap: float = 0.25  # mm between a support's lines and the part's edge
+    support_interface_layers: int = 3  # dense layers at the top of each support
+    support_spacing: float = 2.5  # mm between the centre lines of the support's body
+    support_type: str = "everywhere"  # "everywhere" | "buildplate" (only columns standing on the bed)
+    support_pattern: str = "rectilinear"  # "rectilinear" (one direction) | "grid" (alternating by layer)
+    cooling: CoolingSettings = CoolingSettings()  # the printer file's [cooling] table
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,10 @@ The part of a layer's solid infill that the layer below does not hold up is
 bridged: grown by an anchor distance into what is held up (lines start and end
 on something), filled with lines across the shortest span, a round bead of
 nozzle diameter at the bridge speed. The direction, out of 12, is the one whose
-lines rest on support at both ends over the greatest length (a deck between
-two towers is crossed from tower to tower), ties and cantilevers going to the
-shortest mean line (the shortest span).
+lines crossing the air rest on support at both ends over the greatest length (a
+deck between two towers is crossed from tower to tower), then at one end (a
+cantilever's lines run out of the block holding it), ties going to the shortest
+mean line (the shortest span).
 """
 
 from __future__ import annotations
@@ -22,24 +23,30 @@ from .infill import scanline_segments
 ANGLES = np.radians(np.arange(0.0, 180.0, 15.0))
 
 
-def bridge_angle(bridge: CrossSection, support, spacing: float, fallback: float) -> float:
-    """Angle (rad) of bridge lines over ``bridge`` (the grown region): most length anchored
-    at both ends in ``support`` (a prepared shapely region or None), then the shortest
-    mean line."""
-    best, best_key = fallback, (-math.inf, -math.inf)
+def bridge_angle(bridge: CrossSection, support, spacing: float, fallback: float, air=None) -> float:
+    """Angle (rad) of bridge lines over ``bridge`` (the grown region). Only lines that cross the
+    air count (their middle over ``air``, a prepared shapely region, when given): most length
+    anchored at both ends in ``support`` (a prepared shapely region or None), then most anchored
+    at one end (a cantilever's lines run out of the block that holds them, not along its edge),
+    then the shortest mean line."""
+    best, best_key = fallback, (-math.inf, -math.inf, -math.inf)
     for a in ANGLES.tolist():
         k, xa, xb = scanline_segments(bridge, a, spacing)
         if len(xa) == 0:
             continue
-        anchored = 0.0
+        both = one = 0.0
         if support is not None:
             y = (k + 0.5) * spacing
             c, s = math.cos(a), math.sin(a)
             # rotated frame back to the bed: p_bed = (x c - y s, x s + y c)
-            ends = [(x * c - y * s, x * s + y * c) for x in (xa + 0.25 * spacing, xb - 0.25 * spacing)]
-            ok = shapely.contains_xy(support, *ends[0]) & shapely.contains_xy(support, *ends[1])
-            anchored = float(np.sum((xb - xa)[ok]))
-        key = (round(anchored, 3), -float(np.mean(xb - xa)))
+            ends = [(x * c - y * s, x * s + y * c) for x in (xa + 0.25 * spacing, xb - 0.25 * spacing, (xa + xb) / 2)]
+            at_a = shapely.contains_xy(support, *ends[0])
+            at_b = shapely.contains_xy(support, *ends[1])
+            crosses = shapely.contains_xy(air, *ends[2]) if air is not None else np.ones(len(xa), bool)
+            length = xb - xa
+            both = float(np.sum(length[at_a & at_b & crosses]))
+            one = float(np.sum(length[(at_a ^ at_b) & crosses]))
+        key = (round(both, 3), round(one, 3), -float(np.mean(xb - xa)))
         if key > best_key:
             best, best_key = a, key
     return best

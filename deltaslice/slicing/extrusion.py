@@ -45,6 +45,9 @@ def feed_table(settings, first_layer: bool) -> np.ndarray:
         Role.OVERHANG_PERIMETER: s.overhang_speed,
         Role.BRIDGE_INFILL: s.bridge_speed,
         Role.GAP_FILL: s.perimeter_speed,
+        # support: the body at infill speed, its interface (the face the part rests on) slower
+        Role.SUPPORT: s.infill_speed,
+        Role.SUPPORT_INTERFACE: s.perimeter_speed,
     }
     out = np.empty(max(Role) + 1)
     for r in Role:

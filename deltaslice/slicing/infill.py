@@ -303,3 +303,21 @@ def link_along_boundary(lines: list[np.ndarray], region: CrossSection, max_link:
         cur = [lines[cur_i]]
         c_end, u_end = which[cur_i, 1], u[cur_i, 1]
     return out
+
+
+DENSE_FLOW_MIN = 0.8  # the least a dense region's flow is scaled by (a region that small is mostly outline)
+
+
+def dense_flow_scale(region: CrossSection, to_fill: CrossSection, lines: list, spacing: float) -> float:
+    """Factor (DENSE_FLOW_MIN..1) on the flow of solid lines ``spacing`` apart whose centres
+    fill ``region``: the area they must cover (``region`` grown by half a spacing, within
+    ``to_fill``: the island less its perimeter beads and bridges) over the area the bead model
+    lays (length x spacing). Lines that overlap the perimeters or double along the outline
+    would otherwise put that overlap's plastic in too; lines: (k, 2) polylines, mm."""
+    if not lines or region.is_empty() or to_fill.is_empty():
+        return 1.0
+    laid = spacing * sum(float(np.sqrt((np.diff(p, axis=0) ** 2).sum(axis=1)).sum()) for p in lines)
+    if laid <= 0:
+        return 1.0
+    target = (region.offset(spacing / 2, JoinType.Miter, 3.0) ^ to_fill).area()
+    return float(min(1.0, max(DENSE_FLOW_MIN, target / laid)))

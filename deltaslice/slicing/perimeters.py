@@ -97,6 +97,9 @@ def overhang_segments(poly: np.ndarray, below, step: float) -> tuple[np.ndarray,
     width, so only a bead with nothing under it counts). Segments are cut every
     ``step`` mm to find where support ends, then merged back where the flag does not
     change, so a loop without overhang comes back unchanged."""
+    if shapely.contains(below, shapely.LinearRing(poly)):
+        # the whole loop over the layer below (most loops): one prepared test, no cutting
+        return poly, np.zeros(len(poly), bool)
     nxt = _next(poly)
     seg = np.linalg.norm(nxt - poly, axis=1)
     n = np.maximum(np.ceil(seg / step).astype(int), 1)

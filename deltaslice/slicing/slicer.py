@@ -13,19 +13,23 @@ from ..errors import DeltasliceError, MeshError
 from ..pool import can_fork, check_workers, forked_map, inherited
 from ..toolpath import Role, Toolpath, ToolpathBuilder
 from .bridges import bridge_angle, bridge_region
-from .extrusion import bead_spacing, bridge_flow
+from .cooling import apply_cooling
+from .extrusion import bead_spacing, bridge_flow, filament_per_mm
 from .gapfill import medial_lines, to_shapely
 from .heaters import start_heating
-from .infill import clean, rectilinear, solid_masks
+from .infill import clean, dense_flow_scale, rectilinear, solid_masks
 from .layers import layer_heights
 from .ordering import MoveWriter, Path, nearest_order
 from .perimeters import infill_boundary, overhang_segments, perimeter_loops
 from .sections import mesh_sections
-from .skirt import skirt_loops
+from .skirt import brim_extent, brim_loops, skirt_loops
+from .support import support_layers
 
 INFILL_ANCHOR_MAX = 50.0  # mm: infill lines are joined along the outline up to this far apart (PrusaSlicer's infill_anchor_max)
 GAP_MIN_WIDTH = 0.2  # gaps thinner than this fraction of a perimeter width are left empty
 LAYERS_PER_TASK = 4  # layers a slicing worker plans at a time (each range recomputes one sparse region)
+BRIDGE_ANCHOR = 3.0  # mm a bridge reaches into the solid infill around it (PrusaSlicer's EXTERNAL_INFILL_MARGIN)
+SUPPORT_INTERFACE_GAP = 0.2  # mm of air between interface beads (PrusaSlicer's support_material_interface_spacing)
 STARTED_TASKS = 4  # ranges in flight per worker while slice_mesh's ``started`` runs (about half a second)
 
 
@@ -41,9 +45,11 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
     are planned here): work this process does meanwhile, such as loading numba, which the
     workers do not need; what it raises stops the slicing.
     Returns a :class:`Toolpath` in the bed frame starting at (0, 0, 0): per layer
-    the skirt (first layer), then island by island perimeters (innermost first,
-    external last, overhang segments flagged), gap fill, then bridges, solid
-    (top and internal) and sparse infill.
+    the skirt and brim (first layer), the support, then island by island perimeters (a hole's
+    or outline's loops together, innermost first, external last, segments over air flagged on
+    every loop), gap fill, then bridges, and solid (top and internal) and sparse infill
+    ordered together; quick layers slowed to the minimum layer time and part-fan events added
+    (:mod:`.cooling`, the settings' ``cooling``).
     """
     s = settings
     check_workers(workers, "slice_mesh")
@@ -73,15 +79,17 @@ def slice_mesh(mesh, settings, tool, *, progress=None, name: str = "this printer
         if progress is not None:
             progress(li + 1, n)
     writer.finish()
-    return builder.build()
+    return apply_cooling(builder.build(), s.cooling)
 
 
 @dataclass(frozen=True)
 class _Island:
     """What one island of a layer prints, before it is ordered: ``centre`` (2,) mm of its
     bounding box (islands are visited nearest first); ``inside``: the shapely region travels may
-    cross without retracting, or None; perimeter paths by depth (innermost first), gap-fill
-    paths, and the infill groups printed one after the other (bridges, solid, sparse)."""
+    cross without retracting, or None; perimeter groups (an outline or a hole: its external loop
+    and the inner loops nearest it), each its paths by depth (innermost first); gap-fill paths,
+    and the infill groups printed one after the other (bridges, then solid and sparse
+    together)."""
 
     centre: np.ndarray
     inside: object
@@ -92,11 +100,13 @@ class _Island:
 
 @dataclass(frozen=True)
 class _LayerPlan:
-    """A layer's paths, independent of where the tool comes from: the skirt (first layer only)
-    and the islands."""
+    """A layer's paths, independent of where the tool comes from: the skirt and the brim (first
+    layer only), the support and the islands."""
 
     skirt: list
     islands: list
+    brim: list = ()
+    support: list = ()
 
 
 class _Layers:
@@ -113,12 +123,14 @@ class _Layers:
         # whether the sparse region is infill the next layer's bridges do not count as support
         # (none at 0 %, solid lines at 100 %)
         self.sparse_infill = 0 < min(float(s.fill_density), 1.0) < 0.999
+        # every layer's support regions, in one pass down the layers (before any worker forks)
+        self.support = support_layers(sections, thick, s.layer_height, s, s.infill_width)
 
     def plan(self, li: int, prev_sparse: CrossSection) -> tuple[_LayerPlan, CrossSection]:
         """Layer ``li``'s plan and its sparse infill region (what the next layer's internal
         bridges count as no support); prev_sparse: the layer below's."""
         if self.sections[li].is_empty():
-            return _LayerPlan([], []), CrossSection()
+            return _LayerPlan([], [], support=_support_paths(self, li)), CrossSection()
         return _layer_plan(self, li, prev_sparse)
 
     def sparse(self, li: int) -> CrossSection:
@@ -187,17 +199,28 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
     angle = s.fill_angle + (math.pi / 2 if li % 2 else 0.0)
     res = float(s.gcode_resolution)
 
-    skirt = []
+    skirt, brim = [], []
+    if first and s.brim_width > 0:
+        brim = [Path(p, Role.SKIRT, w_p, closed=True) for p in brim_loops(here, s.brim_width, w_p, sp_p)]
     if first and s.skirt_loops > 0:
-        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(here, s.skirt_loops, s.skirt_distance, w_p)]
+        # the skirt keeps its distance from the brim's outer edge and from the support's first layer
+        extent = brim_extent(s.brim_width, w_p, sp_p)
+        around = here.offset(extent, JoinType.Round, 2.0, 72) if extent > 0 else here
+        sup = layers.support[0]
+        for region in (sup.body, sup.interface):
+            if not region.is_empty():
+                around = around + region.offset(w_p / 2, JoinType.Miter, 3.0)
+        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(around, s.skirt_loops, s.skirt_distance, w_p)]
 
     exposed = here - sections[li + 1] if li + 1 < len(sections) else here
     below = sections[li - 1] if li > 0 else CrossSection()
     # what holds up a solid layer: the layer below, except where that layer is sparse infill
     support = (below - prev_sparse) if not prev_sparse.is_empty() else below
     overhang_test = None
+    below_grown = CrossSection()
     if not below.is_empty():
-        overhang_test = to_shapely(below.offset(w_p / 2, JoinType.Miter, 3.0))
+        below_grown = below.offset(w_p / 2, JoinType.Miter, 3.0)
+        overhang_test = to_shapely(below_grown)
         shapely.prepare(overhang_test)
     bridge_fpm = bridge_flow(nozzle, layers.tool.filament_area, s.bridge_flow)
     support_sh = None
@@ -210,29 +233,37 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         inner = island.offset(-w_p / 4, JoinType.Miter, 3.0)
         inside = None if inner.is_empty() else to_shapely(inner)
 
-        # perimeters: innermost depth first, the external loop last; external segments over air
-        # are overhang perimeters
+        # perimeters: innermost depth first, the external loop last; segments of any loop over
+        # air are overhang perimeters (an inner loop of a cantilever has nothing under it either)
         loops = perimeter_loops(island, w_p, layers.P, sp_p)
+        owner = _loop_groups(loops)
+        # an island wholly over the grown layer below has no loop over air: no loop to test
+        test = overhang_test if overhang_test is not None and not (island - below_grown).is_empty() else None
         perimeters = []
-        for depth in sorted({d for d, _ in loops}, reverse=True):
-            paths = []
-            for d, p in loops:
-                if d != depth:
-                    continue
-                role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
-                if depth == 0 and overhang_test is not None:
-                    dense, over = overhang_segments(p, overhang_test, w_p / 4)
-                    if over.any():
-                        p = dense
-                        role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
-                paths.append(Path(p, role, w_p, closed=True))
-            perimeters.append(paths)
+        for group in range(int(owner.max()) + 1 if len(owner) else 0):
+            by_depth = []
+            for depth in sorted({d for (d, _), o in zip(loops, owner) if o == group}, reverse=True):
+                paths = []
+                for (d, p), o in zip(loops, owner):
+                    if d != depth or o != group:
+                        continue
+                    role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
+                    if test is not None:
+                        dense, over = overhang_segments(p, test, w_p / 4)
+                        if over.any():
+                            p = dense
+                            role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
+                    paths.append(Path(p, role, w_p, closed=True))
+                by_depth.append(paths)
+            perimeters.append(by_depth)
 
         # gap fill: what neither the perimeter beads nor the infill reach (narrow walls, thin
         # features, tiny islands), one variable-width line down its middle
         # (printed right after the perimeters, as PrusaSlicer does)
         fill, solid, sparse, scraps = g.fill_regions(island)
         covered = _coverage(loops, sp_p)
+        # what the infill must fill: the island less the perimeter beads (before the infill's own band)
+        to_fill = island - covered if not covered.is_empty() else island
         if not fill.is_empty():
             covered = covered + fill.offset(sp_i / 2, JoinType.Miter, 3.0)
         gap = island - covered if not covered.is_empty() else island
@@ -248,40 +279,130 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
                 flow = widths * h / layers.tool.filament_area * s.extrusion_multiplier
                 gaps.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
 
-        groups: list[list[Path]] = []  # printed group after group: bridges, solid, sparse
+        groups: list[list[Path]] = []  # printed group after group: bridges, then solid and sparse
         if not fill.is_empty():
             bridge = CrossSection()
             if li > 0 and not solid.is_empty():
-                bridge, _ = bridge_region(solid, support, 2 * w_i, w_i)
+                bridge, air = bridge_region(solid, support, BRIDGE_ANCHOR, w_i)
+                over_nothing = air - below if not below.is_empty() else air
+                if not over_nothing.is_empty():
+                    # a bridge over air is anchored in whatever infill surrounds it, sparse too (PrusaSlicer
+                    # expands bridges into internal surfaces); one over sparse infill stays in the solid
+                    bridge = bridge + (over_nothing.offset(BRIDGE_ANCHOR, JoinType.Miter, 3.0) ^ fill)
                 if not bridge.is_empty() and support_sh is None and not support.is_empty():
                     support_sh = to_shapely(support)
                     shapely.prepare(support_sh)
                 if not bridge.is_empty():
-                    b_angle = bridge_angle(bridge, support_sh, nozzle, angle)
+                    air_sh = to_shapely(air)
+                    shapely.prepare(air_sh)
+                    b_angle = bridge_angle(bridge, support_sh, nozzle, angle, air_sh)
                     groups.append([Path(p, Role.BRIDGE_INFILL, nozzle, flow=bridge_fpm)
                                    for p in rectilinear(bridge, b_angle, nozzle, nozzle)])
                     solid = solid - bridge
+                    if not sparse.is_empty():
+                        sparse = sparse - bridge
+                    if not scraps.is_empty():
+                        scraps = scraps - bridge
             top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
             internal = solid - top_region if not top_region.is_empty() else solid
             if not scraps.is_empty():
                 internal = internal + scraps
-            groups.append([Path(p, role, w_i) for region, role in ((top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL))
-                           for p in rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX)])
-            if s.fill_density > 0 and not sparse.is_empty():
-                dens = min(float(s.fill_density), 1.0)
-                role = Role.SOLID_INFILL if dens >= 0.999 else Role.INFILL
-                groups.append([Path(p, role, w_i) for p in rectilinear(sparse, angle, sp_i / dens, w_i, INFILL_ANCHOR_MAX)])
-                if layers.sparse_infill:
-                    sparse_all.append(sparse)
+            dens = min(float(s.fill_density), 1.0)
+            dense = [(top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL)]
+            if dens >= 0.999 and not sparse.is_empty():
+                dense.append((sparse, Role.SOLID_INFILL))  # 100 % sparse infill is solid lines too
+            lines = [(rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX), role) for region, role in dense]
+            # dense lines overlap the perimeters (infill_overlap) and run along the outline: their
+            # flow is scaled so they lay what the region between the perimeters holds, no more
+            fpm = filament_per_mm(w_i, h, layers.tool.filament_area, s.extrusion_multiplier) * dense_flow_scale(
+                _union([r for r, _ in dense]), to_fill - bridge if not bridge.is_empty() else to_fill,
+                [p for ps, _ in lines for p in ps], sp_i)
+            # solid and sparse lines in one group, ordered together from where the perimeters end
+            # (PrusaSlicer chains a region's fills together): a solid strip across the island
+            # need not cost a travel there and back
+            fills = [Path(p, role, w_i, flow=fpm) for ps, role in lines for p in ps]
+            if len(lines) == 2 and s.fill_density > 0 and not sparse.is_empty():
+                fills += [Path(p, Role.INFILL, w_i) for p in _sparse_lines(sparse, angle, sp_i / dens, w_i, s.fill_pattern)]
+            groups.append(fills)
+            if layers.sparse_infill and not sparse.is_empty():
+                sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
-    return _LayerPlan(skirt, islands), _union(sparse_all)
+    return _LayerPlan(skirt, islands, brim, _support_paths(layers, li)), _union(sparse_all)
+
+
+def _sparse_lines(region: CrossSection, angle: float, spacing: float, width: float, pattern: str) -> list:
+    """Sparse infill polylines ((k, 2) mm) at ``spacing`` for the density: ``rectilinear`` lines
+    at ``angle`` (the slicer turns it 90 deg every layer), or ``grid``: lines both ways on every
+    layer, each set twice as far apart (the same plastic, a stiffer lattice; PrusaSlicer's grid)."""
+    if pattern == "grid":
+        return [p for a in (angle, angle + math.pi / 2) for p in rectilinear(region, a, 2 * spacing, width, INFILL_ANCHOR_MAX)]
+    return rectilinear(region, angle, spacing, width, INFILL_ANCHOR_MAX)
+
+
+def _support_paths(layers: _Layers, li: int) -> list:
+    """Layer ``li``'s support paths: the body's lines ``support_spacing`` apart (at the infill
+    angle; ``grid``: turned 90 deg every other layer), the interface's across them, a
+    ``SUPPORT_INTERFACE_GAP`` of air between neighbouring beads."""
+    sup = layers.support[li]
+    if sup.body.is_empty() and sup.interface.is_empty():
+        return []
+    s = layers.s
+    h = float(layers.thick[li])
+    w = s.first_layer_width if li == 0 else s.infill_width
+    sp = bead_spacing(w, h)
+    angle = s.fill_angle + (math.pi / 2 if s.support_pattern == "grid" and li % 2 else 0.0)
+    # zig-zag lines without links along the outline: a support's outline is ragged (cut by the part
+    # and by every overhang above) and its lines are meant to break away one by one
+    paths = [Path(p, Role.SUPPORT, w) for p in rectilinear(sup.body, angle, max(s.support_spacing, sp), w)]
+    paths += [Path(p, Role.SUPPORT_INTERFACE, w) for p in rectilinear(sup.interface, angle + math.pi / 2, sp + SUPPORT_INTERFACE_GAP, w)]
+    return paths
+
+
+def _loop_groups(loops: list) -> np.ndarray:
+    """(len(loops),) int: the group of each ``(depth, polygon)`` loop: the index of the external
+    (depth 0) loop nearest its first vertex; one group when there is no external loop."""
+    ext = [i for i, (d, _) in enumerate(loops) if d == 0]
+    owner = np.zeros(len(loops), np.intp)
+    if len(ext) < 2:
+        return owner
+    rings = np.array([shapely.LinearRing(loops[i][1]) for i in ext], dtype=object)
+    for i, (d, p) in enumerate(loops):
+        owner[i] = ext.index(i) if d == 0 else int(np.argmin(shapely.distance(rings, shapely.Point(p[0]))))
+    return owner
+
+
+def _nearest_groups(groups: list, position: np.ndarray):
+    """Perimeter groups (lists of path lists by depth) greedily nearest first from
+    ``position``: the next is the one with a vertex of its first loops nearest where the
+    previous group ended (its external loop)."""
+    if len(groups) < 2:
+        yield from groups
+        return
+    pos = np.asarray(position[:2], float)
+    firsts = [np.concatenate([p.points for p in g[0]]) if g and g[0] else np.zeros((1, 2)) for g in groups]
+    lasts = [np.concatenate([p.points for p in g[-1]]) if g and g[-1] else np.zeros((1, 2)) for g in groups]
+    alive = list(range(len(groups)))
+    while alive:
+        j = min(alive, key=lambda k: float(np.min(np.sum((firsts[k] - pos) ** 2, axis=1))))
+        alive.remove(j)
+        yield groups[j]
+        # the group ends on its external loop, somewhere on it: its vertex nearest the next start is
+        # not known yet, so go on from the loop's nearest vertex to the old position
+        last = lasts[j]
+        pos = last[int(np.argmin(np.sum((last - pos) ** 2, axis=1)))]
 
 
 def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
-    """Write a layer's paths: the skirt, then the islands nearest first (by their bounding-box
-    centre), each from where the tool is: perimeters, gap fill, infill groups."""
+    """Write a layer's paths: the skirt, the brim, the support, then the islands nearest first (by their bounding-box
+    centre), each from where the tool is: perimeter groups nearest first (each innermost loop
+    first, its external loop last, as PrusaSlicer prints a hole's loops before moving on), gap
+    fill, infill groups."""
     if plan.skirt:
         _emit(writer, nearest_order(plan.skirt, writer.pos, "nearest"), h)
+    if plan.brim:
+        _emit(writer, nearest_order(list(plan.brim), writer.pos, "nearest"), h)
+    if plan.support:
+        _emit(writer, nearest_order(list(plan.support), writer.pos), h)
     islands = plan.islands
     centres = np.array([isl.centre for isl in islands]).reshape(-1, 2)
     alive = np.ones(len(islands), bool)
@@ -294,8 +415,9 @@ def _order_layer(writer: MoveWriter, plan: _LayerPlan, h: float, s) -> None:
         writer.inside = island.inside
         if writer.inside is not None:
             shapely.prepare(writer.inside)
-        for paths in island.perimeters:
-            _emit(writer, nearest_order(paths, writer.pos, s.seam), h)
+        for group in _nearest_groups(island.perimeters, writer.pos):
+            for paths in group:
+                _emit(writer, nearest_order(paths, writer.pos, s.seam), h)
         _emit(writer, nearest_order(island.gaps, writer.pos), h)
         for group in island.groups:
             _emit(writer, nearest_order(group, writer.pos), h)
