@@ -17,9 +17,14 @@ G-code layer by layer on a 0.05 mm raster: the part of the mesh cross-section
 that PrusaSlicer covers with perimeters, gap fill, solid or bridge infill and
 deltaslice leaves without any bead (deltaslice's beads grown by 0.1 mm, so a
 bead placed a hair differently is not a void), islands of the cross-section
-PrusaSlicer extrudes on and deltaslice does not, travels, retractions, extruded
-volume, moves, wall time and peak memory (``/usr/bin/time``) of each process, and the time of ``slice_mesh`` alone (in this
-process, imports warm, mesh loaded) against PrusaSlicer's whole process.
+PrusaSlicer extrudes on and deltaslice does not, overlap (raster cells two or
+more moves cover over cells one or more cover, each move a flat-ended rectangle
+as wide as the plastic it carries spreads at the layer's height), travel length
+and count, retractions, overhang perimeter length, extruded volume, wall time and
+peak memory (``/usr/bin/time``) of each process, and the time of ``slice_mesh``
+alone (in this process, imports warm, mesh loaded) against PrusaSlicer's whole
+process. ``--pictures DIR`` writes, per part, a PNG of the layer where the two
+differ most (see ``layer_picture``).
 """
 
 from __future__ import annotations
@@ -131,7 +136,7 @@ REAL_PARTS = {
     "extruder_idler.obj": 1.0, "idler_riser.STL": 25.4, "featuretype.STL": 20.0, "A.obj": 1.0, "bridge.obj": 1.0,
     "20mm_cube.obj": 1.0, "7_8ths_cube.stl": 1.0, "pyramid.obj": 1.0, "overhang.obj": 1.0, "U_overhang.obj": 1.0,
     "sloping_hole.obj": 1.0, "cube_with_concave_hole.obj": 1.0, "two_hollow_squares.obj": 1.0, "Prusa.stl": 0.5,
-    "plate_holes.STL": 0.35,
+    "plate_holes.STL": 0.35, "small_dorito.obj": 1.0,
 }
 PX = 0.05  # raster pixel, mm
 TOLERANCE = 0.1  # mm: deltaslice's beads grown by this before comparing
@@ -151,14 +156,27 @@ def timed_mem(cmd) -> tuple[float, float, str]:
 
 
 def gcode_stats(tp, filament_diameter: float) -> dict:
-    """Travels (moves between runs), retractions, volume (mm^3), moves of a toolpath read from G-code."""
+    """Travels (count of moves between runs) and their xy length between the first and the last
+    extrusion (mm), retractions, overhang perimeter length (mm), volume (mm^3), moves of a
+    toolpath read from G-code."""
     import numpy as np
+
+    from deltaslice.toolpath import Role
 
     work = tp.working
     starts = np.flatnonzero(work & ~np.concatenate([[False], work[:-1]]))
     retracts = int(np.sum((~work) & (tp.e < 0)))
     area = math.pi * filament_diameter**2 / 4
-    return {"travels": max(len(starts) - 1, 0), "retracts": retracts, "volume": float(tp.e[work].sum() * area),
+    dxy = np.hypot(*(tp.xyz[:, :2] - tp.starts[:, :2]).T)
+    travel = ~work
+    if work.any():
+        first, last = int(np.argmax(work)), len(work) - int(np.argmax(work[::-1]))
+        travel[:first] = travel[last:] = False
+    else:
+        travel[:] = False
+    overhang = work & (tp.role == int(Role.OVERHANG_PERIMETER))
+    return {"travels": max(len(starts) - 1, 0), "travel_mm": float(dxy[travel].sum()), "retracts": retracts,
+            "overhang_mm": float(dxy[overhang].sum()), "volume": float(tp.e[work].sum() * area),
             "moves": int(work.sum())}
 
 
@@ -196,6 +214,107 @@ def coverage_raster(tp, moves, height: float, origin, shape, filament_area: floa
     return np.asarray(img, bool)
 
 
+def count_raster(tp, moves, height: float, origin, shape, filament_area: float, piece: float = 1.0):
+    """(rows = y) int32 raster: how many of ``moves`` cover each cell. Each move is a flat-ended
+    rectangle as wide as its plastic spreads at ``height`` (E x filament area / (length x height):
+    Slic3r's spacing, so beads laid at it touch without overlapping). Vectorised: moves cut into
+    pieces at most ``piece`` mm long, every cell of a piece's bounding box tested at once."""
+    import numpy as np
+
+    count = np.zeros(shape[0] * shape[1], np.int32)
+    if not len(moves):
+        return count.reshape(shape)
+    prev = np.concatenate([[tp.start], tp.xyz])[moves][:, :2]
+    cur = tp.xyz[moves][:, :2]
+    length = np.linalg.norm(cur - prev, axis=1)
+    ok = length > 1e-6
+    prev, cur, length = (prev[ok] - origin) / PX, (cur[ok] - origin) / PX, length[ok]
+    half = tp.e[moves][ok] * filament_area / (length * height) / PX / 2
+    n = np.maximum(np.ceil(length / piece), 1).astype(np.int64)
+    seg = np.repeat(np.arange(len(n)), n)
+    k = np.arange(len(seg)) - np.repeat(np.cumsum(n) - n, n)
+    t0, t1 = k / n[seg], (k + 1) / n[seg]  # piece = [t0, t1) of its move, in fractions
+    a, d = prev[seg], (cur - prev)[seg]
+    p0, p1 = a + d * t0[:, None], a + d * t1[:, None]
+    h = half[seg]
+    lo = np.floor(np.minimum(p0, p1) - h[:, None]).astype(np.int64)
+    hi = np.ceil(np.maximum(p0, p1) + h[:, None]).astype(np.int64)
+    lo = np.clip(lo, 0, [shape[1], shape[0]])
+    hi = np.clip(hi, 0, [shape[1], shape[0]])
+    nx, ny = hi[:, 0] - lo[:, 0], hi[:, 1] - lo[:, 1]
+    cells = np.maximum(nx, 0) * np.maximum(ny, 0)
+    ln = np.linalg.norm(d, axis=1)
+    u = d / ln[:, None]
+    bounds = np.searchsorted(np.cumsum(cells), np.arange(0, cells.sum() + 4_000_000, 4_000_000))
+    start = 0
+    for stop in np.unique(np.append(bounds[1:], len(cells))):  # chunks of about 4 M cells
+        sel = np.arange(start, stop)
+        start = stop
+        c = cells[sel]
+        if not c.sum():
+            continue
+        pi = np.repeat(sel, c)
+        j = np.arange(len(pi)) - np.repeat(np.cumsum(c) - c, c)
+        x = lo[pi, 0] + j % nx[pi]
+        y = lo[pi, 1] + j // nx[pi]
+        rx, ry = x + 0.5 - a[pi, 0], y + 0.5 - a[pi, 1]
+        along = (rx * u[pi, 0] + ry * u[pi, 1]) / ln[pi]
+        across = np.abs(rx * u[pi, 1] - ry * u[pi, 0])
+        inside = (along >= t0[pi]) & (along < t1[pi]) & (across <= h[pi])
+        count += np.bincount((y * shape[1] + x)[inside], minlength=len(count)).astype(np.int32)
+    return count.reshape(shape)
+
+
+PALETTE = [255, 255, 255, 215, 215, 215, 60, 110, 200, 220, 30, 30, 255, 150, 0, 0, 0, 0]
+
+
+def layer_picture(path: Path, sec, count_o, count_t, missing_o, missing_t, title: str, max_width: int = 900):
+    """PNG of one layer, deltaslice left, PrusaSlicer right. Each panel: white outside the part,
+    light grey the section no bead covers, blue cells one move covers, red two or more (overlap),
+    orange where the other slicer lays a dense bead (perimeter, solid, bridge, gap fill) and this
+    one no bead within 0.1 mm. Downsampled by blocks (each block the colour most of its cells
+    have, red and orange counted double)."""
+    import numpy as np
+    from PIL import Image, ImageDraw
+
+    def panel(count, missing):
+        img = np.where(sec, 1, 0).astype(np.uint8)
+        img[count == 1] = 2
+        img[count >= 2] = 3
+        img[missing] = 4
+        return img
+
+    a, b = panel(count_o, missing_o), panel(count_t, missing_t)
+    rows, cols = np.nonzero((a > 0) | (b > 0))
+    if not len(rows):
+        return
+    a = a[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
+    b = b[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
+    f = max(1, math.ceil(2 * a.shape[1] / max_width))
+    hh, ww = (a.shape[0] // f) * f, (a.shape[1] // f) * f
+
+    def down(img):
+        if f == 1:
+            return img
+        blocks = img[:hh, :ww].reshape(hh // f, f, ww // f, f).transpose(0, 2, 1, 3).reshape(hh // f, ww // f, f * f)
+        counts = np.stack([(blocks == v).sum(axis=2) for v in range(5)], axis=2)
+        counts[..., 3:] *= 2  # overlap and missing beads are thin: they win a block at a third of its cells
+        return counts.argmax(axis=2).astype(np.uint8)
+
+    a, b = down(a)[::-1], down(b)[::-1]  # rows = y: flip so +y is up
+    gap, top = 8, 28
+    out = np.zeros((a.shape[0] + top, 2 * a.shape[1] + gap), np.uint8)
+    out[top:, :a.shape[1]] = a
+    out[top:, a.shape[1] + gap:] = b
+    im = Image.fromarray(out, "P")
+    im.putpalette(PALETTE)
+    d = ImageDraw.Draw(im)
+    d.text((2, 1), title, fill=5)
+    d.text((2, 14), "deltaslice", fill=5)
+    d.text((a.shape[1] + gap + 2, 14), "PrusaSlicer 2.5", fill=5)
+    im.save(path, optimize=True)
+
+
 def section_raster(polys, origin, shape):
     """Even-odd raster of cross-section contours."""
     import numpy as np
@@ -209,8 +328,11 @@ def section_raster(polys, origin, shape):
     return acc
 
 
-def compare(stl: Path, scale: float, ours_gc: Path, theirs_gc: Path, printer) -> dict:
-    """Per-part void and island figures (see the module docstring)."""
+def compare(stl: Path, scale: float, ours_gc: Path, theirs_gc: Path, printer, picture: Path | None = None) -> dict:
+    """Per-part void, island and overlap figures (see the module docstring), and the layer where
+    the two differ most: the most cells one slicer covers with a dense bead (perimeter, solid,
+    bridge, gap fill) and the other leaves without any bead within 0.1 mm, both ways; its picture
+    in ``picture`` if given."""
     import numpy as np
     from scipy import ndimage
 
@@ -234,6 +356,8 @@ def compare(stl: Path, scale: float, ours_gc: Path, theirs_gc: Path, printer) ->
     section_total = void_total = 0.0
     lost = 0
     void_layers = 0
+    over = {"o": [0, 0], "t": [0, 0]}  # cells covered twice or more, once or more
+    worst = (-1.0, None)
     for li, z in enumerate(mids):
         polys = manifold.slice(float(z)).to_polygons()
         if not polys:
@@ -253,11 +377,34 @@ def compare(stl: Path, scale: float, ours_gc: Path, theirs_gc: Path, printer) ->
             t_any = ndimage.maximum(cov_t | coverage_raster(theirs, np.flatnonzero((li_t == li) & theirs.working), thick[li], lo, shape, area_fil, 0.0), lab, np.arange(1, n + 1))
             o_any = ndimage.maximum(cov_o, lab, np.arange(1, n + 1))
             lost += int(np.sum(np.asarray(t_any, bool) & ~np.asarray(o_any, bool)))
-    return {"section": section_total, "void": void_total, "void_layers": int(void_layers), "lost": lost}
+        n_o = count_raster(ours, np.flatnonzero((li_o == li) & ours.working), thick[li], lo, shape, area_fil)
+        n_t = count_raster(theirs, np.flatnonzero((li_t == li) & theirs.working), thick[li], lo, shape, area_fil)
+        for key, n_ in (("o", n_o), ("t", n_t)):
+            over[key][0] += int((n_ >= 2).sum())
+            over[key][1] += int((n_ >= 1).sum())
+        dense_o = coverage_raster(ours, np.flatnonzero((li_o == li) & ours.working & np.isin(ours.role, fill_roles)),
+                                  thick[li], lo, shape, area_fil, 0.0)
+        any_t = coverage_raster(theirs, np.flatnonzero((li_t == li) & theirs.working), thick[li], lo, shape, area_fil,
+                                TOLERANCE)
+        miss_o, miss_t = cov_t & ~cov_o, dense_o & ~any_t
+        differ = float(miss_o.sum() + miss_t.sum()) * PX * PX
+        if differ > worst[0]:
+            worst = (differ, (li, float(z), sec, n_o, n_t, miss_o, miss_t))
+    out = {"section": section_total, "void": void_total, "void_layers": int(void_layers), "lost": lost,
+           "overlap_o": over["o"][0] / max(over["o"][1], 1), "overlap_t": over["t"][0] / max(over["t"][1], 1),
+           "differ_layer": None}
+    if worst[1] is not None:
+        li, z, sec, n_o, n_t, miss_o, miss_t = worst[1]
+        out["differ_layer"] = (li, z, worst[0])
+        if picture is not None:
+            layer_picture(picture, sec, n_o, n_t, miss_o, miss_t,
+                          f"{stl.name} x{scale:g} layer {li} z {z:.2f}: {worst[0]:.0f} mm^2 differ")
+    return out
 
 
 def real(args, printer, prusa):
-    parts_dir = ROOT.parent / "shared" / "parts"
+    parts_dir = Path(args.parts_dir) if args.parts_dir else next(
+        (d / "shared" / "parts" for d in ROOT.parents[:2] if (d / "shared" / "parts").is_dir()), ROOT.parent / "shared" / "parts")
     if not parts_dir.is_dir():
         raise SystemExit(f"{parts_dir} not found")
     tmp = Path(tempfile.mkdtemp(prefix="bench_slicing_real_"))
@@ -291,19 +438,29 @@ def real(args, printer, prusa):
         t_in = time.perf_counter() - t0
         so = gcode_stats(read_gcode(ours_out), printer.tool.filament_diameter)
         st = gcode_stats(read_gcode(theirs_out), printer.tool.filament_diameter)
-        c = compare(stl, scale, ours_out, theirs_out, printer)
+        pic = None
+        if args.pictures:
+            Path(args.pictures).mkdir(parents=True, exist_ok=True)
+            pic = Path(args.pictures) / f"slicing_{stl.stem}.png"
+        c = compare(stl, scale, ours_out, theirs_out, printer, pic)
         rows.append((name, scale, c, so, st, t_o, t_t, m_o, m_t, t_in))
         print(name, c, so, st, f"{t_o:.2f}s/{t_t:.2f}s", file=sys.stderr)
     print(f"printer {printer.name}; one run each; raster {PX} mm, deltaslice beads grown {TOLERANCE} mm")
-    print("| part (scale) | void mm^2 (% of section) | layers with void | islands lost | travels ds/ps | retracts ds/ps "
-          "| volume mm^3 ds/ps | moves ds/ps | wall s ds/ps | slice_mesh s (/ps wall) | peak MB ds/ps |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| part (scale) | void mm^2 (% of section) | layers with void | islands lost | overlap % of extruded cells ds/ps "
+          "| volume mm^3 ds/ps (ratio) | travel length mm ds/ps (ratio) | travels (count) ds/ps | retracts (count) ds/ps "
+          "| overhang perimeter mm ds/ps | wall s ds/ps | slice_mesh s (/ps wall) | peak MB ds/ps | most different layer (z mm: mm^2) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, scale, c, so, st, t_o, t_t, m_o, m_t, t_in in rows:
         pct = 100 * c["void"] / c["section"] if c["section"] else 0.0
+        dl = c["differ_layer"]
+        worst = f"{dl[0]} ({dl[1]:.2f}: {dl[2]:.0f})" if dl else "-"
         print(f"| {name} ({scale:g}) | {c['void']:.1f} ({pct:.2f} %) | {c['void_layers']} | {c['lost']} "
-              f"| {so['travels']}/{st['travels']} ({so['travels'] / max(st['travels'], 1):.2f}x) "
-              f"| {so['retracts']}/{st['retracts']} | {so['volume']:.0f}/{st['volume']:.0f} | {so['moves']}/{st['moves']} "
-              f"| {t_o:.2f}/{t_t:.2f} ({t_o / t_t:.2f}x) | {t_in:.2f} ({t_in / t_t:.2f}x) | {m_o:.0f}/{m_t:.0f} |")
+              f"| {100 * c['overlap_o']:.1f}/{100 * c['overlap_t']:.1f} "
+              f"| {so['volume']:.0f}/{st['volume']:.0f} ({so['volume'] / max(st['volume'], 1e-9):.3f}) "
+              f"| {so['travel_mm']:.0f}/{st['travel_mm']:.0f} ({so['travel_mm'] / max(st['travel_mm'], 1e-9):.2f}x) "
+              f"| {so['travels']}/{st['travels']} | {so['retracts']}/{st['retracts']} "
+              f"| {so['overhang_mm']:.1f}/{st['overhang_mm']:.1f} "
+              f"| {t_o:.2f}/{t_t:.2f} ({t_o / t_t:.2f}x) | {t_in:.2f} ({t_in / t_t:.2f}x) | {m_o:.0f}/{m_t:.0f} | {worst} |")
     print(f"(files in {tmp})")
 
 
@@ -314,7 +471,9 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--printer", default="printers/delta_etitc.toml")
     ap.add_argument("--real", action="store_true", help="the real parts in ../shared/parts instead")
-    ap.add_argument("--parts", nargs="*", help="with --real: file names (default: the issue's five parts)")
+    ap.add_argument("--parts", nargs="*", help="with --real: file names (default: the first five of REAL_PARTS)")
+    ap.add_argument("--parts-dir", help="with --real: the folder of real parts (default: ../shared/parts)")
+    ap.add_argument("--pictures", help="with --real: write slicing_<part>.png of the most different layer here")
     args = ap.parse_args(argv)
     prusa = shutil.which("prusa-slicer")
     if prusa is None:
