@@ -154,6 +154,7 @@ DOCS = {
     ("planning", "limit_margin"): ("fraction", "Share of every limit the planner keeps in reserve.", None),
     ("planning", "travel_lift"): ("mm", "Clearance over the printed part of a lifted joint-space travel.", None),
     ("planning", "singularity_limit"): ("", "Largest Jacobian condition number allowed: poses beyond it count as unreachable.", None),
+    ("planning", "torque_limit"): ("", "Where the file has `[dynamics]`: `on` plans runs and travels within the actuators' stall torque and speed-torque line as well as the joints' limits; `off` to the joints' constant limits alone.", None),
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",

@@ -207,6 +207,7 @@ def _read_planning(sec: Section) -> PlanningSettings:
         limit_margin=sec.getfloat("limit_margin", 0.01, minval=0, maxval=0.5),
         travel_lift=sec.getfloat("travel_lift", 1.0, minval=0),
         singularity_limit=sec.getfloat("singularity_limit", 50.0, above=1),
+        torque_limit=sec.getstr("torque_limit", "on", choices=("on", "off"), required=False),
     )
 
 

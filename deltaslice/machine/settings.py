@@ -60,11 +60,14 @@ class SlicingSettings:
 @dataclass(frozen=True)
 class PlanningSettings:
     """Planner settings: output sample rate (Hz), corner blend tolerance (mm), the
-    fraction of each limit kept in reserve (``limit_margin``), travel lift (mm) and the
-    Jacobian condition number beyond which a pose counts as singular."""
+    fraction of each limit kept in reserve (``limit_margin``), travel lift (mm), the
+    Jacobian condition number beyond which a pose counts as singular, and ``torque_limit``: "on"
+    plans to the ``[dynamics]`` actuators' torque and speed-torque curve as well as the joints'
+    limits (where the file has ``[dynamics]``), "off" to the joints' limits alone."""
 
     output_rate: float
     blend_tolerance: float
     limit_margin: float
     travel_lift: float
     singularity_limit: float
+    torque_limit: str = "on"

@@ -18,6 +18,7 @@ from ..errors import PlanningError
 from .pieces import FilamentPiece, JointMovePiece
 from .ruckig_profile import RuckigProfile, positions_many
 from .topp import RunSpec, plan_lines, plan_run
+from .torque import travel_limits
 
 CHECK_SAMPLES = 48
 
@@ -46,8 +47,12 @@ class _JointMoves:
         inp.target_velocity = inp.target_acceleration = [0.0] * n
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk
 
-    def move(self, q0, q1, layer) -> JointMovePiece:
-        """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece)."""
+    def move(self, q0, q1, layer, bounds=None) -> JointMovePiece:
+        """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece);
+        bounds: (velocity (J,), acceleration (J,)) for this move instead of the joints' planned
+        limits (:func:`.torque.travel_limits`)."""
+        if bounds is not None:
+            self.inp.max_velocity, self.inp.max_acceleration = list(map(float, bounds[0])), list(map(float, bounds[1]))
         self.inp.current_position = list(map(float, q0))
         self.inp.target_position = list(map(float, q1))
         result = self.otg.calculate(self.inp, self.traj)
@@ -63,8 +68,15 @@ class _JointMoves:
 
 
 def _ruckig_move(printer, q0, q1, layer):
-    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone."""
-    return _JointMoves(printer, len(q0)).move(q0, q1, layer)
+    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone,
+    within the torque limits' bounds for it where the printer has them."""
+    bounds = travel_limits(printer, q0, q1)
+    if bounds is not None:
+        if not np.isfinite(bounds[1]).all():
+            raise PlanningError(f"layer {layer}: no joint-space move from {np.round(q0, 4)} to {np.round(q1, 4)} within "
+                                "the actuators' torque (gravity takes it all at one of its poses)")
+        bounds = (bounds[0][0], bounds[1][0])
+    return _JointMoves(printer, len(q0)).move(q0, q1, layer, bounds)
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
@@ -151,8 +163,13 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     short = (step < tool.retract_min_travel) & (retract == 0)  # the ends' distance, measured above
     cands = []  # (travel, joint move, its own travel's time)
     joint_moves = _JointMoves(printer, q.shape[2])
-    for n in np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2))):
-        joint = joint_moves.move(q[2, n], q[3, n], layers[n])
+    tried = np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2)))
+    # with torque limits, each move's own joint bounds (travel_limits); none: no joint-space candidate
+    bounds = travel_limits(printer, q[2, tried], q[3, tried]) if len(tried) else None
+    for r, n in enumerate(tried):
+        if bounds is not None and not np.isfinite(bounds[1][r]).all():
+            continue
+        joint = joint_moves.move(q[2, n], q[3, n], layers[n], None if bounds is None else (bounds[0][r], bounds[1][r]))
         # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
         # travel, its clearance check and its lift and lower moves need not be planned.
         own_time = sum(p.duration for p in best[n])
