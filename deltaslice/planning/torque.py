@@ -275,15 +275,15 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
 # Joint-space travels (ruckig) have no torque model: each keeps to a joint velocity and acceleration
 # that none of its poses can turn into more torque than the actuators give.
 TRAVEL_SPEED_FRACTIONS = np.linspace(0.05, 0.8, 16)  # of the line speed: the velocity bounds tried
-TRAVEL_LINE = np.linspace(0.0, 1.0, 5)  # fractions of the straight joint line between the ends
+TRAVEL_LINE = np.linspace(0.0, 1.0, 9)  # fractions of the straight joint line between the ends
 
 
 def travel_limits(printer, q0, q1):
     """Joint velocity and acceleration bounds for ruckig's rest-to-rest moves q0 -> q1 (k, J) joint
     units: (velocity (k, J), acceleration (k, J)) per s and s^2, NaN rows where no bound works;
-    None without torque limits. At the move's poses P (its straight joint line at TRAVEL_LINE and
-    the corners of the box its ends span, where reachable: a time-synchronised rest-to-rest move
-    stays in that box) and for any joint state with |qd_k| <= v_k, |qdd_k| <= a_k:
+    None without torque limits. At the move's poses P (its straight joint line at TRAVEL_LINE: the
+    travel planner has ruckig synchronise the joints' phases, which keeps a rest-to-rest move on
+    that line) and for any joint state with |qd_k| <= v_k, |qdd_k| <= a_k:
 
         |g_j| + sum_kl |G_jkl| v_k v_l + sum_k |M_jk| a_k + T_j v_j / w_j <= T_j
 
@@ -301,9 +301,7 @@ def travel_limits(printer, q0, q1):
     k, J = q0.shape
     lim = printer.planned_limits()
     vj, aj = lim.velocity[:J], lim.acceleration[:J]
-    corners = (np.arange(2**J)[:, None] >> np.arange(J)[None]) & 1  # (2^J, J) 0: q0's value, 1: q1's
-    poses = np.concatenate([q0[:, None] + TRAVEL_LINE[None, :, None] * (q1 - q0)[:, None],
-                            np.where(corners[None] == 1, q1[:, None], q0[:, None])], axis=1)  # (k, P, J)
+    poses = q0[:, None] + TRAVEL_LINE[None, :, None] * (q1 - q0)[:, None]  # (k, P, J)
     P = poses.shape[1]
     M, G, g = _pose_dynamics(printer, poses.reshape(-1, J))
     M, G, g = M.reshape(k, P, J, J), G.reshape(k, P, J, J, J), g.reshape(k, P, J)
@@ -313,8 +311,8 @@ def travel_limits(printer, q0, q1):
     need = np.einsum("kpjm,m->kpj", np.abs(M), aj)[None]
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(need > 0, room / need, np.where(room >= 0, np.inf, -np.inf))
-        ratio = np.where(np.isfinite(g)[None] | np.isinf(ratio), ratio, np.nan)  # unreachable poses: not visited
-        scale = np.minimum(np.nanmin(ratio.reshape(len(v), k, -1), axis=2), 1.0)  # (F, k)
+        ratio = np.where(np.isnan(ratio), -np.inf, ratio)  # a pose the model has no torque at: no bound
+        scale = np.minimum(np.min(ratio.reshape(len(v), k, -1), axis=2, initial=np.inf), 1.0)  # (F, k)
         a = aj[None, None] * scale[..., None]  # (F, k, J)
         dist = np.abs(q1 - q0)[None]
         vv = v[:, None]

@@ -18,7 +18,7 @@ from ..errors import PlanningError
 from .pieces import FilamentPiece, JointMovePiece
 from .ruckig_profile import RuckigProfile, positions_many
 from .topp import RunSpec, plan_lines, plan_run
-from .torque import travel_limits
+from .torque import torque_limits, travel_limits
 
 CHECK_SAMPLES = 48
 
@@ -46,6 +46,10 @@ class _JointMoves:
         inp.current_velocity = inp.current_acceleration = [0.0] * n
         inp.target_velocity = inp.target_acceleration = [0.0] * n
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk
+        if torque_limits(printer) is not None:
+            # the joints in phase: the move stays on its straight joint line, the poses its torque
+            # bounds were found at
+            inp.synchronization = ruckig.Synchronization.Phase
 
     def move(self, q0, q1, layer, bounds=None) -> JointMovePiece:
         """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece);
