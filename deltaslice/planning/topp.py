@@ -1075,8 +1075,8 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
             model = stage_torque(printer, rp, x_grid, CHECK, dq_check, ddq_check)
             cruise = cruise_x(model, tq, rows[3])
             x0 = cruise if x_prev is None else np.maximum(np.interp(s_grid, *x_prev), cruise.min())
-            sd, top = solve_with_torque(model, tq, x_grid, rows, EVAL_IN_CHECK, EVAL, x0,
-                                        lambda r: _speeds(constraints, rp, x_grid, r, v_start / S, unit), unit)
+            sd, top, x0 = solve_with_torque(model, tq, x_grid, rows, EVAL_IN_CHECK, EVAL, x0,
+                                            lambda r: _speeds(constraints, rp, x_grid, r, v_start / S, unit), unit)
         if v_start > 0:
             # A start speed outside the controllable set is refused even when the solver, which
             # tolerates a small excess (toppra's), found a profile: its forward pass would cut the
@@ -1104,7 +1104,7 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
         bad = check.per_stage > 1.0 + CHECK_TOLERANCE
         if tq is not None:
             x_prev = (s_grid, sd * sd)
-            torque = stage_check(model, tq, CHECK, sd, xdd)
+            torque = stage_check(model, tq, CHECK, sd, xdd, x0)
             bad |= ~(torque.per_stage <= 1.0 + CHECK_TOLERANCE)
         if not bad.any():
             break

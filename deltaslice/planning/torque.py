@@ -123,8 +123,8 @@ def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0
     """The torque rows of every grid point, in the compiled solver's collocation form (stage i's rows
     in its start's (u, x_i)): (a, b, lo, hi), each (n+1, 2 f J), at the fractions frac (f,) (the
     model's fractions eval_at: a slice or indices), plain then driving rows, fraction-major.
-    x0: (n+1,) tangent points (> 0) of the driving rows at the grid points (linear in a stage, as
-    x is). unit: as StageAccelerationConstraint.rows (a / c, b / c^2; bounds unchanged). The last
+    x0: (n+1,) tangent points (> 0) at the grid points; a stage's driving rows take the tangent at
+    the mean of its ends'. unit: as StageAccelerationConstraint.rows (a / c, b / c^2; bounds unchanged). The last
     grid point has no stage ahead: its rows are the last stage's end's with no u term of its own
     (the solver never uses them)."""
     A, B, C, dq = (np.ascontiguousarray(v[:, eval_at]) for v in (model.A, model.B, model.C, model.dq))
@@ -141,7 +141,9 @@ def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0
 def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
     """:func:`torque_rows` in one pass. Row i < n at fraction f_k: x(f) = x_i + 2 f d_i u, so the
     plain row is (A + 2 f d B) u + B x_i in [-T - C, T - C] and the driving one (sigma = sign q',
-    kk = T |q'| / w, the tangent's slope kp = kk / (2 sqrt(x0_f)), x0_f = x0 linear in the stage)
+    kk = T |q'| / w, the tangent's slope kp = kk / (2 sqrt(x0_f)), x0_f the mean of x0 at the
+    stage's ends: one tangent for the stage, so the linearised torque use is nearly linear in f and
+    holding it at the fractions holds it between them, which sqrt(x) itself, concave, would not)
     (sigma A + 2 f d (sigma B + kp)) u + (sigma B + kp) x_i in [-T - sigma C, T - sigma C - kk sqrt(x0_f) / 2]."""
     n, f, J = A.shape
     for i in range(n + 1):
@@ -150,7 +152,7 @@ def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
         for k in range(f):
             fr = frac[k] if i < n else 1.0
             w2 = 2.0 * fr * d[st] if i < n else 0.0
-            x0f = x0[st] + fr * (x0[st + 1] - x0[st])
+            x0f = 0.5 * (x0[st] + x0[st + 1]) if i < n else x0[n]
             sq = np.sqrt(x0f)
             for j in range(J):
                 Aj, Bj, Cj, qp = A[st, k if i < n else f - 1, j], B[st, k if i < n else f - 1, j], \
@@ -182,28 +184,38 @@ class TorqueCheck:
     per_stage: np.ndarray
 
 
-def stage_check(model: StageTorque, limits: TorqueLimits, frac: np.ndarray, sd: np.ndarray, xdd: np.ndarray) -> TorqueCheck:
+def stage_check(model: StageTorque, limits: TorqueLimits, frac: np.ndarray, sd: np.ndarray, xdd: np.ndarray,
+                x0: np.ndarray | None = None) -> TorqueCheck:
     """Bound every joint's torque use over every stage of a solution sd (n+1,) path speeds, xdd (n,)
     path accelerations (the model's path units) at the model's fractions frac (f,) with the exact
     torque and joint speed: the largest sample plus 0.3125 of the largest second difference of the
     samples, as :func:`.topp.stage_maxima` bounds the accelerations, against the real stall torque
-    and line (not the margined ones)."""
+    and line (not the margined ones); or, where smaller, the same bound with sqrt(x) replaced by its
+    tangent at the mean of x0 (n+1,) (the rows' tangent points; default: the solution's x) at the
+    stage's ends."""
+    x0 = sd * sd if x0 is None else np.asarray(x0, dtype=float)
     n, f, J = model.A.shape
     use = np.empty(J)
     at = np.empty(J, dtype=np.int64)
     per_stage = np.empty(n)
     _check_kernel(model.A, model.B, model.C, model.dq, np.asarray(frac, float), np.ascontiguousarray(sd, dtype=float),
-                  np.ascontiguousarray(xdd, dtype=float), limits.stall, limits.line_speed, use, at, per_stage)
+                  np.ascontiguousarray(xdd, dtype=float), np.ascontiguousarray(x0), limits.stall, limits.line_speed,
+                  use, at, per_stage)
     return TorqueCheck(use, at, per_stage)
 
 
 @njit
-def _check_kernel(A, B, C, dq, frac, sd, xdd, T, w, use, at, per_stage):
+def _check_kernel(A, B, C, dq, frac, sd, xdd, x0s, T, w, use, at, per_stage):
     """:func:`stage_check`: at fraction f of stage i, x = max(0, x_i + (x_{i+1} - x_i) f), tau =
     A u + B x + C, qd = q' sqrt(x), g = (|tau| + [tau qd > 0] T |qd| / w) / T; per stage and joint
-    the largest g plus 0.3125 of the largest second difference (a NaN anywhere wins)."""
+    the largest g plus 0.3125 of the largest second difference (a NaN anywhere wins). sqrt(x) is
+    steep near rest, which makes that allowance large on a stage that starts or ends there; the
+    same bound of g with sqrt(x) replaced by its tangent at xm, the mean of x0s at the stage's ends
+    (above it, and linear in f: what the rows held), is then the tighter one: the smaller of the
+    two is taken."""
     n, f, J = A.shape
     g = np.empty(f)
+    h = np.empty(f)
     for j in range(J):
         use[j] = -np.inf
         at[j] = 0
@@ -211,6 +223,8 @@ def _check_kernel(A, B, C, dq, frac, sd, xdd, T, w, use, at, per_stage):
         x0 = sd[i] * sd[i]
         x1 = sd[i + 1] * sd[i + 1]
         u = xdd[i]
+        xm = max(0.5 * (x0s[i] + x0s[i + 1]), 0.0)
+        sm = np.sqrt(xm)
         worst = -np.inf
         for j in range(J):
             nan = False
@@ -219,24 +233,39 @@ def _check_kernel(A, B, C, dq, frac, sd, xdd, T, w, use, at, per_stage):
                 tau = A[i, m, j] * u + B[i, m, j] * x + C[i, m, j]
                 qd = dq[i, m, j] * np.sqrt(x)
                 v = abs(tau)
+                t = abs(tau)
                 if tau * qd > 0.0:
                     v += T[j] * abs(qd) / w[j]
+                # the tangent's term wherever the torque has q''s sign, as in the rows: at rest too,
+                # where it is not zero (the tangent lies above sqrt(0))
+                if tau * dq[i, m, j] > 0.0 and sm > 0.0:
+                    t += T[j] * abs(dq[i, m, j]) * (x + xm) / (2.0 * sm) / w[j]
                 g[m] = v / T[j]
+                h[m] = t / T[j]
                 nan |= g[m] != g[m]
-            top = g[0]
-            for m in range(1, f):
-                top = g[m] if g[m] > top else top
-            dd = 0.0
-            for m in range(f - 2):
-                v = abs(g[m + 2] - 2.0 * g[m + 1] + g[m])
-                dd = v if v > dd else dd
-            top = np.nan if nan else top + 0.3125 * dd
+            top = _bound(g, f)
+            if sm > 0.0:
+                top = min(top, _bound(h, f))
+            top = np.nan if nan else top
             if worst == worst and (top != top or top > worst):
                 worst = top
             if use[j] == use[j] and (top != top or top > use[j]):
                 use[j] = top
                 at[j] = i
         per_stage[i] = worst
+
+
+@njit
+def _bound(g, f):
+    """The largest of g[:f] plus 0.3125 of its largest second difference."""
+    top = g[0]
+    for m in range(1, f):
+        top = g[m] if g[m] > top else top
+    dd = 0.0
+    for m in range(f - 2):
+        v = abs(g[m + 2] - 2.0 * g[m + 1] + g[m])
+        dd = v if v > dd else dd
+    return top + 0.3125 * dd
 
 
 def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, rows, eval_at, frac: np.ndarray,
@@ -248,13 +277,14 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
     first tangent points; speeds: rows -> (sd (n+1,) or None, top), the solve (``topp._speeds``
     with the caller's grid, start and units). Up to TORQUE_PASSES solves, each with the driving
     rows' tangent at the last solution, until the time gains less than TORQUE_SETTLE. Returns (sd,
-    top) of the fastest (sd None where the first finds no profile)."""
+    top, x0) of the fastest, x0 its driving rows' tangent points (sd None where the first finds no
+    profile)."""
     a, b, bound, cap2 = rows
     lo = np.broadcast_to(-np.asarray(bound, float), a.shape)
     hi = np.broadcast_to(np.asarray(bound, float), a.shape)
     floor = float(np.max(x0)) * X0_FLOOR
     dx = np.diff(x_grid)
-    best, best_time = (None, None), np.inf
+    best, best_time = (None, None, x0), np.inf
     for _ in range(TORQUE_PASSES):
         ta, tb, tlo, thi = torque_rows(model, limits, x_grid, x0, eval_at, frac, unit)
         sd, top = speeds((np.hstack([a, ta]), np.hstack([b, tb]), (np.hstack([lo, tlo]), np.hstack([hi, thi])), cap2))
@@ -265,7 +295,7 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
         if not time < best_time:
             break
         settled = time > best_time * (1 - TORQUE_SETTLE)
-        best, best_time = (sd, top), time
+        best, best_time = (sd, top, x0), time
         if settled:
             break
         x0 = np.maximum(sd * sd, floor)
