@@ -1072,6 +1072,8 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
         if tq is None:
             sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S, unit)
         else:
+            # at the check's fractions: at the solver's three alone, the check's bound (their second
+            # difference) refines more stages and batches, for more time than the two others cost
             model = stage_torque(printer, rp, x_grid, CHECK, dq_check, ddq_check)
             cruise = cruise_x(model, tq, rows[3])
             x0 = cruise if x_prev is None else np.maximum(np.interp(s_grid, *x_prev), cruise.min())
@@ -1142,7 +1144,7 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
     active = np.empty(len(xdd), dtype=bool)
     _active_kernel(dq_check, ddq_check, xdd, sd, cap2, amax, active)  # fraction 0 of either; these are contiguous
     if tq is not None:
-        active |= torque.per_stage >= ACTIVE * (1.0 - printer.planning.limit_margin)
+        active |= torque.per_stage >= ACTIVE * float(np.min(tq.planned / tq.stall))
     return _Profile(s_grid, x_grid, sd, xdd, t, dt, active, -1 if cap is None else cut_g(s_grid))
 
 

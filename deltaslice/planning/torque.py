@@ -4,8 +4,8 @@ Along a path the joint torques are ``tau = A(s) u + B(s) x + C(s)`` (u the path 
 squared path speed; ``Printer.torque_path_coefficients``), the form of the acceleration rows, so a
 torque limit is two more rows per joint and evaluation fraction of every stage:
 
-* **plain**: ``-T - C <= A u + B x <= T - C``, T the planned stall torque (stall times ``1 -
-  limit_margin``: ``Printer.planned_actuators``). Braking, a motor gives its stall torque at most.
+* **plain**: ``-T - C <= A u + B x <= T - C``, T the planned stall torque (the stall torque less
+  its ``limit_margin``: ``Printer.planned_actuators``). Braking, a motor gives its stall torque at most.
 * **driving**: while the motor drives (torque and joint speed of one sign, sigma = sign q'), the
   speed-torque curve caps the torque: ``sigma tau <= T (1 - |q'| sd / w)`` with w the speed where
   the curve's safe line reaches zero (``ActuatorCurves.line_speed``: the no-load speed for a
@@ -32,9 +32,9 @@ import numpy as np
 
 from ..jit import njit
 
-# Solves per grid with the driving rows' tangent moved to the last solution; the plan's time
-# changes by less than TORQUE_SETTLE (a fraction) before that on most runs.
-TORQUE_PASSES = 3
+# Solves per grid with the driving rows' tangent moved to the last solution: on the ETITC's
+# calibration cube a second solve gains 0.6 % (machine mode), a third nothing (to 1e-4).
+TORQUE_PASSES = 2
 TORQUE_SETTLE = 1e-3
 X0_FLOOR = 1e-6  # of the largest cruise x: a tangent point at rest would make its row vertical
 
@@ -119,19 +119,20 @@ def cruise_x(model: StageTorque, limits: TorqueLimits, cap2: np.ndarray) -> np.n
 
 
 def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0: np.ndarray, eval_at,
-                frac: np.ndarray, unit: np.ndarray | None = None):
+                frac: np.ndarray, unit: np.ndarray | None = None, out=None):
     """The torque rows of every grid point, in the compiled solver's collocation form (stage i's rows
     in its start's (u, x_i)): (a, b, lo, hi), each (n+1, 2 f J), at the fractions frac (f,) (the
     model's fractions eval_at: a slice or indices), plain then driving rows, fraction-major.
     x0: (n+1,) tangent points (> 0) at the grid points; a stage's driving rows take the tangent at
     the mean of its ends'. unit: as StageAccelerationConstraint.rows (a / c, b / c^2; bounds unchanged). The last
     grid point has no stage ahead: its rows are the last stage's end's with no u term of its own
-    (the solver never uses them)."""
+    (the solver never uses them). out: (a, b, lo, hi) arrays (n+1, 2 f J) to write them into
+    (views of wider ones: a solve's full rows), returned."""
     A, B, C, dq = (np.ascontiguousarray(v[:, eval_at]) for v in (model.A, model.B, model.C, model.dq))
     n, f, J = A.shape
     c = np.ones(n + 1) if unit is None else np.asarray(unit, dtype=float)
     m = 2 * f * J
-    a, b, lo, hi = (np.empty((n + 1, m)) for _ in range(4))
+    a, b, lo, hi = (np.empty((n + 1, m)) for _ in range(4)) if out is None else out
     _torque_rows_kernel(A, B, C, dq, np.asarray(frac, float), np.diff(x_grid), np.ascontiguousarray(x0, dtype=float),
                         limits.planned, limits.line_speed, c, a, b, lo, hi)
     return a, b, lo, hi
@@ -279,15 +280,18 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
     rows' tangent at the last solution, until the time gains less than TORQUE_SETTLE. Returns (sd,
     top, x0) of the fastest, x0 its driving rows' tangent points (sd None where the first finds no
     profile)."""
-    a, b, bound, cap2 = rows
-    lo = np.broadcast_to(-np.asarray(bound, float), a.shape)
-    hi = np.broadcast_to(np.asarray(bound, float), a.shape)
+    a0, b0, bound, cap2 = rows
+    n1, m0 = a0.shape
+    m = m0 + 2 * len(frac) * model.A.shape[2]
+    a, b, lo, hi = (np.empty((n1, m)) for _ in range(4))  # the acceleration rows, then the torque rows
+    a[:, :m0], b[:, :m0], lo[:, :m0], hi[:, :m0] = a0, b0, -np.asarray(bound, float), bound
+    tail = tuple(v[:, m0:] for v in (a, b, lo, hi))
     floor = float(np.max(x0)) * X0_FLOOR
     dx = np.diff(x_grid)
     best, best_time = (None, None, x0), np.inf
     for _ in range(TORQUE_PASSES):
-        ta, tb, tlo, thi = torque_rows(model, limits, x_grid, x0, eval_at, frac, unit)
-        sd, top = speeds((np.hstack([a, ta]), np.hstack([b, tb]), (np.hstack([lo, tlo]), np.hstack([hi, thi])), cap2))
+        torque_rows(model, limits, x_grid, x0, eval_at, frac, unit, tail)
+        sd, top = speeds((a, b, (lo, hi), cap2))
         if sd is None:
             break
         with np.errstate(divide="ignore"):
