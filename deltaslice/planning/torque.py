@@ -95,7 +95,7 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
                                                 np.ascontiguousarray(ddq[a:b, :, :J]).reshape(-1, J), p)
         for k in range(3):
             flat[k, rows] = coef[k]
-    return StageTorque(out[0], out[1], out[2], np.ascontiguousarray(dq[..., :J]))
+    return StageTorque(out[0], out[1], out[2], dq[..., :J])
 
 
 def cruise_x(model: StageTorque, limits: TorqueLimits, cap2: np.ndarray) -> np.ndarray:
@@ -287,10 +287,12 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
     a[:, :m0], b[:, :m0], lo[:, :m0], hi[:, :m0] = a0, b0, -np.asarray(bound, float), bound
     tail = tuple(v[:, m0:] for v in (a, b, lo, hi))
     floor = float(np.max(x0)) * X0_FLOOR
+    # the fractions the rows are at, contiguous once for every pass
+    at = StageTorque(*(np.ascontiguousarray(v[:, eval_at]) for v in (model.A, model.B, model.C, model.dq)))
     dx = np.diff(x_grid)
     best, best_time = (None, None, x0), np.inf
     for _ in range(TORQUE_PASSES):
-        torque_rows(model, limits, x_grid, x0, eval_at, frac, unit, tail)
+        torque_rows(at, limits, x_grid, x0, slice(None), frac, unit, tail)
         sd, top = speeds((a, b, (lo, hi), cap2))
         if sd is None:
             break
