@@ -286,6 +286,7 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
     a, b, lo, hi = (np.empty((n1, m)) for _ in range(4))  # the acceleration rows, then the torque rows
     a[:, :m0], b[:, :m0], lo[:, :m0], hi[:, :m0] = a0, b0, -np.asarray(bound, float), bound
     tail = tuple(v[:, m0:] for v in (a, b, lo, hi))
+    m_drive = len(frac) * model.A.shape[2]  # the torque rows' plain columns, then their driving ones
     floor = float(np.max(x0)) * X0_FLOOR
     # the fractions the rows are at, contiguous once for every pass
     at = StageTorque(*(np.ascontiguousarray(v[:, eval_at]) for v in (model.A, model.B, model.C, model.dq)))
@@ -302,10 +303,26 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
             break
         settled = time > best_time * (1 - TORQUE_SETTLE)
         best, best_time = (sd, top, x0), time
-        if settled:
+        if settled or not _tangent_binds(a[:-1, m0 + m_drive:], b[:-1, m0 + m_drive:], hi[:-1, m0 + m_drive:], sd, dx,
+                                         x0, np.tile(limits.planned, len(frac)), unit):
             break
         x0 = np.maximum(sd * sd, floor)
     return best
+
+
+def _tangent_binds(a, b, hi, sd, dx, x0, T, unit=None) -> bool:
+    """Whether a driving row (a, b, hi: (n, m) of the stages, columns' stall torques T (m,)) is
+    within 1 % of T of its bound on a stage whose x at its middle is off its tangent point (x0
+    (n+1,), the mean of its ends') by more than a factor 1.25 either way: where the tangent, far
+    from the solution, is what holds it back, and another solve with the tangent moved would be
+    faster. sd (n+1,), dx (n,) in the path's units; unit (n+1,): the rows' (see torque_rows)."""
+    x = sd * sd
+    u = (x[1:] - x[:-1]) / (2 * dx)
+    c = np.ones(len(x)) if unit is None else np.asarray(unit, dtype=float)
+    value = a * (c[:-1] * u)[:, None] + b * (c[:-1] ** 2 * x[:-1])[:, None]  # the rows' units: u c, x c^2
+    tight = (hi - value <= 0.01 * T).any(axis=1)
+    ratio = (x[:-1] + x[1:]) / (x0[:-1] + x0[1:])
+    return bool(np.any(tight & ((ratio < 0.8) | (ratio > 1.25))))
 
 
 # Joint-space travels (ruckig) have no torque model: each keeps to a joint velocity and acceleration
