@@ -52,7 +52,8 @@ def test_each_row_is_the_inverse_dynamics_torque_on_the_planned_motion():
     dq, ddq = rp.stage_derivatives(x, CHECK)
     model = stage_torque(printer, rp, x, CHECK, dq, ddq)
     rng = np.random.default_rng(5)
-    x0 = sd**2 * rng.uniform(0.3, 2.0, n + 1) + 1e-6  # tangent points off the solution on purpose
+    mid = 0.5 * (sd[:-1] ** 2 + sd[1:] ** 2)  # x at each stage's middle
+    x0 = mid * rng.uniform(0.3, 2.0, n) + 1e-6  # tangent points off the solution on purpose
     a, b, lo, hi = torque_rows(model, tq, x, x0, EVAL_IN_CHECK, EVAL)
     f = len(EVAL)
     # brute force at each stage's EVAL fractions
@@ -75,9 +76,8 @@ def test_each_row_is_the_inverse_dynamics_torque_on_the_planned_motion():
     line_slack = tq.planned - sigma * tau - tq.planned * np.abs(qd) / tq.line_speed
     row_slack = hi[:-1].reshape(n, 2, f, J)[:, 1] - value[:, 1]
     assert np.all(row_slack <= line_slack + 1e-7 * scale)
-    # a stage's tangent is at the mean of x0 at its ends: with x0 the solution's x, the middle of
-    # every stage, where the row is the line itself
-    at = torque_rows(model, tq, x, sd**2, EVAL_IN_CHECK, EVAL)
+    # one tangent per stage: at the solution's x at its middle, the row is the line itself there
+    at = torque_rows(model, tq, x, mid, EVAL_IN_CHECK, EVAL)
     exact = (at[3][:-1] - (at[0][:-1] * u[:, None] + at[1][:-1] * sd[:-1, None] ** 2)).reshape(n, 2, f, J)[:, 1, 1]
     moving = np.repeat(xf[:, 1:2] > 1e-6 * xf.max(), J, axis=1)
     np.testing.assert_allclose(exact[moving], line_slack[:, 1][moving], atol=1e-6 * scale)

@@ -1041,7 +1041,6 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
     ``[dynamics]`` (and the compiled solver plans), the actuators' torque too (:mod:`.torque`)."""
     S = path.length
     tq = torque_limits(printer) if solver == "fast" else None
-    x_prev = None  # (grid s, x_dot^2) of the last grid's solution: the next one's tangent points
     planned, limits = printer.planned_limits(), printer.limits
     channels = limits.n_channels if e_ratio is not None else limits.n_joints
     vmax, amax = planned.velocity[:channels], planned.acceleration[:channels]
@@ -1075,9 +1074,12 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
             # at the check's fractions: at the solver's three alone, the check's bound (their second
             # difference) refines more stages and batches, for more time than the two others cost
             model = stage_torque(printer, rp, x_grid, CHECK, dq_check, ddq_check)
-            cruise = cruise_x(model, tq, rows[3])
-            x0 = cruise if x_prev is None else np.maximum(np.interp(s_grid, *x_prev), cruise.min())
-            sd, top, x0 = solve_with_torque(model, tq, x_grid, rows, EVAL_IN_CHECK, EVAL, x0,
+            # every grid from the same first tangents (not the last grid's solution): a run refined in
+            # a batch leaves the others' stages as they are alone
+            mid_s = 0.5 * (s_grid[:-1] + s_grid[1:])
+            x0, floor = cruise_x(model, tq, vmax[: printer.n_joints], (piece_feed[path.locate(mid_s)] / S) ** 2,
+                                 len(CHECK) // 2)
+            sd, top, x0 = solve_with_torque(model, tq, x_grid, rows, EVAL_IN_CHECK, EVAL, x0, floor,
                                             lambda r: _speeds(constraints, rp, x_grid, r, v_start / S, unit), unit)
         if v_start > 0:
             # A start speed outside the controllable set is refused even when the solver, which
@@ -1105,7 +1107,6 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
         check = stage_maxima(rp, x_grid, sd, xdd, true_v, true_a, stage=(dq_check, ddq_check))
         bad = check.per_stage > 1.0 + CHECK_TOLERANCE
         if tq is not None:
-            x_prev = (s_grid, sd * sd)
             torque = stage_check(model, tq, CHECK, sd, xdd, x0)
             bad |= ~(torque.per_stage <= 1.0 + CHECK_TOLERANCE)
         if not bad.any():

@@ -35,7 +35,6 @@ from ..jit import njit
 # Solves per grid with the driving rows' tangent moved to the last solution: on the ETITC's
 # calibration cube a second solve gains 0.6 % (machine mode), a third nothing (to 1e-4).
 TORQUE_PASSES = 2
-TORQUE_SETTLE = 1e-3
 X0_FLOOR = 1e-6  # of the largest cruise x: a tangent point at rest would make its row vertical
 
 
@@ -98,11 +97,15 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
     return StageTorque(out[0], out[1], out[2], dq[..., :J])
 
 
-def cruise_x(model: StageTorque, limits: TorqueLimits, cap2: np.ndarray) -> np.ndarray:
-    """The first tangent points (n+1,): at each grid point (its stage's start; the last stage's
-    end), the squared path speed at which every motor holds the path at u = 0 on its safe line,
-    ``sigma (B x + C) + T |q'| sqrt(x) / w = T``, capped by cap2 (n+1,) (the velocity limits)."""
-    A, B, C, dq = (np.concatenate([v[:, 0], v[-1:, -1]]) for v in (model.A, model.B, model.C, model.dq))
+def cruise_x(model: StageTorque, limits: TorqueLimits, vmax: np.ndarray, feed2: np.ndarray, mid: int
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(first tangent points, their floors), (n,) each, one per stage, at its middle (the model's
+    fraction ``mid``): the squared path speed at which every motor holds the path at u = 0 on its
+    safe line, ``sigma (B x + C) + T |q'| sqrt(x) / w = T``, capped by the joints' velocity limits
+    vmax (J,) and the stage's feed cap feed2 (n,) (squared path speed); the floor, X0_FLOOR of the
+    line's own speed there ((T - sigma C) / (T |q'| / w)), keeps a tangent point off zero. From the
+    stage's own values only: a batch of runs gets the tangents each run gets alone."""
+    B, C, dq = (v[:, mid] for v in (model.B, model.C, model.dq))
     sigma = np.where(dq >= 0, 1.0, -1.0)
     T, w = limits.planned, limits.line_speed
     k = T * np.abs(dq) / w
@@ -113,9 +116,12 @@ def cruise_x(model: StageTorque, limits: TorqueLimits, cap2: np.ndarray) -> np.n
         lin = -qc / k
         y = np.where(qa > 1e-12 * (k + 1.0), quad, lin)
         y = np.where(np.isfinite(y) & (y > 0), y, np.inf)
-    x = np.minimum(np.min(y, axis=1) ** 2, cap2)
-    top = np.max(x[np.isfinite(x)], initial=0.0)
-    return np.maximum(np.where(np.isfinite(x), x, top), max(top, 1e-12) * X0_FLOOR)
+        line = np.min(np.where(np.isfinite(lin) & (lin > 0), lin, np.inf), axis=1) ** 2
+        vcap = np.min(vmax / np.abs(dq), axis=1) ** 2
+    # no joint moves along the stage (k = 0 for all): no tangent term, any positive point serves
+    floor = X0_FLOOR * np.where(np.isfinite(line), line, 1.0)
+    x = np.minimum(np.minimum(np.min(y, axis=1) ** 2, vcap), feed2)
+    return np.maximum(np.where(np.isfinite(x), x, 1.0), floor), floor
 
 
 def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0: np.ndarray, eval_at,
@@ -123,8 +129,7 @@ def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0
     """The torque rows of every grid point, in the compiled solver's collocation form (stage i's rows
     in its start's (u, x_i)): (a, b, lo, hi), each (n+1, 2 f J), at the fractions frac (f,) (the
     model's fractions eval_at: a slice or indices), plain then driving rows, fraction-major.
-    x0: (n+1,) tangent points (> 0) at the grid points; a stage's driving rows take the tangent at
-    the mean of its ends'. unit: as StageAccelerationConstraint.rows (a / c, b / c^2; bounds unchanged). The last
+    x0: (n,) each stage's tangent point (> 0); the last grid point's rows take the last stage's. unit: as StageAccelerationConstraint.rows (a / c, b / c^2; bounds unchanged). The last
     grid point has no stage ahead: its rows are the last stage's end's with no u term of its own
     (the solver never uses them). out: (a, b, lo, hi) arrays (n+1, 2 f J) to write them into
     (views of wider ones: a solve's full rows), returned."""
@@ -142,9 +147,9 @@ def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0
 def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
     """:func:`torque_rows` in one pass. Row i < n at fraction f_k: x(f) = x_i + 2 f d_i u, so the
     plain row is (A + 2 f d B) u + B x_i in [-T - C, T - C] and the driving one (sigma = sign q',
-    kk = T |q'| / w, the tangent's slope kp = kk / (2 sqrt(x0_f)), x0_f the mean of x0 at the
-    stage's ends: one tangent for the stage, so the linearised torque use is nearly linear in f and
-    holding it at the fractions holds it between them, which sqrt(x) itself, concave, would not)
+    kk = T |q'| / w, the tangent's slope kp = kk / (2 sqrt(x0_f)), x0_f the stage's tangent point:
+    one for the stage, so the linearised torque use is nearly linear in f and holding it at the
+    fractions holds it between them, which sqrt(x) itself, concave, would not)
     (sigma A + 2 f d (sigma B + kp)) u + (sigma B + kp) x_i in [-T - sigma C, T - sigma C - kk sqrt(x0_f) / 2]."""
     n, f, J = A.shape
     for i in range(n + 1):
@@ -153,7 +158,7 @@ def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
         for k in range(f):
             fr = frac[k] if i < n else 1.0
             w2 = 2.0 * fr * d[st] if i < n else 0.0
-            x0f = 0.5 * (x0[st] + x0[st + 1]) if i < n else x0[n]
+            x0f = x0[st]
             sq = np.sqrt(x0f)
             for j in range(J):
                 Aj, Bj, Cj, qp = A[st, k if i < n else f - 1, j], B[st, k if i < n else f - 1, j], \
@@ -192,9 +197,8 @@ def stage_check(model: StageTorque, limits: TorqueLimits, frac: np.ndarray, sd: 
     torque and joint speed: the largest sample plus 0.3125 of the largest second difference of the
     samples, as :func:`.topp.stage_maxima` bounds the accelerations, against the real stall torque
     and line (not the margined ones); or, where smaller, the same bound with sqrt(x) replaced by its
-    tangent at the mean of x0 (n+1,) (the rows' tangent points; default: the solution's x) at the
-    stage's ends."""
-    x0 = sd * sd if x0 is None else np.asarray(x0, dtype=float)
+    tangent at x0 (n,) (the rows' tangent points; default: the solution's x at each stage's middle)."""
+    x0 = 0.5 * (sd[:-1] ** 2 + sd[1:] ** 2) if x0 is None else np.asarray(x0, dtype=float)
     n, f, J = model.A.shape
     use = np.empty(J)
     at = np.empty(J, dtype=np.int64)
@@ -211,9 +215,8 @@ def _check_kernel(A, B, C, dq, frac, sd, xdd, x0s, T, w, use, at, per_stage):
     A u + B x + C, qd = q' sqrt(x), g = (|tau| + [tau qd > 0] T |qd| / w) / T; per stage and joint
     the largest g plus 0.3125 of the largest second difference (a NaN anywhere wins). sqrt(x) is
     steep near rest, which makes that allowance large on a stage that starts or ends there; the
-    same bound of g with sqrt(x) replaced by its tangent at xm, the mean of x0s at the stage's ends
-    (above it, and linear in f: what the rows held), is then the tighter one: the smaller of the
-    two is taken."""
+    same bound of g with sqrt(x) replaced by its tangent at xm = x0s[i] (above it, and linear in f:
+    what the rows held), is then the tighter one: the smaller of the two is taken."""
     n, f, J = A.shape
     g = np.empty(f)
     h = np.empty(f)
@@ -224,7 +227,7 @@ def _check_kernel(A, B, C, dq, frac, sd, xdd, x0s, T, w, use, at, per_stage):
         x0 = sd[i] * sd[i]
         x1 = sd[i + 1] * sd[i + 1]
         u = xdd[i]
-        xm = max(0.5 * (x0s[i] + x0s[i + 1]), 0.0)
+        xm = max(x0s[i], 0.0)
         sm = np.sqrt(xm)
         worst = -np.inf
         for j in range(J):
@@ -270,14 +273,15 @@ def _bound(g, f):
 
 
 def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, rows, eval_at, frac: np.ndarray,
-                      x0: np.ndarray, speeds, unit: np.ndarray | None = None):
+                      x0: np.ndarray, floor: np.ndarray, speeds, unit: np.ndarray | None = None):
     """The compiled solver's profile under the acceleration rows and the torque rows together.
 
     rows: (a, b, bound, cap2), the acceleration rows (``topp._fast_rows``); eval_at, frac: the
     model's fractions the rows are taken at (a slice of them) and their values; x0 (n+1,) the
-    first tangent points; speeds: rows -> (sd (n+1,) or None, top), the solve (``topp._speeds``
-    with the caller's grid, start and units). Up to TORQUE_PASSES solves, each with the driving
-    rows' tangent at the last solution, until the time gains less than TORQUE_SETTLE. Returns (sd,
+    first tangent points, one per stage, floor (n,) the least ones (:func:`cruise_x`); speeds: rows -> (sd (n+1,) or None, top), the solve (``topp._speeds``
+    with the caller's grid, start and units). TORQUE_PASSES solves, each with the driving rows'
+    tangent at the last solution (always as many, and every choice from a point's own values: a
+    batch of runs is planned as each alone would be). Returns (sd,
     top, x0) of the fastest, x0 its driving rows' tangent points (sd None where the first finds no
     profile)."""
     a0, b0, bound, cap2 = rows
@@ -286,43 +290,17 @@ def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarr
     a, b, lo, hi = (np.empty((n1, m)) for _ in range(4))  # the acceleration rows, then the torque rows
     a[:, :m0], b[:, :m0], lo[:, :m0], hi[:, :m0] = a0, b0, -np.asarray(bound, float), bound
     tail = tuple(v[:, m0:] for v in (a, b, lo, hi))
-    m_drive = len(frac) * model.A.shape[2]  # the torque rows' plain columns, then their driving ones
-    floor = float(np.max(x0)) * X0_FLOOR
     # the fractions the rows are at, contiguous once for every pass
     at = StageTorque(*(np.ascontiguousarray(v[:, eval_at]) for v in (model.A, model.B, model.C, model.dq)))
-    dx = np.diff(x_grid)
-    best, best_time = (None, None, x0), np.inf
+    best = (None, None, x0)
     for _ in range(TORQUE_PASSES):
         torque_rows(at, limits, x_grid, x0, slice(None), frac, unit, tail)
         sd, top = speeds((a, b, (lo, hi), cap2))
         if sd is None:
             break
-        with np.errstate(divide="ignore"):
-            time = float(np.sum(2 * dx / (sd[:-1] + sd[1:])))
-        if not time < best_time:
-            break
-        settled = time > best_time * (1 - TORQUE_SETTLE)
-        best, best_time = (sd, top, x0), time
-        if settled or not _tangent_binds(a[:-1, m0 + m_drive:], b[:-1, m0 + m_drive:], hi[:-1, m0 + m_drive:], sd, dx,
-                                         x0, np.tile(limits.planned, len(frac)), unit):
-            break
-        x0 = np.maximum(sd * sd, floor)
+        best = (sd, top, x0)
+        x0 = np.maximum(0.5 * (sd[:-1] ** 2 + sd[1:] ** 2), floor)  # x at each stage's middle
     return best
-
-
-def _tangent_binds(a, b, hi, sd, dx, x0, T, unit=None) -> bool:
-    """Whether a driving row (a, b, hi: (n, m) of the stages, columns' stall torques T (m,)) is
-    within 1 % of T of its bound on a stage whose x at its middle is off its tangent point (x0
-    (n+1,), the mean of its ends') by more than a factor 1.25 either way: where the tangent, far
-    from the solution, is what holds it back, and another solve with the tangent moved would be
-    faster. sd (n+1,), dx (n,) in the path's units; unit (n+1,): the rows' (see torque_rows)."""
-    x = sd * sd
-    u = (x[1:] - x[:-1]) / (2 * dx)
-    c = np.ones(len(x)) if unit is None else np.asarray(unit, dtype=float)
-    value = a * (c[:-1] * u)[:, None] + b * (c[:-1] ** 2 * x[:-1])[:, None]  # the rows' units: u c, x c^2
-    tight = (hi - value <= 0.01 * T).any(axis=1)
-    ratio = (x[:-1] + x[1:]) / (x0[:-1] + x0[1:])
-    return bool(np.any(tight & ((ratio < 0.8) | (ratio > 1.25))))
 
 
 # Joint-space travels (ruckig) have no torque model: each keeps to a joint velocity and acceleration

@@ -46,7 +46,8 @@ class _JointMoves:
         inp.current_velocity = inp.current_acceleration = [0.0] * n
         inp.target_velocity = inp.target_acceleration = [0.0] * n
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk
-        if torque_limits(printer) is not None:
+        self.printer, self.torque = printer, torque_limits(printer) is not None
+        if self.torque:
             # the joints in phase: the move stays on its straight joint line, the poses its torque
             # bounds were found at
             inp.synchronization = ruckig.Synchronization.Phase
@@ -54,7 +55,14 @@ class _JointMoves:
     def move(self, q0, q1, layer, bounds=None) -> JointMovePiece:
         """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece);
         bounds: (velocity (J,), acceleration (J,)) for this move instead of the joints' planned
-        limits (:func:`.torque.travel_limits`)."""
+        limits (:func:`.torque.travel_limits`; found here for a printer with torque limits when not
+        given)."""
+        if bounds is None and self.torque:
+            vel, acc = travel_limits(self.printer, q0, q1)
+            if not np.isfinite(acc).all():
+                raise PlanningError(f"layer {layer}: no joint-space move from {np.round(q0, 4)} to {np.round(q1, 4)} "
+                                    "within the actuators' torque (gravity takes it all at one of its poses)")
+            bounds = (vel[0], acc[0])
         if bounds is not None:
             self.inp.max_velocity, self.inp.max_acceleration = list(map(float, bounds[0])), list(map(float, bounds[1]))
         self.inp.current_position = list(map(float, q0))
@@ -74,13 +82,7 @@ class _JointMoves:
 def _ruckig_move(printer, q0, q1, layer):
     """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone,
     within the torque limits' bounds for it where the printer has them."""
-    bounds = travel_limits(printer, q0, q1)
-    if bounds is not None:
-        if not np.isfinite(bounds[1]).all():
-            raise PlanningError(f"layer {layer}: no joint-space move from {np.round(q0, 4)} to {np.round(q1, 4)} within "
-                                "the actuators' torque (gravity takes it all at one of its poses)")
-        bounds = (bounds[0][0], bounds[1][0])
-    return _JointMoves(printer, len(q0)).move(q0, q1, layer, bounds)
+    return _JointMoves(printer, len(q0)).move(q0, q1, layer)
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
