@@ -12,9 +12,11 @@ torque limit is two more rows per joint and evaluation fraction of every stage:
   linear curve, less for a stepper's pull-out curve). sd = sqrt(x) is not linear in x; sqrt is
   concave, so its tangent at any x0 > 0 lies above it, ``sqrt(x) <= (x + x0) / (2 sqrt(x0))``, and
   the row with the tangent in place of sd is stricter than the curve everywhere (safe) and exact at
-  x0. x0 is first the speed at which the motor holds the path at u = 0 (:func:`cruise_x`, capped
-  by the velocity limits), then the previous solve's x: each pass keeps the last one's profile
-  feasible (the tangent is exact there) and moves closer to the curve (``TORQUE_PASSES``).
+  x0. x0 is one per stage (so the linearised use is nearly linear along it, and holding it at the
+  fractions holds it between them), first the speed at its middle at which the motors hold the
+  path at u = 0 (:func:`cruise_x`, capped by the velocity limits and the feed), then the previous
+  solve's x there: each pass keeps the last one's profile feasible (the tangent is exact there) and
+  moves closer to the curve (``TORQUE_PASSES``).
 
 The driving row's lower bound ``-T - sigma C`` is implied by the plain row (the tangent term is
 never negative), and the plain row's upper bound by the driving one, so the pair is exactly the
@@ -35,7 +37,7 @@ from ..jit import njit
 # Solves per grid with the driving rows' tangent moved to the last solution: on the ETITC's
 # calibration cube a second solve gains 0.6 % (machine mode), a third nothing (to 1e-4).
 TORQUE_PASSES = 2
-X0_FLOOR = 1e-6  # of the largest cruise x: a tangent point at rest would make its row vertical
+X0_FLOOR = 1e-6  # of the line's own x at a stage: a tangent point at rest would make its row vertical
 
 
 @dataclass(frozen=True)
@@ -76,7 +78,7 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
     """:class:`StageTorque` of a RunPath ``rp`` on grid x_grid (n+1,) at fractions frac (f,), from
     the stage derivatives dq, ddq (n, f, dof) it gave (``rp.stage_derivatives(x_grid, frac)``);
     the tool tips and joints at the same points by the path's frames and the inverse kinematics,
-    ``block`` stages at a time."""
+    ``block`` points at a time (bounded memory on a long window)."""
     kin, path, J = rp.kin, rp.path, rp.kin.n_joints
     s = np.asarray(x_grid, float) * rp.S
     ds = np.diff(s)
