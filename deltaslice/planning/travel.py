@@ -270,8 +270,11 @@ def _rest_link(kin, printer, point, speed_limit, *, to_rest):
         above = point
     q_above = kin.inverse(above[None])[0]
     ends = (q_above, q_rest) if to_rest else (q_rest, q_above)
-    joint = _ruckig_move(printer, *ends, layer=0)
-    if joint_move_clear(kin, joint, min(0.0, point[2])):
+    try:
+        joint = _ruckig_move(printer, *ends, layer=0)
+    except PlanningError:  # no joint bound holds the torque along its joint line: the straight line instead
+        joint = None
+    if joint is not None and joint_move_clear(kin, joint, min(0.0, point[2])):
         link = [joint]
     else:
         pts = np.array([above, p_rest] if to_rest else [p_rest, above])
