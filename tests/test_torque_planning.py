@@ -194,3 +194,27 @@ def test_calibration_cube_within_stall_in_machine_mode():
         assert peak_at_least <= peak <= peak_at_most, (limit, peak)
         if limit == "on":
             assert act.over_line(qd, tau).sum() <= 0.005 * (tau * qd > 0).sum()
+
+
+def test_the_solver_takes_bounds_per_grid_point():
+    """reachability.solve with (n+1, m) bounds: the same solution as the shared (m,) bounds they
+    repeat, and with bounds that change along the path, every stage's rows within its own."""
+    from deltaslice.planning.reachability import solve
+
+    rng = np.random.default_rng(3)
+    n, m = 60, 4
+    a = rng.uniform(-1.0, 1.0, (n + 1, m))
+    b = rng.uniform(-0.5, 0.5, (n + 1, m))
+    ds = np.full(n, 1.0 / n)
+    cap = np.full(n + 1, 4.0)
+    bound = np.array([1.0, 2.0, 1.5, 3.0])
+    shared = solve(a, b, -bound, bound, cap, ds, interpolation=False)
+    each = solve(a, b, np.tile(-bound, (n + 1, 1)), np.tile(bound, (n + 1, 1)), cap, ds, interpolation=False)
+    for x, y in zip(shared, each):
+        np.testing.assert_array_equal(x, y)
+    hi = bound * rng.uniform(0.3, 1.0, (n + 1, m))
+    lo = -bound * rng.uniform(0.3, 1.0, (n + 1, m))
+    x, u, _K = solve(a, b, lo, hi, cap, ds, interpolation=False)
+    assert np.all(np.isfinite(x)) and x.max() > 0
+    value = a[:-1] * u[:, None] + b[:-1] * x[:-1, None]
+    assert np.all(value <= hi[:-1] + 1e-9) and np.all(value >= lo[:-1] - 1e-9)
