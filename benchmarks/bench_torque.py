@@ -11,6 +11,7 @@ and the velocity (Coriolis, centripetal) terms alone take at most, and where the
 
     python benchmarks/bench_torque.py                       # delta_etitc: cube feed and machine, star machine
     python benchmarks/bench_torque.py --printer delta_uady --cases cube:feed
+    python benchmarks/bench_torque.py --set planning.torque_limit=off          # the plans without torque limits
 """
 
 from __future__ import annotations
@@ -45,10 +46,11 @@ def star_prism(path: Path) -> Path:
     return path
 
 
-def compile_csv(part: Path, printer: str, mode: str, out: Path, workers: int) -> Path:
+def compile_csv(part: Path, printer: str, mode: str, out: Path, workers: int, overrides=()) -> Path:
     if not out.exists():
+        sets = [arg for o in overrides for arg in ("--set", o)]
         run = subprocess.run([sys.executable, "-m", "deltaslice", "compile", str(part), "--printer", printer,
-                              "--speed-limit", mode, "-o", str(out), "--workers", str(workers)], cwd=ROOT,
+                              "--speed-limit", mode, "-o", str(out), "--workers", str(workers), *sets], cwd=ROOT,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         if run.returncode:
             raise SystemExit(f"compile of {part.name} ({mode}) failed:\n{run.stderr[-2000:]}")
@@ -106,8 +108,10 @@ def main(argv=None):
                     help="comma-separated part:mode, part cube, star or a mesh's path, mode feed or machine")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--keep", type=Path, default=None, help="directory to keep (and reuse) the compiled CSVs in")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="a printer-file override for the compiles, e.g. planning.torque_limit=off (repeatable)")
     args = ap.parse_args(argv)
-    printer = load_printer(args.printer)
+    printer = load_printer(args.printer, dict(o.split("=", 1) for o in args.overrides))
     if printer.dynamics is None:
         raise SystemExit(f"{args.printer}: no [dynamics] table")
     stall = np.array(printer.dynamics.actuators.stall)
@@ -125,7 +129,9 @@ def main(argv=None):
             if part == "star" and part not in parts:
                 parts["star"] = star_prism(work / "star10.stl")
             mesh = parts.get(part) or Path(part)
-            csv = compile_csv(mesh, args.printer, mode, work / f"{printer.name}_{mesh.stem}_{mode}.csv", args.workers)
+            tag = "".join(f"_{o.replace('=', '-')}" for o in args.overrides)
+            csv = compile_csv(mesh, args.printer, mode, work / f"{printer.name}_{mesh.stem}_{mode}{tag}.csv", args.workers,
+                              args.overrides)
             rate, q = read_csv(csv, printer.n_joints)
             r = read_back(printer, q, rate)
             where = ", ".join(f"{v:.1f}" for v in r["where"])

@@ -176,6 +176,7 @@ DOCS = {
     ("planning", "singularity_limit"): ("", "Largest Jacobian condition number allowed: poses beyond it count as unreachable.", None),
     ("planning", "approach_height"): ("mm", "Height above the first point from which every job comes down onto it, and above the printed part to which it lifts at the end (lower where the machine cannot reach so high). Default: Marlin's Z_CLEARANCE_BETWEEN_PROBES.", None),
     ("planning", "approach_speed"): ("mm/s", "Speed of that vertical descent and lift, in both speed limits. Default: Marlin's Z homing feed (HOMING_FEEDRATE_MM_M, 4*60 mm/min).", None),
+    ("planning", "torque_limit"): ("", "Where the file has `[dynamics]`: `on` plans runs and travels within the actuators' stall torque and speed-torque line as well as the joints' limits; `off` to the joints' constant limits alone.", None),
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",

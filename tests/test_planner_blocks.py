@@ -604,9 +604,16 @@ def test_joint_moves_checked_together_are_each_checked_alone():
 
 
 def _ruckig_alone(p, q0, q1):
-    """ruckig's rest-to-rest move q0 -> q1 from a calculator, input and output of its own."""
+    """ruckig's rest-to-rest move q0 -> q1 from a calculator, input and output of its own (with the
+    printer's torque limits, the move's own joint bounds and its joints in phase, as travel does)."""
+    from deltaslice.planning.torque import travel_limits
+
     vel, acc, jerk = travel._ruckig_limits(p, 3)
     otg, inp, traj = ruckig.Ruckig(3), ruckig.InputParameter(3), ruckig.Trajectory(3)
+    bounds = travel_limits(p, q0, q1)
+    if bounds is not None:
+        vel, acc = [float(v) for v in bounds[0][0]], [float(v) for v in bounds[1][0]]
+        inp.synchronization = ruckig.Synchronization.Phase
     inp.current_position, inp.target_position = [float(v) for v in q0], [float(v) for v in q1]
     inp.current_velocity = inp.current_acceleration = inp.target_velocity = inp.target_acceleration = [0.0] * 3
     inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk

@@ -224,7 +224,9 @@ def test_every_trajectory_starts_and_parks_at_rest(planned):
     trajs = [traj for traj, _ in out.values()] + [plan(toolpath, printer, planner="trapezoid", workers=1)]
     for traj in trajs:
         s = traj.samples()
-        assert np.array_equal(s.q[0], printer.rest_pose) and np.allclose(s.q[-1], printer.rest_pose, atol=1e-12)
+        # at rest to 1e-12 rad: where torque limits leave no joint-space link (delta_ucb's level arms)
+        # the link is a straight line, its ends through forward and inverse kinematics
+        assert np.allclose(s.q[0], printer.rest_pose, atol=1e-12) and np.allclose(s.q[-1], printer.rest_pose, atol=1e-12)
         assert traj.pieces[0].kind == "travel" and traj.pieces[-1].kind == "travel"
         # the first working sample comes after the tool has reached the toolpath's start
         p = printer.kinematics().forward(traj.pieces[0].q_end[None])[0]

@@ -55,6 +55,26 @@ class ActuatorCurves:
             frac = np.interp(v / v0, x, y, right=0.0)
         return stall * np.clip(np.where(v < v0, frac, 0.0), 0.0, 1.0)
 
+    def line_speed(self) -> tuple[float, ...]:
+        """(J,) joint units/s: w such that the line ``stall (1 - |speed| / w)`` lies on or under the
+        curve at every speed (the planner's linear driving limit). linear: the no-load speed;
+        pull_out: also at most 4 corner_speed (the line touches corner / v at v = w / 2 there);
+        table: under every point (the curve is linear between them) and zero past the last."""
+        v0 = np.array(self.no_load_speed, dtype=float)
+        if self.curve == "pull_out":
+            return tuple(np.minimum(v0, 4.0 * np.array(self.corner_speed)).tolist())
+        if self.curve == "table":
+            x, y = np.array(self.points, dtype=float).T
+            with np.errstate(divide="ignore"):
+                frac = min(float(x[-1]) if y[-1] > 0 else 1.0, float(np.min(np.where(y < 1, x / (1 - y), np.inf))))
+            return tuple((v0 * min(frac, 1.0)).tolist())
+        return tuple(v0.tolist())
+
+    def scaled(self, factor: float) -> "ActuatorCurves":
+        """The same curves with every torque times factor (speeds kept): the planned ones."""
+        return ActuatorCurves(self.curve, tuple(s * factor for s in self.stall), self.no_load_speed, self.corner_speed,
+                              self.points)
+
     def available(self, speed, torque) -> np.ndarray:
         """(N, J) torque magnitude the actuators give in the direction of ``torque`` (N, J) at joint
         speeds ``speed`` (N, J): the curve where they drive (torque x speed > 0), stall otherwise."""

@@ -105,6 +105,13 @@ class Printer:
             object.__setattr__(self, "_planned_limits", planned)  # a cache of a frozen value, not a field
         return planned
 
+    def planned_actuators(self):
+        """The actuator curves the planner plans to: every torque (force) times ``1 - limit_margin``,
+        as :meth:`planned_limits` scales the rate limits. None without ``[dynamics]``."""
+        if self.dynamics is None:
+            return None
+        return self.dynamics.actuators.scaled(1.0 - self.planning.limit_margin)
+
     def fingerprint(self) -> int:
         """A 32-bit CRC of the geometry and joint counts: a stream compiled for one
         printer is refused by another."""

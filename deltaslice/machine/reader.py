@@ -259,6 +259,7 @@ def _read_planning(sec: Section) -> PlanningSettings:
         # Marlin's Z_CLEARANCE_BETWEEN_PROBES (5 mm) and its Z homing feed (HOMING_FEEDRATE_MM_M, 4*60 mm/min)
         approach_height=sec.getfloat("approach_height", 5.0, minval=0, maxval=100),
         approach_speed=sec.getfloat("approach_speed", 4.0, above=0, maxval=100),
+        torque_limit=sec.getstr("torque_limit", "on", choices=("on", "off"), required=False),
     )
 
 

@@ -123,9 +123,11 @@ class SlicingSettings:
 class PlanningSettings:
     """Planner settings: output sample rate (Hz), corner blend tolerance (mm), the
     fraction of each limit kept in reserve (``limit_margin``), travel lift (mm), the
-    Jacobian condition number beyond which a pose counts as singular, and the job's
-    approach: the height (mm) above the first point (and above the printed part at the
-    end) the tool comes down from and lifts to, and the speed of that vertical move (mm/s)."""
+    Jacobian condition number beyond which a pose counts as singular, the job's approach: the
+    height (mm) above the first point (and above the printed part at the end) the tool comes
+    down from and lifts to, and the speed of that vertical move (mm/s), and ``torque_limit``:
+    "on" plans to the ``[dynamics]`` actuators' torque and speed-torque curve as well as the
+    joints' limits (where the file has ``[dynamics]``), "off" to the joints' limits alone."""
 
     output_rate: float
     blend_tolerance: float
@@ -134,3 +136,4 @@ class PlanningSettings:
     singularity_limit: float
     approach_height: float = 5.0
     approach_speed: float = 4.0
+    torque_limit: str = "on"

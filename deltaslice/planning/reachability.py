@@ -42,7 +42,9 @@ PARALLEL = 1e-12
 @njit(error_model="python")
 def _u_rows(a, b, lo, hi, i, ds, interp, n_rows, low_p, low_r, up_p, up_r):
     """Bounds on u at stage i as u >= p + r x (low) and u <= p + r x (up); rows with no u
-    term become bounds on x. Returns (n_low, n_up, xl, xh); xl > xh when infeasible."""
+    term become bounds on x. lo, hi: (1, m) bounds shared by every grid point, or (n+1, m) each
+    grid point's own. Returns (n_low, n_up, xl, xh); xl > xh when infeasible."""
+    step = 0 if lo.shape[0] == 1 else 1
     m = a.shape[1]
     nl = 0
     nu = 0
@@ -50,14 +52,16 @@ def _u_rows(a, b, lo, hi, i, ds, interp, n_rows, low_p, low_r, up_p, up_r):
     xh = np.inf
     for k in range(n_rows):
         j = k % m
+        g = i
         if k < m:
             al = a[i, j]
             be = b[i, j]
         else:
+            g = i + 1
             al = a[i + 1, j] + 2.0 * ds * b[i + 1, j]
             be = b[i + 1, j]
-        l = lo[j]
-        h = hi[j]
+        l = lo[g * step, j]
+        h = hi[g * step, j]
         if al > 0.0:
             up_p[nu] = h / al
             up_r[nu] = -be / al
@@ -268,11 +272,18 @@ def _solve_many(a, b, lo, hi, xmax, ds, offsets, interp, x_start, x_end, xs, us,
         )
 
 
+def _bounds(v, m: int) -> np.ndarray:
+    """Row bounds as the kernels take them: (m,) -> (1, m) shared; (n+1, m) as they are."""
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    return v.reshape(1, m) if v.ndim == 1 else v
+
+
 def solve(a, b, lo, hi, xmax, ds, *, x_start=0.0, x_end=0.0, interpolation=True):
     """Time-optimal x = x_dot^2 on one grid, as toppra's TOPPRA with the seidel solver.
 
     a, b: (n+1, m) float, coefficients of u and x in each second-order row (q'_j(s_i), q''_j(s_i));
-    lo, hi: (m,) the rows' bounds (lo <= 0 <= hi for a problem with a solution at rest);
+    lo, hi: (m,) the rows' bounds (lo <= 0 <= hi for a problem with a solution at rest), or
+    (n+1, m) bounds per grid point (a torque row's gravity term moves them along the path);
     xmax: (n+1,) first-order bound on x (>= 0, may be inf); ds: (n,) >= 0 stage lengths in path
     units (a zero-length stage keeps x and takes the largest u its rows allow);
     x_start, x_end: squared path speeds at the ends.
@@ -289,7 +300,7 @@ def solve(a, b, lo, hi, xmax, ds, *, x_start=0.0, x_end=0.0, interpolation=True)
     us = np.empty(n)
     K = np.full((n + 1, 2), np.nan)  # a backward pass that fails leaves the sets before it unset
     _solve_one(
-        a, b, np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64),
+        a, b, _bounds(lo, a.shape[1]), _bounds(hi, a.shape[1]),
         np.ascontiguousarray(xmax, dtype=np.float64), np.ascontiguousarray(ds, dtype=np.float64),
         bool(interpolation), float(x_start), float(x_end), xs, us, K,
     )
@@ -314,7 +325,7 @@ def solve_batch(problems, lo, hi, *, interpolation=True):
     status = np.empty(R, dtype=np.int64)
     zeros = np.zeros(R)
     _solve_many(
-        a, b, np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64),
+        a, b, _bounds(lo, a.shape[1]), _bounds(hi, a.shape[1]),
         xmax, ds, offsets, bool(interpolation), zeros, zeros, xs, us, K, status,
     )
     return [(xs[offsets[r] : offsets[r + 1]], us[offsets[r] - r : offsets[r + 1] - r - 1]) for r in range(R)]

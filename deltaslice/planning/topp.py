@@ -45,6 +45,7 @@ from ..jit import njit
 from .blend import DEDUPE_EPS, BlendedPath, blend_runs, dedupe, merge_short, run_cumsum
 from .pieces import FilamentPiece, RunPiece
 from .reachability import solve as fast_solve
+from .torque import cruise_x, solve_with_torque, stage_check, stage_torque, torque_limits
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
@@ -1065,8 +1066,10 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
     (:func:`plan_lines`), the length of the move each piece belongs to: the compiled solver works
     in each move's own units; unit_id: (k,) int, which move each piece belongs to, so a stage is
     refined with its neighbours in its own move only (as planning that move alone would). The
-    planner plans to the margin-reduced limits and checks the real ones."""
+    planner plans to the margin-reduced limits and checks the real ones; where the printer has
+    ``[dynamics]`` (and the compiled solver plans), the actuators' torque too (:mod:`.torque`)."""
     S = path.length
+    tq = torque_limits(printer) if solver == "fast" else None
     planned, limits = printer.planned_limits(), printer.limits
     channels = limits.n_channels if e_ratio is not None else limits.n_joints
     vmax, amax = planned.velocity[:channels], planned.acceleration[:channels]
@@ -1094,7 +1097,19 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
         ]
         unit = None if unit_length is None else S / unit_length[path.locate(s_grid)]
         rows = _fast_rows(constraints, rp, x_grid, amax, unit) if solver == "fast" else None
-        sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S, unit)
+        if tq is None:
+            sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S, unit)
+        else:
+            # at the check's fractions: at the solver's three alone, the check's bound (their second
+            # difference) refines more stages and batches, for more time than the two others cost
+            model = stage_torque(printer, rp, x_grid, CHECK, dq_check, ddq_check)
+            # every grid from the same first tangents (not the last grid's solution): a run refined in
+            # a batch leaves the others' stages as they are alone
+            mid_s = 0.5 * (s_grid[:-1] + s_grid[1:])
+            x0, floor = cruise_x(model, tq, vmax[: printer.n_joints], (piece_feed[path.locate(mid_s)] / S) ** 2,
+                                 len(CHECK) // 2)
+            sd, top, x0 = solve_with_torque(model, tq, x_grid, rows, EVAL_IN_CHECK, EVAL, x0, floor,
+                                            lambda r: _speeds(constraints, rp, x_grid, r, v_start / S, unit), unit)
         if v_start > 0:
             # A start speed outside the controllable set is refused even when the solver, which
             # tolerates a small excess (toppra's), found a profile: its forward pass would cut the
@@ -1120,8 +1135,18 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
         xdd = (sd[1:] ** 2 - sd[:-1] ** 2) / (2 * dx)
         check = stage_maxima(rp, x_grid, sd, xdd, true_v, true_a, stage=(dq_check, ddq_check))
         bad = check.per_stage > 1.0 + CHECK_TOLERANCE
+        if tq is not None:
+            torque = stage_check(model, tq, CHECK, sd, xdd, x0)
+            bad |= ~(torque.per_stage <= 1.0 + CHECK_TOLERANCE)
         if not bad.any():
             break
+        if attempt == REFINE_PASSES and tq is not None and np.max(torque.use) > 1.0 + CHECK_TOLERANCE:
+            j = int(np.argmax(torque.use))
+            p = path.evaluate(np.array([s_grid[int(torque.stage[j])]]))[0]
+            raise PlanningError(
+                f"layer {layer}: {_describe(printer, j)} uses {100 * torque.use[j]:.2f} % of its torque (speed-torque "
+                f"line) between grid points at x = {p[0]:.2f}, y = {p[1]:.2f}, z = {p[2]:.2f} mm after "
+                f"{REFINE_PASSES} grid refinements")
         if attempt == REFINE_PASSES:
             ch = int(np.argmax(np.maximum(check.velocity, check.acceleration)))
             kind = "velocity" if check.velocity[ch] >= check.acceleration[ch] else "acceleration"
@@ -1148,6 +1173,8 @@ def _solve_path(kin, printer, layer: int, path: BlendedPath, e_ratio, piece_feed
     cap2 = rows[3] if rows is not None else constraints[0].cap2(rp, x_grid)
     active = np.empty(len(xdd), dtype=bool)
     _active_kernel(dq_check, ddq_check, xdd, sd, cap2, amax, active)  # fraction 0 of either; these are contiguous
+    if tq is not None:
+        active |= torque.per_stage >= ACTIVE * float(np.min(tq.planned / tq.stall))
     return _Profile(s_grid, x_grid, sd, xdd, t, dt, active, -1 if cap is None else cut_g(s_grid))
 
 
@@ -1203,13 +1230,14 @@ def _speeds(constraints, rp, x_grid, rows, sd_start=0.0, unit=None):
     :func:`plan_lines`), or None."""
     if rows is not None:
         a, b, bound, cap2 = rows
+        lo, hi = bound if isinstance(bound, tuple) else (-bound, bound)  # (lo, hi) per grid point: torque rows
         ds = np.diff(x_grid)
         if unit is not None:
             # Each stage in its own move's units (x' = c^2 x, u' = c u): what solving the move alone
             # computes, toppra's shrink of the forward pass included (it is a constant in x). The
             # rows came in those units (_fast_rows).
             cap2, ds = cap2 * unit**2, ds * unit[:-1]
-        x, _u, K = fast_solve(a, b, -bound, bound, cap2, ds, x_start=sd_start**2, interpolation=False)
+        x, _u, K = fast_solve(a, b, lo, hi, cap2, ds, x_start=sd_start**2, interpolation=False)
         top = float(K[0, 1])
         if unit is not None:
             x, top = x / unit**2, top / unit[0] ** 2

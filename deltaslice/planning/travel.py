@@ -20,6 +20,7 @@ from ..errors import DeltasliceError, PlanningError
 from .pieces import FilamentPiece, JointMovePiece
 from .ruckig_profile import RuckigProfile, positions_many
 from .topp import RunSpec, plan_lines, plan_run
+from .torque import torque_limits, travel_limits
 
 CHECK_SAMPLES = 48
 
@@ -65,22 +66,44 @@ def _g(values) -> str:
     return f"{values[0]:g}" if len(set(values)) == 1 else "[" + ", ".join(f"{v:g}" for v in values) + "]"
 
 
+class NoTorqueBound(PlanningError):
+    """No joint velocity and acceleration bound keeps a joint-space move within the actuators'
+    torque (gravity takes it all at one of its poses): the caller plans a straight line instead."""
+
+
 class _JointMoves:
     """ruckig's calculator, input and output made once for many rest-to-rest moves of one printer
     (a batch of travels): making and filling them took three times ruckig's calculation of a move."""
 
     def __init__(self, printer, n: int, slower: float = 1.0):
         vel, acc, jerk = _ruckig_limits(printer, n, slower)
-        self.printer = printer
+        self.slower = slower
         self.n = n
         self.otg, self.inp, self.traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
         inp = self.inp
         inp.current_velocity = inp.current_acceleration = [0.0] * n
         inp.target_velocity = inp.target_acceleration = [0.0] * n
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk
+        self.printer, self.torque = printer, torque_limits(printer) is not None
+        if self.torque:
+            # the joints in phase: the move stays on its straight joint line, the poses its torque
+            # bounds were found at
+            inp.synchronization = ruckig.Synchronization.Phase
 
-    def move(self, q0, q1, layer) -> JointMovePiece:
-        """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece)."""
+    def move(self, q0, q1, layer, bounds=None) -> JointMovePiece:
+        """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece);
+        bounds: (velocity (J,), acceleration (J,)) for this move instead of the joints' planned
+        limits (:func:`.torque.travel_limits`; found here for a printer with torque limits when not
+        given)."""
+        if bounds is None and self.torque:
+            vel, acc = travel_limits(self.printer, q0, q1)
+            if not np.isfinite(acc).all():
+                raise NoTorqueBound(f"layer {layer}: no joint-space move from {np.round(q0, 4)} to {np.round(q1, 4)} "
+                                    "within the actuators' torque (gravity takes it all at one of its poses)")
+            bounds = (vel[0], acc[0])
+        if bounds is not None:
+            self.inp.max_velocity = list(map(float, np.asarray(bounds[0]) / self.slower))
+            self.inp.max_acceleration = list(map(float, np.asarray(bounds[1]) / self.slower**2))
         self.inp.current_position = list(map(float, q0))
         self.inp.target_position = list(map(float, q1))
         try:
@@ -100,8 +123,9 @@ class _JointMoves:
 
 
 def _ruckig_move(printer, q0, q1, layer, slower: float = 1.0):
-    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone;
-    slower: see :func:`_ruckig_limits`."""
+    """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone,
+    within the torque limits' bounds for it where the printer has them; slower: see
+    :func:`_ruckig_limits`."""
     return _JointMoves(printer, len(q0), slower).move(q0, q1, layer)
 
 
@@ -209,9 +233,13 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     cands = []  # (travel, joint move, its own travel's time)
     joint_moves = _JointMoves(printer, q.shape[2])
     # A joint-space move's tool speed follows the joints, not a feed: only the machine speed limit takes it.
-    lifted = moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2)) & (speed_limit == "machine")
-    for n in np.flatnonzero(lifted):
-        joint = joint_moves.move(q[2, n], q[3, n], layers[n])
+    tried = np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2)) & (speed_limit == "machine"))
+    # with torque limits, each move's own joint bounds (travel_limits); none: no joint-space candidate
+    bounds = travel_limits(printer, q[2, tried], q[3, tried]) if len(tried) else None
+    for r, n in enumerate(tried):
+        if bounds is not None and not np.isfinite(bounds[1][r]).all():
+            continue
+        joint = joint_moves.move(q[2, n], q[3, n], layers[n], None if bounds is None else (bounds[0][r], bounds[1][r]))
         # Every piece lasts >= 0 s: once the candidate is no faster than the toolpath's own
         # travel, its clearance check and its lift and lower moves need not be planned.
         own_time = sum(p.duration for p in best[n])
@@ -331,11 +359,14 @@ def _rest_link(kin, printer, point, speed_limit, *, to_rest, top, feed):
     link = None
     q_above = kin.inverse(above[None])[0]
     ends = (q_above, q_rest) if to_rest else (q_rest, q_above)
-    joint = _ruckig_move(printer, *ends, layer=0)
-    if joint_move_clear(kin, joint, z_min):
-        # the feed speed limit keeps the path and stretches the move in time
-        link = [joint if speed_limit == "machine" else
-                _within_feed(kin, printer, *ends, feed or printer.slicing.travel_speed)]
+    try:
+        joint = _ruckig_move(printer, *ends, layer=0)
+        if joint_move_clear(kin, joint, z_min):
+            # the feed speed limit keeps the path and stretches the move in time
+            link = [joint if speed_limit == "machine" else
+                    _within_feed(kin, printer, *ends, feed or printer.slicing.travel_speed)]
+    except NoTorqueBound:  # no joint bound holds the torque along its joint line: a straight line instead
+        link = None
     if link is None:
         for via in ([], [[p_rest[0], p_rest[1], above[2]]], [[above[0], above[1], p_rest[2]]]):
             pts = np.array([p_rest, *via, above])
