@@ -123,10 +123,25 @@ DOCS = {
     ("planning", "limit_margin"): ("fraction", "Share of every limit the planner keeps in reserve.", None),
     ("planning", "travel_lift"): ("mm", "Clearance over the printed part of a lifted joint-space travel.", None),
     ("planning", "singularity_limit"): ("", "Largest Jacobian condition number allowed: poses beyond it count as unreachable.", None),
+    # safety (firmware players: docs/bring-up.md, "What the players guard")
+    ("safety", "hotend_min_temp"): ("deg C", "A hot end that reads colder than this while set is a fault (Marlin's HEATER_0_MINTEMP): a loose or open thermistor.", None),
+    ("safety", "hotend_max_temp"): ("deg C", "A hot end that reads hotter than this is a fault, set or not (HEATER_0_MAXTEMP); at least hotend_temperature + 15.", None),
+    ("safety", "bed_min_temp"): ("deg C", "The bed's minimum (BED_MINTEMP).", None),
+    ("safety", "bed_max_temp"): ("deg C", "The bed's maximum (BED_MAXTEMP); at least bed_temperature + 10.", None),
+    ("safety", "hotend_heating_period"): ("s", "While heating towards its set point the hot end must rise by hotend_heating_gain within every such period (Marlin's WATCH_TEMP_PERIOD).", None),
+    ("safety", "hotend_heating_gain"): ("deg C", "The rise expected within each heating period (WATCH_TEMP_INCREASE).", None),
+    ("safety", "bed_heating_period"): ("s", "As hotend_heating_period, for the bed (WATCH_BED_TEMP_PERIOD).", None),
+    ("safety", "bed_heating_gain"): ("deg C", "As hotend_heating_gain, for the bed (WATCH_BED_TEMP_INCREASE).", None),
+    ("safety", "hotend_hold_period"): ("s", "Once at its set point, a hot end more than hotend_hold_drop below it for this long is a thermal runaway (THERMAL_PROTECTION_PERIOD).", None),
+    ("safety", "hotend_hold_drop"): ("deg C", "The drop below the set point that starts the hold period's count (THERMAL_PROTECTION_HYSTERESIS).", None),
+    ("safety", "bed_hold_period"): ("s", "As hotend_hold_period, for the bed (THERMAL_PROTECTION_BED_PERIOD).", None),
+    ("safety", "bed_hold_drop"): ("deg C", "As hotend_hold_drop, for the bed (THERMAL_PROTECTION_BED_HYSTERESIS).", None),
+    ("safety", "wait_timeout"): ("s", "The longest a heating wait may hold the stream; the board's `# heating` lines do not extend it.", None),
+    ("safety", "host_timeout"): ("s", "A board that has asked for bytes and gets none for this long switches its heaters off, stops and reports it (the host is gone).", None),
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",
-                 "bed", "slicing", "planning"]
+                 "bed", "slicing", "planning", "safety"]
 
 
 def collect():

@@ -48,6 +48,21 @@ def firmware_config(printer) -> str:
         f"#define DSL_CFG_SENSOR_POINTS {n_points} /* points per joint in the sensor table; 0: no sensors */",
         f"#define DSL_CFG_SENSOR_ADC {_c_array(adc)} /* raw readings, per joint, ascending */",
         f"#define DSL_CFG_SENSOR_COUNTS {_c_array(counts)} /* joint counts at those readings */",
+    ]
+    sf = printer.safety
+
+    def pair(key, scale=10):
+        return "{" + ", ".join(str(round(getattr(sf, f"{h}_{key}") * scale)) for h in ("hotend", "bed")) + "}"
+
+    lines += [
+        f"#define DSL_CFG_HEATER_MIN_X10 {pair('min_temp')} /* {{hot end, bed}}: colder while set is a fault */",
+        f"#define DSL_CFG_HEATER_MAX_X10 {pair('max_temp')} /* hotter is a fault */",
+        f"#define DSL_CFG_HEATING_PERIOD_DS {pair('heating_period')} /* heating: rise by the gain within this */",
+        f"#define DSL_CFG_HEATING_GAIN_X10 {pair('heating_gain')}",
+        f"#define DSL_CFG_HOLD_PERIOD_DS {pair('hold_period')} /* at the set point: a drop held this long */",
+        f"#define DSL_CFG_HOLD_DROP_X10 {pair('hold_drop')}",
+        f"#define DSL_CFG_WAIT_TIMEOUT_DS {round(sf.wait_timeout * 10)} /* the longest heating wait */",
+        f"#define DSL_CFG_HOST_TIMEOUT_DS {round(sf.host_timeout * 10)} /* no byte asked for this long: the host is gone */",
         "#endif",
     ]
     return "\n".join(lines) + "\n"

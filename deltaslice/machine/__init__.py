@@ -13,7 +13,7 @@ from __future__ import annotations
 from .limits import ChannelLimits, LimitMonitor, Limits
 from .printer import Printer
 from .reader import ACTUATOR_KINDS, check_reach, load_printer, printer_from_dict
-from .settings import Bed, PlanningSettings, SlicingSettings
+from .settings import Bed, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 load_machine = load_printer
@@ -21,5 +21,5 @@ Machine = Printer
 
 __all__ = [
     "ACTUATOR_KINDS", "Bed", "ChannelLimits", "Extruder", "Laser", "LimitMonitor", "Limits", "Machine", "PlanningSettings",
-    "Printer", "SlicingSettings", "Tool", "check_reach", "load_machine", "load_printer", "printer_from_dict",
+    "Printer", "SafetySettings", "SlicingSettings", "Tool", "check_reach", "load_machine", "load_printer", "printer_from_dict",
 ]

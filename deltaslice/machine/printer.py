@@ -9,7 +9,7 @@ import numpy as np
 
 from ..kinematics import Kinematics
 from .limits import ChannelLimits, Limits
-from .settings import Bed, PlanningSettings, SlicingSettings
+from .settings import Bed, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Tool
 
 
@@ -21,7 +21,8 @@ class Printer:
     singularity limit; ``limits`` holds every channel's limits and counts (joints, then
     the tool channel); ``rest_pose`` (J,) joint units: where every trajectory starts and ends;
     ``sensor_table`` per joint: ``((reading, joint value), ...)`` sorted by reading, joint units
-    (rad or mm), () for a joint without an absolute sensor."""
+    (rad or mm), () for a joint without an absolute sensor; ``safety``: the players' heater
+    protection and host time-out (``[safety]``)."""
 
     name: str
     path: str
@@ -41,6 +42,8 @@ class Printer:
     # False for a printer read with load_printer(reach_checks=False) and not yet through
     # machine.check_reach: its rest pose may be unset and nothing plans with it
     reach_checked: bool = field(default=True, repr=False, compare=False)
+    # what the firmware players guard (heater limits, host time-out): not the trajectory's
+    safety: SafetySettings = field(default_factory=SafetySettings, compare=False)
 
     @property
     def n_joints(self) -> int:

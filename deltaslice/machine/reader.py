@@ -24,7 +24,7 @@ from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
 from .limits import Limits
 from .printer import Printer
-from .settings import Bed, PlanningSettings, SlicingSettings
+from .settings import Bed, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
@@ -208,7 +208,34 @@ def _read_bed(sec: Section) -> Bed:
     )
 
 
-SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "sources")
+def _read_safety(sec: Section, tool: Tool | None) -> SafetySettings:
+    """``[safety]``: the firmware players' heater protection and host time-out (defaults:
+    :class:`SafetySettings`). The print temperatures must sit below the maxima with Marlin's
+    margins (HOTEND_OVERSHOOT 15 C, BED_OVERSHOOT 10 C), or bang-bang overshoot would trip them."""
+    d = SafetySettings()
+    got = {}
+    for heater in ("hotend", "bed"):
+        lo = sec.getfloat(f"{heater}_min_temp", getattr(d, f"{heater}_min_temp"), minval=0, maxval=100)
+        hi = sec.getfloat(f"{heater}_max_temp", getattr(d, f"{heater}_max_temp"), above=0, maxval=500)
+        if lo >= hi:
+            sec.fail(f"{heater}_min_temp", lo, f"below {heater}_max_temp = {hi:g} C")
+        got[f"{heater}_min_temp"], got[f"{heater}_max_temp"] = lo, hi
+    for key in ("hotend_heating_period", "bed_heating_period", "hotend_hold_period", "bed_hold_period"):
+        got[key] = sec.getfloat(key, getattr(d, key), minval=1, maxval=600)
+    for key in ("hotend_heating_gain", "bed_heating_gain", "hotend_hold_drop", "bed_hold_drop"):
+        got[key] = sec.getfloat(key, getattr(d, key), above=0, maxval=50)
+    got["wait_timeout"] = sec.getfloat("wait_timeout", d.wait_timeout, minval=10, maxval=3600)
+    got["host_timeout"] = sec.getfloat("host_timeout", d.host_timeout, minval=1, maxval=60)
+    if isinstance(tool, Extruder):
+        for heater, margin in (("hotend", 15.0), ("bed", 10.0)):
+            temp, hi = getattr(tool, f"{heater}_temperature"), got[f"{heater}_max_temp"]
+            if temp > 0 and temp > hi - margin:
+                sec.fail(f"{heater}_max_temp", hi, f"at least [tool] {heater}_temperature + {margin:g} C = "
+                         f"{temp + margin:g} C (the bang-bang overshoot must not trip it)")
+    return SafetySettings(**got)
+
+
+SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "safety", "sources")
 
 
 def resolve_printer(path) -> Path:
@@ -317,6 +344,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
 
     ksec, jsec, tsec = section("kinematics"), section("joints"), section("tool")
     bsec, ssec, psec = section("bed"), section("slicing"), section("planning", default={})
+    fsec = section("safety", default={})
 
     family_name = module = None
     if ksec is not None:
@@ -334,6 +362,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     bed = read(bsec, _read_bed)
     slicing = read(ssec, _read_slicing, tool) if tool is not None else read(ssec, _read_slicing, Laser(1.0, 1.0, 0.0))
     planning = read(psec, _read_planning)
+    safety = read(fsec, _read_safety, tool)
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
@@ -362,6 +391,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
         sensor_table=tuple(joints["sensor_table"]),
         sources=dict(sources),
         reach_checked=False,
+        safety=safety,
     )
     return check_reach(printer) if reach_checks else printer
 

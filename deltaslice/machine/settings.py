@@ -68,3 +68,31 @@ class PlanningSettings:
     limit_margin: float
     travel_lift: float
     singularity_limit: float
+
+
+@dataclass(frozen=True)
+class SafetySettings:
+    """What a firmware player guards, written into its configuration header (``deltaslice
+    firmware-config``). Temperatures deg C, times s. The defaults are Marlin 2.1's
+    (``Configuration.h`` HEATER_0_MINTEMP/MAXTEMP, BED_MINTEMP/MAXTEMP; ``Configuration_adv.h``
+    WATCH_TEMP_*, WATCH_BED_TEMP_*, THERMAL_PROTECTION_*): a heater being heated must rise by
+    ``*_heating_gain`` within every ``*_heating_period`` until it reaches its set point; once there,
+    a drop of more than ``*_hold_drop`` below it lasting ``*_hold_period`` is a thermal runaway.
+    ``wait_timeout``: the longest heating wait; ``host_timeout``: the longest the board waits for a
+    byte it has asked for before it switches its heaters off (Klipper's MCU drops a heater its host
+    has not refreshed for 3 s, its MAX_HEAT_TIME)."""
+
+    hotend_min_temp: float = 5.0
+    hotend_max_temp: float = 275.0
+    bed_min_temp: float = 5.0
+    bed_max_temp: float = 150.0
+    hotend_heating_period: float = 40.0
+    hotend_heating_gain: float = 2.0
+    bed_heating_period: float = 60.0
+    bed_heating_gain: float = 2.0
+    hotend_hold_period: float = 40.0
+    hotend_hold_drop: float = 4.0
+    bed_hold_period: float = 20.0
+    bed_hold_drop: float = 2.0
+    wait_timeout: float = 900.0
+    host_timeout: float = 5.0
