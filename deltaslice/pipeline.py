@@ -571,9 +571,11 @@ def decode_stream(path, out, *, units=False, printer=None) -> int:
         return decode_to_text(f, out, units=units, printer=loaded, name=str(path))
 
 
-def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=False, printer=None):
+def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=False, printer=None, wait_limit=None):
     """Check a stream file whole, then send it to the board on ``port_name`` (see :mod:`deltaslice.send`).
     printer: a path, name or Printer whose fingerprint the stream must carry, or None.
+    wait_limit: the longest heating wait the sender sits through, s (None: the printer's
+    ``[safety] wait_timeout`` plus a minute, or :data:`~deltaslice.send.WAIT_LIMIT`).
     Returns a :class:`~deltaslice.send.SendResult`."""
     import io
 
@@ -581,14 +583,19 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     from .errors import SendError
     from .send import send_stream
 
+    from .send import WAIT_LIMIT
+
     _check_path(stream_path, "stream")
     try:
         data = open(stream_path, "rb").read()
     except OSError as exc:
         raise StreamError(f"{stream_path}: cannot open stream: {exc.strerror or exc}") from None
     # a damaged file is refused before the port is opened: the board would stop mid-print
-    decode_to_text(io.BytesIO(data), io.StringIO(), printer=None if printer is None else _printer(printer),
-                   name=str(stream_path))
+    printer = None if printer is None else _printer(printer)
+    decode_to_text(io.BytesIO(data), io.StringIO(), printer=printer, name=str(stream_path))
+    # the board's own wait limit is the printer file's: the sender waits a minute longer
+    if wait_limit is None:
+        wait_limit = WAIT_LIMIT if printer is None else printer.safety.wait_timeout + 60.0
     try:
         import serial
     except ImportError:
@@ -598,7 +605,7 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     except (serial.SerialException, ValueError, OSError) as exc:
         raise SendError(f"{port_name}: cannot open the serial port: {exc}") from None
     with port:
-        return send_stream(data, port, timeout=timeout, name=str(stream_path),
+        return send_stream(data, port, timeout=timeout, name=str(stream_path), wait_limit=wait_limit,
                            progress=stderr_progress(progress, "sending", unit="B"))
 
 

@@ -7,7 +7,8 @@ link, with their credit flow control:
                     ``ERR <msg>\\n`` the board refused or stopped
                     ``# <text>\\n``  information (the Mega player's ``# heating`` once a second
                                     while a heater wait holds the stream): ignored, but as any
-                                    byte from the board it restarts the timeout
+                                    byte from the board it restarts the timeout, for at most
+                                    ``wait_limit`` seconds of one wait
 
 The host never sends more than it has credit for, so a board with a 2 KB RAM can play a print of
 any length. :func:`send_stream` takes an open serial-like object (``read(n)`` returning ``b""``
@@ -23,6 +24,7 @@ from .errors import SendError
 
 CHUNK = 64
 CREDIT = b">"
+WAIT_LIMIT = 960.0  # s: the players' default heating-wait limit ([safety] wait_timeout, 900 s) and a minute
 
 
 @dataclass(frozen=True)
@@ -34,14 +36,19 @@ class SendResult:
     seconds: float
 
 
-def send_stream(data: bytes, port, *, timeout: float = 10.0, progress=None, name: str = "stream") -> SendResult:
+def send_stream(data: bytes, port, *, timeout: float = 10.0, progress=None, name: str = "stream",
+                wait_limit: float = WAIT_LIMIT) -> SendResult:
     """Send ``data`` (a whole, checked stream) to ``port`` and wait for the board's verdict.
 
     timeout: seconds without a byte from the board before giving up (any byte counts: a board
     waiting for its heaters sends a ``#`` line now and then; one that does not needs a longer timeout). progress: ``progress(done, total)`` in bytes.
-    Raises :class:`SendError` on a timeout, a closed port or an ``ERR`` line."""
+    wait_limit: seconds of ``# heating`` lines in a row (no credit between them) after which the
+    board is taken for stuck in its heating wait: the keep-alive cannot hold the sender longer.
+    Raises :class:`SendError` on a timeout, a closed port, a wait over ``wait_limit`` or an ``ERR``
+    line (its message ends with the board's line)."""
     t0 = time.monotonic()
     sent, line, last = 0, bytearray(), time.monotonic()
+    heating_since = None
     while True:
         b = port.read(1)
         if not b:
@@ -51,6 +58,7 @@ def send_stream(data: bytes, port, *, timeout: float = 10.0, progress=None, name
             continue
         last = time.monotonic()
         if b == CREDIT and not line:
+            heating_since = None
             if sent < len(data):
                 chunk = data[sent:sent + CHUNK]
                 port.write(chunk)
@@ -71,4 +79,10 @@ def send_stream(data: bytes, port, *, timeout: float = 10.0, progress=None, name
             return SendResult(sent, samples, time.monotonic() - t0)
         if text.startswith("ERR"):
             raise SendError(f"{name}: the board stopped after {sent} of {len(data)} bytes: {text[3:].strip()}")
+        if text.startswith("# heating"):
+            heating_since = heating_since if heating_since is not None else last
+            if last - heating_since > wait_limit:
+                raise SendError(f"{name}: the board has been heating for over {wait_limit:g} s after {sent} of "
+                                f"{len(data)} bytes (its keep-alive does not extend the wait): check its heaters "
+                                "and thermistors")
         # anything else (a boot banner) is not part of the protocol: ignored

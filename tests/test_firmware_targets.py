@@ -60,9 +60,9 @@ def build(tmp_path_factory):
 def simulate(build, mcu, elf, stream, seconds=60, *options):
     r = subprocess.run([str(build / "sim_harness"), mcu, str(build / elf), str(stream), "--seconds", str(seconds),
                         *options], capture_output=True, text=True, timeout=300)
-    kinds = ("P ", "S ", "T ", "L ", "F ", "H ", "K ", "I ")
+    kinds = ("P ", "S ", "T ", "L ", "F ", "H ", "K ", "I ", "N ", "X ")
     lines = [ln.split(" ", 1) for ln in r.stdout.splitlines() if ln[:2] in kinds]
-    out = {k: [] for k in "PSTLFHKI"}
+    out = {k: [] for k in "PSTLFHKINX"}
     for k, rest in lines:
         out[k].append(rest)
     return r.returncode, out

@@ -162,3 +162,30 @@ def test_heater_wait_keepalive_keeps_the_sender_waiting(stream):
     with pytest.raises(SendError, match=r"no answer from the board for 1 s after \d+ of"):
         send_file(stream, board.path, timeout=1.0)
     board.stop = True
+
+
+def test_heating_keepalive_cannot_hold_the_sender_past_the_wait_limit(stream):
+    # a board stuck in its heating wait (an old player without its own limit) says "# heating"
+    # for ever: the sender gives up after wait_limit, though every line restarts its timeout
+    data = stream.read_bytes()
+    board = FakeBoard(len(data), hold=(600, 4.0, 0.2))
+    board.start()
+    t0 = time.monotonic()
+    with pytest.raises(SendError, match=r"heating for over 1\.5 s after \d+ of \d+ bytes \(its keep-alive does not"):
+        send_file(stream, board.path, timeout=1.0, wait_limit=1.5)
+    assert time.monotonic() - t0 < 3.5
+    board.stop = True
+
+
+def test_board_fault_line_ends_the_send_with_a_non_zero_exit(stream):
+    class FaultBoard(FakeBoard):
+        def run(self):
+            time.sleep(0.5)
+            os.write(self.master, b">ERR hot end: thermistor open (ADC 1023)\n")
+
+    board = FaultBoard(1)
+    board.start()
+    r = CliRunner().invoke(main, ["send", str(stream), "--port", board.path, "--quiet"])
+    assert r.exit_code == 1
+    assert r.output.rstrip().endswith("the board stopped after 64 of "
+                                      f"{len(stream.read_bytes())} bytes: hot end: thermistor open (ADC 1023)"), r.output

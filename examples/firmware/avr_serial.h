@@ -102,18 +102,4 @@ static uint8_t serial_take(uint8_t *b)
     return 1;
 }
 
-/* The player's last line: "ERR <message in flash>", "ERR <error in RAM>" or "OK <samples>". */
-static void serial_verdict(const char *message_P, const char *error, uint32_t samples)
-{
-    if (message_P || (error && *error)) {
-        serial_puts_P(PSTR("ERR "));
-        if (message_P) serial_puts_P(message_P);
-        else while (*error) serial_put((uint8_t)*error++);
-    } else {
-        serial_puts_P(PSTR("OK "));
-        serial_putu(samples);
-    }
-    serial_put('\n');
-}
-
 #endif

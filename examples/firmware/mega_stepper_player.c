@@ -28,8 +28,9 @@
 #include "avr_serial.h"
 
 #define DSL_BUFFERS 2
-#define DSL_ERROR_LEN 40
+#define DSL_ERROR_LEN 1 /* the message is printed whole from flash (avr_safety.h), not kept */
 #include "dsl_player.h"
+#include "avr_safety.h"
 #include "dsl_stepper.h"
 #include "dsl_thermistor.h"
 #include DSL_CONFIG
@@ -70,30 +71,147 @@ static uint16_t adc_read(uint8_t channel)
     return ADC;
 }
 
-/* Heaters: [0] hot end, [1] bed. A set temperature of 0 is off. */
-static uint16_t heater_on_below[2], heater_off_below[2]; /* ADC thresholds; 0: off */
-static uint8_t waiting_for = 0xFF;
+/* Heaters: [0] hot end, [1] bed, bang-bang with 2 C hysteresis around the set point, guarded as
+   Marlin guards its heaters (the printer file's [safety], in dsl_config.h, tenths of a degree C and
+   of a second): a reading outside min..max or a sensor open or shorted, a heater that rises too
+   little while it heats, or stays too far below its set point once there. Any fault stops the
+   machine (halt_fault). */
 #define HEATER_POLL_TICKS 6250u /* 100 ms of Timer3 (/256): the thermistors are read 10 times a second */
+#define ADC_OPEN 1016  /* below -5 C: no thermistor in a room, a broken wire or connector */
+#define ADC_SHORT 16   /* over 350 C: a short, not a temperature */
+static const int16_t heater_min[2] = DSL_CFG_HEATER_MIN_X10, heater_max[2] = DSL_CFG_HEATER_MAX_X10;
+static const uint16_t heating_period[2] = DSL_CFG_HEATING_PERIOD_DS, hold_period[2] = DSL_CFG_HOLD_PERIOD_DS;
+static const int16_t heating_gain[2] = DSL_CFG_HEATING_GAIN_X10, hold_drop[2] = DSL_CFG_HOLD_DROP_X10;
+static int16_t heater_target[2];    /* 0: off */
+static int16_t heater_temp[2];
+static uint8_t heater_holding[2];   /* reached its set point since it was set */
+static int16_t watch_base[2];       /* heating: the temperature at the start of this watch period */
+static uint16_t watch_polls[2], drop_polls[2];
+static uint8_t waiting_for = 0xFF;
+static const char heater_name0[] PROGMEM = "hot end", heater_name1[] PROGMEM = "bed";
+
+static void heaters_off(void)
+{
+    PORTB &= (uint8_t)~_BV(PB4);
+    PORTH &= (uint8_t)~_BV(PH5);
+}
+
+/* Steppers disabled (enable pins high), as Marlin's kill() leaves them: no step can follow and
+   the drivers stop powering the coils. */
+static void motors_off(void)
+{
+    TIMSK1 = 0;
+    PORTD |= _BV(PD7);
+    PORTF |= _BV(PF2);
+    PORTK |= _BV(PK0);
+    PORTA |= _BV(PA2);
+}
+
+/* The safe state for good: heaters off, motion stopped, the line ended, the watchdog fed by a
+   loop that does nothing else (and keeps the outputs off). */
+static void halt(void)
+{
+    serial_put('\n');
+    for (;;) {
+        heaters_off();
+        motors_off();
+        wdt_reset();
+    }
+}
+
+/* Heaters off and motors off at once, then "ERR <heater>: " for the caller to finish. */
+static void fault(uint8_t h)
+{
+    heaters_off();
+    motors_off();
+    serial_puts_P(PSTR("ERR "));
+    serial_puts_P(h ? heater_name1 : heater_name0);
+    serial_puts_P(PSTR(": "));
+}
 
 static void heater_set(uint8_t h, int32_t t10)
 {
-    if (t10 <= 0) {
-        heater_on_below[h] = heater_off_below[h] = 0;
-        return;
+    heater_target[h] = (int16_t)(t10 > 0 ? t10 : 0);
+    heater_holding[h] = heater_target[h] && heater_temp[h] >= heater_target[h] - hold_drop[h];
+    watch_base[h] = heater_temp[h];
+    watch_polls[h] = drop_polls[h] = 0;
+    if (t10 >= heater_max[h]) {
+        fault(h);
+        serial_puts_P(PSTR("set point "));
+        serial_put_x10(heater_target[h]);
+        serial_puts_P(PSTR(" C at or over the maximum "));
+        serial_put_x10(heater_max[h]);
+        serial_puts_P(PSTR(" C"));
+        halt();
     }
-    /* on while colder than t - 2 C (ADC above), off once hotter than t + 2 C */
-    heater_on_below[h] = dsl_ntc_adc_for_celsius_x10(t10 - 20);
-    heater_off_below[h] = dsl_ntc_adc_for_celsius_x10(t10 + 20);
 }
 
+/* Read, check and switch one heater; 1 when it is within 2 C below its set point or hotter. */
 static uint8_t heater_update(uint8_t h)
 {
     uint16_t a = adc_read(h ? DSL_THERM_BED : DSL_THERM_HOTEND);
     volatile uint8_t *port = h ? &PORTH : &PORTB;
     uint8_t bit = h ? _BV(PH5) : _BV(PB4);
-    if (!heater_on_below[h] || a < heater_off_below[h]) *port &= (uint8_t)~bit;
-    else if (a > heater_on_below[h]) *port |= bit;
-    return heater_on_below[h] && a <= heater_on_below[h]; /* within 2 C below or hotter */
+    int16_t t = dsl_ntc_celsius_x10_for_adc(a), target = heater_target[h];
+    heater_temp[h] = t;
+    /* an unset heater's sensor may be absent (a cold bed reads open), but never hot */
+    if (a <= ADC_SHORT || (target && a >= ADC_OPEN)) {
+        fault(h);
+        serial_puts_P(a <= ADC_SHORT ? PSTR("thermistor shorted (ADC ") : PSTR("thermistor open (ADC "));
+        serial_putu(a);
+        serial_put(')');
+        halt();
+    }
+    if (t > heater_max[h] || (target && t < heater_min[h])) {
+        fault(h);
+        serial_put_x10(t);
+        serial_puts_P(t > heater_max[h] ? PSTR(" C, over the maximum ") : PSTR(" C, under the minimum "));
+        serial_put_x10(t > heater_max[h] ? heater_max[h] : heater_min[h]);
+        serial_puts_P(PSTR(" C"));
+        halt();
+    }
+    if (!target) {
+        *port &= (uint8_t)~bit;
+        return 0;
+    }
+    if (!heater_holding[h]) {
+        if (t >= target - hold_drop[h]) {
+            heater_holding[h] = 1;
+        } else if (++watch_polls[h] >= heating_period[h]) {
+            if (t < watch_base[h] + heating_gain[h]) {
+                fault(h);
+                serial_puts_P(PSTR("heating failed (thermal runaway): rose "));
+                serial_put_x10((int16_t)(t - watch_base[h]));
+                serial_puts_P(PSTR(" C in "));
+                serial_putu(heating_period[h] / 10);
+                serial_puts_P(PSTR(" s, under "));
+                serial_put_x10(heating_gain[h]);
+                serial_puts_P(PSTR(" C"));
+                halt();
+            }
+            watch_base[h] = t;
+            watch_polls[h] = 0;
+        }
+    } else if (t < target - hold_drop[h]) {
+        if (++drop_polls[h] >= hold_period[h]) {
+            fault(h);
+            serial_puts_P(PSTR("thermal runaway: "));
+            serial_put_x10(t);
+            serial_puts_P(PSTR(" C, more than "));
+            serial_put_x10(hold_drop[h]);
+            serial_puts_P(PSTR(" C under its set point "));
+            serial_put_x10(target);
+            serial_puts_P(PSTR(" C for "));
+            serial_putu(hold_period[h] / 10);
+            serial_puts_P(PSTR(" s"));
+            halt();
+        }
+    } else {
+        drop_polls[h] = 0;
+    }
+    if (t > target + 20) *port &= (uint8_t)~bit;
+    else if (t < target - 20) *port |= bit;
+    return t >= target - 20;
 }
 
 static void pins_init(void)
@@ -150,15 +268,76 @@ ISR(TIMER1_COMPA_vect)
     pulse(dsl_stepper_tick(&stepper, AXES));
 }
 
+/* The stream's verdict. "OK": every sample played, heaters off, the motors holding the rest pose.
+   An error of the stream (or made for another printer): the intact samples before it played, then
+   heaters and motors off. */
 static void stop(const char *message_P)
 {
     while (playing && !idle) {
+        wdt_reset();
     }
     TIMSK1 = 0;
-    PORTB &= (uint8_t)~_BV(PB4);
-    PORTH &= (uint8_t)~_BV(PH5);
-    serial_verdict(message_P, player.rx_state == DSL_S_ERROR ? player.error : 0, player.sample_index);
-    for (;;) {
+    heaters_off();
+    if (message_P) {
+        serial_puts_P(PSTR("ERR "));
+        serial_puts_P(message_P);
+    } else if (player.rx_state == DSL_S_ERROR) {
+        serial_puts_P(PSTR("ERR "));
+        serial_player_error(&player);
+    } else {
+        serial_puts_P(PSTR("OK "));
+        serial_putu(player.sample_index);
+        serial_put('\n');
+        for (;;) {
+            heaters_off();
+            wdt_reset();
+        }
+    }
+    halt();
+}
+
+/* Every 100 ms: the heaters, the heating wait and the host. */
+static void poll(void)
+{
+    static uint8_t keepalive, silent, last_rx, heard;
+    static uint16_t wait_polls;
+    uint8_t ready0 = heater_update(0), ready1 = heater_update(1), rx = serial_received;
+    if (waiting_for == 0xFF) {
+        keepalive = 0;
+        wait_polls = 0;
+    } else if (waiting_for ? ready1 : ready0) {
+        waiting_for = 0xFF; /* (a wait right after this one goes on counting) */
+        held = 0;
+    } else if (++wait_polls >= DSL_CFG_WAIT_TIMEOUT_DS) {
+        fault(waiting_for);
+        serial_puts_P(PSTR("not at its set point after the longest heating wait, "));
+        serial_putu(DSL_CFG_WAIT_TIMEOUT_DS / 10);
+        serial_puts_P(PSTR(" s"));
+        halt();
+    } else if (++keepalive >= 10) {
+        /* a wait lasts tens of seconds: say so once a second, so the host (deltaslice send,
+           which ignores lines outside the protocol) does not take the silence for a dead board */
+        keepalive = 0;
+        serial_puts_P(PSTR("# heating\n"));
+    }
+    /* No host, no heat: bytes asked for (a credit outstanding) and none arriving means the host is
+       gone. A board that asks for nothing (buffers full, a heating wait) waits without limit, and
+       after the end record nothing more is due. */
+    if (rx != last_rx) {
+        last_rx = rx;
+        heard = 1;
+        silent = 0;
+    } else if (heard && serial_granted != rx && player.rx_state != DSL_S_END && player.rx_state != DSL_S_ERROR) {
+        if (++silent >= DSL_CFG_HOST_TIMEOUT_DS) {
+            heaters_off();
+            motors_off();
+            serial_puts_P(PSTR("ERR host silent for "));
+            serial_putu(DSL_CFG_HOST_TIMEOUT_DS / 10);
+            serial_puts_P(PSTR(" s: heaters off, motors off"));
+            halt();
+        }
+    } else {
+        silent = 0;
     }
 }
 
@@ -166,34 +345,32 @@ int main(void)
 {
     int32_t counts[DSL_MAX_CHANNELS];
     uint8_t started = 0, hb = 0, have = 0, k;
-    uint16_t heater_last = 0;
-    uint8_t keepalive = 0; /* heater polls (100 ms) since the last keep-alive line */
+    uint16_t heater_last;
 
     pins_init();
     TCCR3A = 0;
     TCCR3B = _BV(CS32); /* Timer3 free running at 62.5 kHz: the heaters' clock */
     serial_init();
     dsl_init(&player);
+    if (safety_watchdog_reset()) {
+        motors_off();
+        serial_puts_P(PSTR("ERR watchdog reset: the player hung; heaters off, motors off"));
+        halt();
+    }
+    safety_start();
+    heater_update(0); /* the readings before any set point (and a shorted sensor at power-up) */
+    heater_update(1);
+    heater_last = TCNT3;
     sei();
     for (;;) {
         int r;
+        wdt_reset();
         serial_grant();
         if (!have) have = serial_take(&hb);
         while (have && dsl_feed(&player, &hb, 1) == 1) have = serial_take(&hb);
         if ((uint16_t)(TCNT3 - heater_last) >= HEATER_POLL_TICKS) { /* every 100 ms */
             heater_last = (uint16_t)(heater_last + HEATER_POLL_TICKS);
-            uint8_t ready0 = heater_update(0), ready1 = heater_update(1);
-            if (waiting_for == 0xFF) {
-                keepalive = 0;
-            } else if (waiting_for ? ready1 : ready0) {
-                waiting_for = 0xFF; /* (a wait right after this one goes on counting) */
-                held = 0;
-            } else if (++keepalive >= 10) {
-                /* a wait lasts tens of seconds: say so once a second, so the host (deltaslice send,
-                   which ignores lines outside the protocol) does not take the silence for a dead board */
-                keepalive = 0;
-                serial_puts_P(PSTR("# heating\n"));
-            }
+            poll();
         }
         if (!started) {
             if (player.rx_state == DSL_S_ERROR) stop(0);
@@ -215,6 +392,7 @@ int main(void)
                 if ((kind == DSL_EV_HOTEND_WAIT || kind == DSL_EV_BED_WAIT) && player.event_value > 0) {
                     /* hold the clock once the samples before the event are played */
                     while (playing && !idle) {
+                        wdt_reset();
                     }
                     held = 1;
                     waiting_for = h;

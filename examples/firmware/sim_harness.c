@@ -3,6 +3,7 @@
  * the credit flow control of avr_serial.h, and print what its pins did:
  *
  *   sim_harness atmega328p|atmega2560 PLAYER.elf STREAM.dsl [--seconds S] [--thermistors H,B]
+ *               [--fix-thermistor HEATER,ADC,FROM_S] [--cut BYTES] [--stall BYTES,SECONDS] [--after S]
  *
  *   P <pin> <rise_cycle> <width_cycles>     every pulse of a watched pin (16 cycles = 1 us)
  *   T <sample> <cycle> <pos1> <pos2> <pos3> <pos4>  the step positions at each sample strobe (Mega)
@@ -12,6 +13,15 @@
  *   I <cycle> <line>                        an information line ("# ...", e.g. "# heating")
  *   H <heater> <cycle> <level> <temp x10>   a heater pin switched (Mega: 0 hot end D10, 1 bed D8)
  *   K <cycle> <hot end x10> <bed x10>       the model's temperatures every 10 ms (Mega)
+ *   N <cycle> <mask>                        the driver enable pins changed: bit a set = axis a
+ *                                           disabled (Mega X, Y, Z, E0; Uno: bit 3, the extruder)
+ *   X <cycle> <bytes> cut|stall|resume      the sender's injected fault began (or ended)
+ *
+ * Faults to inject: --fix-thermistor: from FROM_S seconds on, that heater's thermistor reads ADC
+ * whatever the model says (1023 an open sensor, 0 a short, ~990 a cold one); --cut: the sender
+ * goes silent for good after BYTES bytes; --stall: it stops after BYTES bytes for SECONDS, then
+ * goes on. --after: how long to go on simulating after the verdict line (default 0.045 s), to see
+ * that nothing switches on again.
  *
  * Uno pins watched: the servos D3, D5, D6 as pins 0..2, the sample strobe D13 (B5). Mega: RAMPS
  * step pins counted with their dir pins, the heater pins, and a thermal model of each heater:
@@ -46,10 +56,41 @@ static int xoff, done;
 static char line[256];
 static size_t line_len;
 
+static size_t cut_at = (size_t)-1, stall_at = (size_t)-1;
+static double stall_seconds;
+static int stall_state; /* 0 before, 1 stalled, 2 over */
+static avr_cycle_count_t stall_end;
+
+static void feed(void);
+
+static avr_cycle_count_t stall_over(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    (void)a; (void)when; (void)param;
+    stall_state = 2;
+    printf("X %llu %zu resume\n", (unsigned long long)avr->cycle, sent);
+    feed();
+    return 0;
+}
+
 static void feed(void)
 {
     avr_irq_t *in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
-    while (!xoff && sent < allowed && sent < stream_len) avr_raise_irq(in, stream[sent++]);
+    while (!xoff && sent < allowed && sent < stream_len) {
+        if (sent == cut_at) {
+            printf("X %llu %zu cut\n", (unsigned long long)avr->cycle, sent);
+            cut_at = (size_t)-1;
+            stream_len = sent; /* nothing more, ever */
+            return;
+        }
+        if (sent == stall_at && stall_state == 0) {
+            stall_state = 1;
+            stall_end = avr->cycle + (avr_cycle_count_t)(stall_seconds * 16e6);
+            printf("X %llu %zu stall\n", (unsigned long long)avr->cycle, sent);
+            avr_cycle_timer_register(avr, stall_end - avr->cycle, stall_over, NULL);
+        }
+        if (stall_state == 1) return;
+        avr_raise_irq(in, stream[sent++]);
+    }
 }
 
 static void uart_out(avr_irq_t *irq, uint32_t value, void *param)
@@ -148,6 +189,22 @@ static double temp[2] = {25.0, 25.0};
 static int heater_on[2];
 static avr_cycle_count_t thermal_cycle;
 static int therm_channel[2] = {5, 6};
+static int fixed_adc[2] = {-1, -1};
+static double fixed_from[2];
+
+/* --- driver enable pins: the mask of disabled axes --- */
+static unsigned enable_mask;
+static int enable_seen;
+
+static void enable_pin(avr_irq_t *irq, uint32_t value, void *param)
+{
+    unsigned bit = 1u << (int)(intptr_t)param, mask = value ? enable_mask | bit : enable_mask & ~bit;
+    (void)irq;
+    if (mask == enable_mask && enable_seen) return;
+    enable_mask = mask;
+    enable_seen = 1;
+    printf("N %llu %u\n", (unsigned long long)avr->cycle, enable_mask);
+}
 
 static void thermal_advance(void)
 {
@@ -178,6 +235,7 @@ static void adc_trigger(avr_irq_t *irq, uint32_t value, void *param)
     thermal_advance();
     for (h = 0; h < 2; h++) {
         uint32_t reading = dsl_ntc_adc_for_celsius_x10((int32_t)lround(temp[h] * 10));
+        if (fixed_adc[h] >= 0 && avr->cycle >= fixed_from[h] * 16e6) reading = (uint32_t)fixed_adc[h];
         /* simavr reads millivolts x 1023 / AVCC: the smallest voltage that reads `reading` */
         uint32_t mv = (reading * 5000u + 1022u) / 1023u;
         avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + therm_channel[h]), mv);
@@ -201,7 +259,7 @@ int main(int argc, char **argv)
 {
     elf_firmware_t fw;
     FILE *f;
-    double seconds = 60.0;
+    double seconds = 60.0, after = 0.045;
     int a, mega, state = cpu_Running;
 
     if (argc < 4) {
@@ -210,7 +268,25 @@ int main(int argc, char **argv)
     }
     for (a = 4; a < argc; a++)
         if (!strcmp(argv[a], "--seconds") && a + 1 < argc) seconds = atof(argv[++a]);
-        else if (!strcmp(argv[a], "--thermistors") && a + 1 < argc) {
+        else if (!strcmp(argv[a], "--after") && a + 1 < argc) after = atof(argv[++a]);
+        else if (!strcmp(argv[a], "--cut") && a + 1 < argc) cut_at = (size_t)atol(argv[++a]);
+        else if (!strcmp(argv[a], "--stall") && a + 1 < argc) {
+            long at;
+            if (sscanf(argv[++a], "%ld,%lf", &at, &stall_seconds) != 2 || at < 0) {
+                fprintf(stderr, "error: --stall takes BYTES,SECONDS\n");
+                return 2;
+            }
+            stall_at = (size_t)at;
+        } else if (!strcmp(argv[a], "--fix-thermistor") && a + 1 < argc) {
+            int h, adc;
+            double from;
+            if (sscanf(argv[++a], "%d,%d,%lf", &h, &adc, &from) != 3 || h < 0 || h > 1 || adc < 0 || adc > 1023) {
+                fprintf(stderr, "error: --fix-thermistor takes HEATER (0 hot end, 1 bed),ADC (0..1023),FROM_SECONDS\n");
+                return 2;
+            }
+            fixed_adc[h] = adc;
+            fixed_from[h] = from;
+        } else if (!strcmp(argv[a], "--thermistors") && a + 1 < argc) {
             if (sscanf(argv[++a], "%d,%d", &therm_channel[0], &therm_channel[1]) != 2 || therm_channel[0] < 0 ||
                 therm_channel[0] > 7 || therm_channel[1] < 0 || therm_channel[1] > 7) {
                 fprintf(stderr, "error: --thermistors takes two ADC channels 0..7 (simavr keeps no others)\n");
@@ -261,7 +337,12 @@ int main(int argc, char **argv)
         watch('D', 5, servo_pin, 1);
         watch('D', 6, servo_pin, 2);
         watch('B', 5, uno_strobe, 0);
+        watch('B', 0, enable_pin, 3);
     } else {
+        watch('D', 7, enable_pin, 0);
+        watch('F', 2, enable_pin, 1);
+        watch('K', 0, enable_pin, 2);
+        watch('A', 2, enable_pin, 3);
         watch('F', 0, step_pin, 0); watch('F', 1, dir_pin, 0);
         watch('F', 6, step_pin, 1); watch('F', 7, dir_pin, 1);
         watch('L', 3, step_pin, 2); watch('L', 1, dir_pin, 2);
@@ -280,9 +361,9 @@ int main(int argc, char **argv)
         printf("L TIMEOUT after %.3f s (%zu of %zu bytes sent, state %d)\n", avr->cycle / 16e6, sent, stream_len, state);
         return 1;
     }
-    /* let the last frame finish */
+    /* let the last frame finish, and see what the board does after its verdict */
     {
-        avr_cycle_count_t end = avr->cycle + 16000 * 45;
+        avr_cycle_count_t end = avr->cycle + (avr_cycle_count_t)(after * 16e6);
         while (state != cpu_Done && state != cpu_Crashed && avr->cycle < end) state = avr_run(avr);
     }
     if (mega) printf("F %ld %ld %ld %ld\n", pos[0], pos[1], pos[2], pos[3]);

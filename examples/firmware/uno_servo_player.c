@@ -23,8 +23,9 @@
 #include "avr_serial.h"
 
 #define DSL_BUFFERS 2
-#define DSL_ERROR_LEN 40
+#define DSL_ERROR_LEN 1 /* the message is printed whole from flash (avr_safety.h), not kept */
 #include "dsl_player.h"
+#include "avr_safety.h"
 #include DSL_CONFIG
 
 #define SERVOS 3
@@ -157,11 +158,24 @@ static void extruder_to(int32_t target)
     }
 }
 
+/* The verdict, then nothing more is played. On an error the extruder's driver is disabled and the
+   servos go on holding the last widths: a hobby servo without pulses goes limp (or holds, by
+   model), and a limp rotary delta drops its platform onto the part; held, the arms stay put. */
 static void stop(const char *message_P)
 {
     clock_on = 0;
-    serial_verdict(message_P, player.rx_state == DSL_S_ERROR ? player.error : 0, player.sample_index);
+    if (message_P || player.rx_state == DSL_S_ERROR) {
+        PORTB |= _BV(PB0);
+        serial_puts_P(PSTR("ERR "));
+        if (message_P) serial_puts_P(message_P);
+        else serial_player_error(&player);
+    } else {
+        serial_puts_P(PSTR("OK "));
+        serial_putu(player.sample_index);
+    }
+    serial_put('\n');
     for (;;) {
+        wdt_reset();
     }
 }
 
@@ -175,8 +189,11 @@ int main(void)
     serial_init();
     dsl_init(&player);
     sei();
+    if (safety_watchdog_reset()) stop(PSTR("watchdog reset: the player hung; the servos hold the rest pose"));
+    safety_start();
     for (;;) {
         int r;
+        wdt_reset();
         serial_grant();
         /* a few bytes per pass, so a burst of received bytes never delays a sample by more than
            a fraction of its period */
