@@ -571,11 +571,13 @@ def decode_stream(path, out, *, units=False, printer=None) -> int:
         return decode_to_text(f, out, units=units, printer=loaded, name=str(path))
 
 
-def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=False, printer=None, wait_limit=None):
+def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=False, printer=None, wait_limit=None,
+              commands=None):
     """Check a stream file whole, then send it to the board on ``port_name`` (see :mod:`deltaslice.send`).
     printer: a path, name or Printer whose fingerprint the stream must carry, or None.
     wait_limit: the longest heating wait the sender sits through, s (None: the printer's
     ``[safety] wait_timeout`` plus a minute, or :data:`~deltaslice.send.WAIT_LIMIT`).
+    commands: pause/resume/abort as :func:`~deltaslice.send.send_stream` takes them.
     Returns a :class:`~deltaslice.send.SendResult`."""
     import io
 
@@ -605,7 +607,7 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     except (serial.SerialException, ValueError, OSError) as exc:
         raise SendError(f"{port_name}: cannot open the serial port: {exc}") from None
     with port:
-        return send_stream(data, port, timeout=timeout, name=str(stream_path), wait_limit=wait_limit,
+        return send_stream(data, port, timeout=timeout, name=str(stream_path), wait_limit=wait_limit, commands=commands,
                            progress=stderr_progress(progress, "sending", unit="B"))
 
 

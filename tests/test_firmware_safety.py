@@ -21,10 +21,11 @@ import subprocess
 
 import numpy as np
 import pytest
-from test_firmware_targets import CYCLES_PER_US, FIRMWARE, _pad_stream, build, simulate  # noqa: F401
+from test_firmware_targets import CYCLES_PER_US, FIRMWARE, _pad_stream, assert_steps_exact, build, simulate  # noqa: F401
+from trajectories import blocks, printer, realistic
 
 from deltaslice import load_printer
-from deltaslice.pipeline import read_counts, write_firmware_config
+from deltaslice.pipeline import read_counts, write_firmware_config, write_samples
 
 SECOND = CYCLES_PER_US * 1_000_000
 MEGA = ("atmega2560", "mega_stepper_player_sim.elf")
@@ -209,3 +210,99 @@ def test_uno_corrupt_block_message_whole_and_extruder_disabled(build, tmp_path):
     last_strobe = int(out["S"][-1].split()[1])
     rises = [int(p.split()[1]) for p in out["P"] if p.startswith("0 ")]
     assert sum(r > last_strobe + 0.1 * SECOND for r in rises) >= 10
+
+
+def warp(out, counts, period_ms=1.0, h=20):
+    """What the joints did in real time: the clock's rate r at each sample (the stream's period over
+    the strobe interval), its change, and each joint's velocity and acceleration as played,
+    v = v_stream r and a = a_stream r^2 + v_stream dr/dt (counts per ms, per ms^2), with the
+    stream's own v and a from central differences over h samples (the counts are quantised)."""
+    T = np.array([[int(x) for x in t.split()[:2]] for t in out["T"] or out["S"]])  # Mega, Uno strobes
+    n = len(T)
+    c = counts[:n, :3].astype(float)
+    t = T[:, 1] / (CYCLES_PER_US * 1000)
+    vs, acc = np.zeros_like(c), np.zeros_like(c)
+    vs[h:-h] = (c[2 * h:] - c[:-2 * h]) / (2 * h * period_ms)
+    acc[h:-h] = (c[2 * h:] - 2 * c[h:-h] + c[:-2 * h]) / (h * period_ms) ** 2
+    r = np.ones(n)
+    r[:-1] = period_ms / np.diff(t)
+    dr = np.zeros(n)
+    dr[1:-1] = (r[2:] - r[:-2]) / (t[2:] - t[:-2])
+    return t, r, vs, vs * r[:, None], acc * r[:, None] ** 2 + vs * dr[:, None]
+
+
+@pytest.mark.parametrize("name, mcu, elf, fault", [
+    ("fivebar_atlas", "atmega2560", "mega_stepper_player.elf", "stall"),
+    ("linear_kossel", "atmega2560", "mega_stepper_player_kossel.elf", "stall"),
+    ("delta_etitc", "atmega328p", "uno_servo_player.elf", "stall"),
+    ("fivebar_atlas", "atmega2560", "mega_stepper_player.elf", "pause"),
+    ("linear_kossel", "atmega2560", "mega_stepper_player_kossel.elf", "pause"),
+    ("delta_etitc", "atmega328p", "uno_servo_player.elf", "pause"),
+])
+def test_stall_and_pause_are_ridden_out_with_a_ramp(build, tmp_path, name, mcu, elf, fault):
+    """stall: the sender stops for 2.5 s mid-part: the player sees its buffer running low and ramps
+    its clock to a stop and back (the old Mega stopped dead and restarted at speed: 20-30 % of the
+    peak speed at both ends; the old Uno caught up in a burst of samples 0.13 ms apart). pause: the
+    host's feed hold at 6 s for 3 s, the same ramp. Either way the path is the stream's (every
+    step exact on the Mega, every sample played once on the Uno), and no moving sample comes
+    < 0.5 ms after the one before."""
+    p = printer(name)
+    s, _ = realistic(name, layers=1)
+    path = tmp_path / f"{name}.dsl"
+    write_samples(blocks(s, 2500), p, path, fmt="stream", rate=p.planning.output_rate)
+    _, counts = read_counts(path)
+    n = len(path.read_bytes())
+    option = ["--stall", f"{n // 2},2.5"] if fault == "stall" else ["--pause", "6,3"]
+    code, out = simulate(build, mcu, elf, path, 60, *option)
+    assert code == 0 and out["L"] == [f"OK {len(counts)}"], out["L"]
+    events = [x.split()[2] for x in out["X"]]
+    assert events[0] == fault and events[-1] == "resume", events
+    if mcu == "atmega2560":
+        assert_steps_exact(out, counts)
+    else:
+        assert len(out["S"]) == len(counts)
+    t, r, vs, v, a = warp(out, counts)
+    gaps = np.diff(t)
+    g = int(np.argmax(gaps))
+    assert gaps[g] > 1500  # the stop is in the playback (a stall: 2.5 s less the buffer played meanwhile)
+    peak = np.abs(vs).max(axis=0)
+    moving = peak > 0
+    entry = np.abs(vs[g]) * r[g - 1] / np.where(moving, peak, 1)
+    leave = np.abs(vs[g + 1]) * r[g + 1] / np.where(moving, peak, 1)
+    assert (entry < 0.05).all() and (leave < 0.05).all(), (entry, leave)  # measured: <= 2.9 %
+    assert np.abs(vs[g] / np.where(moving, peak, 1)).max() > 0.1  # it stalled while moving
+    moved = np.any(np.diff(counts[:len(t), :3], axis=0) != 0, axis=1)
+    assert gaps[moved].min() >= 0.5, gaps[moved].min()  # measured: 0.995 ms (Mega), 0.78 (Uno)
+    if mcu != "atmega2560":
+        return  # the Uno strobes from its main loop (+-0.2 ms): too rough for an acceleration
+    # the ramps keep the joints within their limits (counts per ms and per ms^2)
+    cpu = np.abs(np.array(p.limits.counts_per_unit[:3]))
+    vmax, amax = np.array(p.limits.velocity[:3]) * cpu / 1e3, np.array(p.limits.acceleration[:3]) * cpu / 1e6
+    ramp = (r < 0.98) & (r > 0)
+    assert ramp.sum() > 50
+    assert (np.abs(v[ramp]) <= vmax).all() and (np.abs(a[ramp]) <= amax).all()
+
+
+@pytest.mark.parametrize("option, error", [
+    (("--abort", "6"), "ERR aborted by the host: heaters off, motors off"),
+    (("--estop", "6"), "ERR emergency stop (D41 open): heaters off, motors off"),
+])
+def test_abort_and_estop_stop_motion_and_heaters_at_once(build, atlas_stream, option, error):
+    # at 6 s the part is printing (the wait ended at ~3.9 s) and the hot end regulating
+    code, out = simulate(build, *MEGA, atlas_stream, 30, *option, "--after", "3")
+    assert out["L"] == [error], out["L"]
+    at = int(out["X"][0].split()[0])
+    stop = disabled_at(out)
+    assert 0 <= stop - at < (5 if option[0] == "--estop" else 1) * CYCLES_PER_US * 1000, (stop - at) / CYCLES_PER_US
+    T = np.array([[int(x) for x in t.split()[:2]] for t in out["T"]])
+    assert T[0, 1] < at and T[-1, 1] <= stop  # it was playing; no sample after
+    assert_stopped_safe(out, error, within_s=0.01, since=at)
+    F = np.array([int(x) for x in out["F"][0].split()])
+    steps_at_stop = np.array([int(x) for x in out["T"][-1].split()[2:]])
+    assert (np.abs(F - steps_at_stop) <= 31).all()  # at most the rest of one sample's steps after it
+
+
+def test_a_sender_of_the_unframed_protocol_is_refused(build, atlas_stream):
+    code, out = simulate(build, *MEGA, atlas_stream, 10, "--unframed", "--after", "1")
+    assert out["L"] and out["L"][0].startswith("ERR serial: byte 137 between chunks"), out["L"]
+    assert not out["T"] and not any(level for _h, _c, level in heater_timeline(out))

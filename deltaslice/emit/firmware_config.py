@@ -11,6 +11,14 @@ def _c_array(rows) -> str:
     return "{" + ", ".join("{" + ", ".join(str(int(v)) for v in r) + "}" for r in rows) + "}"
 
 
+def ramp_ms(printer) -> int:
+    """The feed-hold ramp of ``printer``'s players, ms: 2 x max over joints of velocity / acceleration."""
+    J = printer.n_joints
+    lim = printer.limits
+    ratio = np.asarray(lim.velocity[:J], float) / np.asarray(lim.acceleration[:J], float)
+    return int(np.ceil(2000.0 * ratio.max()))
+
+
 def firmware_config(printer) -> str:
     """The C header text for ``printer`` (a :class:`~deltaslice.machine.Printer`).
 
@@ -63,6 +71,7 @@ def firmware_config(printer) -> str:
         f"#define DSL_CFG_HOLD_DROP_X10 {pair('hold_drop')}",
         f"#define DSL_CFG_WAIT_TIMEOUT_DS {round(sf.wait_timeout * 10)} /* the longest heating wait */",
         f"#define DSL_CFG_HOST_TIMEOUT_DS {round(sf.host_timeout * 10)} /* no byte asked for this long: the host is gone */",
+        f"#define DSL_CFG_RAMP_MS {ramp_ms(printer)} /* feed hold: full rate to a stop, ms */",
         "#endif",
     ]
     return "\n".join(lines) + "\n"

@@ -10,6 +10,8 @@
  *   heaters  hot end D10 (PB4) with the thermistor on A13, bed D8 (PH5) with A14
  *            (DSL_THERM_HOTEND, DSL_THERM_BED: the simulated build uses A5 and A6)
  *   strobe   D13 (PB7, the LED) toggles at every sample (a scope or the simulator counts them)
+ *   E-stop   D41 (PG0, Marlin's KILL_PIN on the RAMPS), a normally closed switch to GND: the pin
+ *            reading high (the switch pressed, or its wire broken) stops everything
  *
  * Timer1 interrupts DSL_SUBTICKS times per sample period; dsl_stepper.h spreads each sample's
  * count differences evenly over the period. The machine must be at the stream's first sample
@@ -214,8 +216,12 @@ static uint8_t heater_update(uint8_t h)
     return t >= target - 20;
 }
 
+#define ESTOP_OPEN() (PING & _BV(PG0))
+
 static void pins_init(void)
 {
+    DDRG &= (uint8_t)~_BV(PG0); /* the E-stop, pulled up: open reads high */
+    PORTG |= _BV(PG0);
     DDRF |= _BV(PF0) | _BV(PF1) | _BV(PF6) | _BV(PF7) | _BV(PF2);
     DDRD |= _BV(PD7);
     DDRL |= _BV(PL3) | _BV(PL1);
@@ -249,11 +255,36 @@ static void pulse(uint8_t m)
     PORTA &= (uint8_t)~_BV(PA4);
 }
 
+/* The playback clock's rate, RATE_ONE = the stream's own: a feed hold (an underrun coming, a pause)
+   ramps it to 0 and back, by rate_step per tick, so the samples are played exactly, only slower:
+   every joint's velocity scales with the rate and its acceleration with the rate squared plus its
+   velocity times the rate's change (DSL_CFG_RAMP_MS keeps that term within half its limit). A
+   step tick comes when the phase accumulator passes RATE_ONE: never more often than at full rate. */
+#define RATE_ONE 32768u
+static volatile uint16_t rate, rate_target;
+static uint16_t phase, rate_step = 1;
+static volatile uint8_t warping; /* rate or its target below RATE_ONE: the tick's only extra test at full rate */
+
 ISR(TIMER1_COMPA_vect)
 {
+    if (ESTOP_OPEN()) { /* at once, whatever the main loop is doing; it reports it */
+        heaters_off();
+        motors_off();
+        return;
+    }
     if (!playing || held) return;
+    if (warping) {
+        uint16_t r = rate, target = rate_target;
+        if (r < target) r = target - r > rate_step ? r + rate_step : target;
+        else if (r > target) r = r - target > rate_step ? r - rate_step : target;
+        rate = r;
+        if (r == RATE_ONE) warping = 0;
+        phase += r;
+        if (phase < RATE_ONE) return;
+        phase -= RATE_ONE;
+    }
     if (stepper.tick == 0 || stepper.tick >= DSL_SUBTICKS) {
-        if (!ring_count) { /* underrun or the end: wait for the next sample, the motors at rest */
+        if (!ring_count) { /* an underrun the ramp did not foresee, or the end: the motors at rest */
             idle = 1;
             return;
         }
@@ -268,13 +299,56 @@ ISR(TIMER1_COMPA_vect)
     pulse(dsl_stepper_tick(&stepper, AXES));
 }
 
+/* The rate the clock heads for: 0 during the host's feed hold, and while fewer samples are buffered than a ramp from full rate to
+   a stop plays (ramp_samples: half the ramp's periods) and more are still to come, full again
+   once twice that many are in, or the receive side can take no more, or the stream is whole. */
+static uint16_t ramp_samples = 1;
+
+static void feed_hold_update(void)
+{
+    uint16_t avail, target = rate_target;
+    uint8_t coming = player.rx_state != DSL_S_END && player.rx_state != DSL_S_ERROR;
+    uint8_t full = player.q_count == DSL_BUFFERS || player.ev_count == DSL_MAX_EVENTS;
+    uint32_t n = player.rx_samples - player.sample_index + ring_count;
+    avail = n > 0xFFFF ? 0xFFFF : (uint16_t)n;
+    if (serial_paused) target = 0;
+    else if (avail < ramp_samples && (player.rx_state == DSL_S_ERROR || (coming && !full))) target = 0;
+    else if (avail >= 2 * ramp_samples || full || !coming) target = RATE_ONE;
+    if (target != rate_target) {
+        cli();
+        rate_target = target;
+        warping = 1;
+        sei();
+    }
+}
+
+/* Every pass of every loop: the watchdog fed, the E-stop and the host's abort obeyed, a byte out of
+   the protocol refused; each of these stops everything at once. */
+static void safety_checks(void)
+{
+    wdt_reset();
+    if (!ESTOP_OPEN() && !serial_abort && !serial_bad) return;
+    heaters_off();
+    motors_off();
+    if (ESTOP_OPEN()) {
+        serial_puts_P(PSTR("ERR emergency stop (D41 open): heaters off, motors off"));
+    } else if (serial_abort) {
+        serial_puts_P(PSTR("ERR aborted by the host: heaters off, motors off"));
+    } else {
+        serial_puts_P(PSTR("ERR serial: byte "));
+        serial_putu(serial_bad);
+        serial_puts_P(PSTR(" between chunks is no chunk length nor control (a sender of the unframed protocol?)"));
+    }
+    halt();
+}
+
 /* The stream's verdict. "OK": every sample played, heaters off, the motors holding the rest pose.
    An error of the stream (or made for another printer): the intact samples before it played, then
    heaters and motors off. */
 static void stop(const char *message_P)
 {
-    while (playing && !idle) {
-        wdt_reset();
+    while (playing && !idle && (rate || rate_target)) { /* (a clock ramped to a stop plays no more) */
+        safety_checks();
     }
     TIMSK1 = 0;
     heaters_off();
@@ -299,9 +373,9 @@ static void stop(const char *message_P)
 /* Every 100 ms: the heaters, the heating wait and the host. */
 static void poll(void)
 {
-    static uint8_t keepalive, silent, last_rx, heard;
+    static uint8_t keepalive, silent, last_heard, heard;
     static uint16_t wait_polls;
-    uint8_t ready0 = heater_update(0), ready1 = heater_update(1), rx = serial_received;
+    uint8_t ready0 = heater_update(0), ready1 = heater_update(1), rx = serial_heard;
     if (waiting_for == 0xFF) {
         keepalive = 0;
         wait_polls = 0;
@@ -320,14 +394,16 @@ static void poll(void)
         keepalive = 0;
         serial_puts_P(PSTR("# heating\n"));
     }
-    /* No host, no heat: bytes asked for (a credit outstanding) and none arriving means the host is
-       gone. A board that asks for nothing (buffers full, a heating wait) waits without limit, and
-       after the end record nothing more is due. */
-    if (rx != last_rx) {
-        last_rx = rx;
+    /* No host, no heat: bytes asked for (a credit outstanding) and none arriving, or a feed hold
+       whose host stopped repeating it, means the host is gone. A board that asks for nothing
+       (buffers full, a heating wait) waits without limit, and after the end record nothing more
+       is due. */
+    if (rx != last_heard) {
+        last_heard = rx;
         heard = 1;
         silent = 0;
-    } else if (heard && serial_granted != rx && player.rx_state != DSL_S_END && player.rx_state != DSL_S_ERROR) {
+    } else if (heard && (serial_paused || (serial_granted != serial_received && player.rx_state != DSL_S_END &&
+                                          player.rx_state != DSL_S_ERROR))) {
         if (++silent >= DSL_CFG_HOST_TIMEOUT_DS) {
             heaters_off();
             motors_off();
@@ -364,7 +440,7 @@ int main(void)
     sei();
     for (;;) {
         int r;
-        wdt_reset();
+        safety_checks();
         serial_grant();
         if (!have) have = serial_take(&hb);
         while (have && dsl_feed(&player, &hb, 1) == 1) have = serial_take(&hb);
@@ -378,10 +454,17 @@ int main(void)
             if (player.fingerprint != DSL_CFG_FINGERPRINT) stop(PSTR("stream made for another printer (fingerprint)"));
             if (player.q_count < DSL_BUFFERS && player.rx_state != DSL_S_END) continue;
             OCR1A = (uint16_t)(1000000000UL / player.rate_mhz * 16 / DSL_SUBTICKS - 1); /* /1: 62.5 ns ticks */
+            {   /* the ramp in ticks of the step clock, and the samples it plays from full rate */
+                uint32_t ticks = (uint32_t)DSL_CFG_RAMP_MS * DSL_SUBTICKS * (player.rate_mhz / 1000u) / 1000u;
+                rate_step = ticks >= RATE_ONE ? 1 : (uint16_t)(RATE_ONE / (ticks ? ticks : 1));
+                ramp_samples = (uint16_t)((uint32_t)RATE_ONE / rate_step / DSL_SUBTICKS / 2 + 8);
+            }
+            rate = rate_target = RATE_ONE;
             TCCR1A = 0;
             TCCR1B = _BV(WGM12) | _BV(CS10);
             started = 1;
         }
+        if (started) feed_hold_update();
         if (ring_count >= RING || waiting_for != 0xFF) continue;
         r = dsl_next(&player, counts);
         if (r == DSL_EVENT) {
@@ -392,7 +475,7 @@ int main(void)
                 if ((kind == DSL_EV_HOTEND_WAIT || kind == DSL_EV_BED_WAIT) && player.event_value > 0) {
                     /* hold the clock once the samples before the event are played */
                     while (playing && !idle) {
-                        wdt_reset();
+                        safety_checks();
                     }
                     held = 1;
                     waiting_for = h;

@@ -4,6 +4,7 @@
  *
  *   sim_harness atmega328p|atmega2560 PLAYER.elf STREAM.dsl [--seconds S] [--thermistors H,B]
  *               [--fix-thermistor HEATER,ADC,FROM_S] [--cut BYTES] [--stall BYTES,SECONDS] [--after S]
+ *               [--pause AT_S,FOR_S] [--abort AT_S] [--estop AT_S] [--unframed]
  *
  *   P <pin> <rise_cycle> <width_cycles>     every pulse of a watched pin (16 cycles = 1 us)
  *   T <sample> <cycle> <pos1> <pos2> <pos3> <pos4>  the step positions at each sample strobe (Mega)
@@ -21,7 +22,13 @@
  * whatever the model says (1023 an open sensor, 0 a short, ~990 a cold one); --cut: the sender
  * goes silent for good after BYTES bytes; --stall: it stops after BYTES bytes for SECONDS, then
  * goes on. --after: how long to go on simulating after the verdict line (default 0.045 s), to see
- * that nothing switches on again.
+ * that nothing switches on again. --pause: the host's feed hold ('p', repeated every second as
+ * deltaslice send does) at AT_S for FOR_S, then 'r'; --abort: 'x' at AT_S; --estop: the Mega's
+ * E-stop input D41 (held low, the normally closed switch) opens at AT_S; --unframed: the chunks
+ * without their length byte (a sender of the protocol before the framing).
+ *
+ * The sender frames every chunk with its length and puts the controls between chunks only, as
+ * deltaslice send does.
  *
  * Uno pins watched: the servos D3, D5, D6 as pins 0..2, the sample strobe D13 (B5). Mega: RAMPS
  * step pins counted with their dir pins, the heater pins, and a thermal model of each heater:
@@ -56,7 +63,10 @@ static int xoff, done;
 static char line[256];
 static size_t line_len;
 
-static size_t cut_at = (size_t)-1, stall_at = (size_t)-1;
+static size_t cut_at = (size_t)-1, stall_at = (size_t)-1, chunk_left;
+static int unframed;
+static char controls[16]; /* waiting for the end of the chunk on the wire */
+static int n_controls;
 static double stall_seconds;
 static int stall_state; /* 0 before, 1 stalled, 2 over */
 static avr_cycle_count_t stall_end;
@@ -89,7 +99,67 @@ static void feed(void)
             avr_cycle_timer_register(avr, stall_end - avr->cycle, stall_over, NULL);
         }
         if (stall_state == 1) return;
+        if (!chunk_left) {
+            chunk_left = allowed - sent < 64 ? allowed - sent : 64;
+            if (stream_len - sent < chunk_left) chunk_left = stream_len - sent;
+            if (!unframed) avr_raise_irq(in, (uint32_t)chunk_left);
+        }
         avr_raise_irq(in, stream[sent++]);
+        chunk_left--;
+    }
+    if (!chunk_left && !xoff) { /* between chunks: the controls that were waiting */
+        int k;
+        for (k = 0; k < n_controls; k++) avr_raise_irq(in, (uint8_t)controls[k]);
+        n_controls = 0;
+    }
+}
+
+static void control(char c)
+{
+    if (n_controls < (int)sizeof controls) controls[n_controls++] = c;
+    feed();
+}
+
+/* The Mega's E-stop input D41 (PG0): held low by the closed switch, or open (the pull-up wins). */
+static void estop_switch(int open)
+{
+    avr_ioport_external_t ext = {.name = 'G', .mask = 1, .value = (unsigned)open};
+    avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('G'), &ext);
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('G'), 0), (uint32_t)open);
+}
+
+static double pause_at = -1, pause_for, abort_at = -1, estop_at = -1;
+
+static avr_cycle_count_t host_events(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    double t = (double)avr->cycle / 16e6;
+    (void)a; (void)param;
+    if (pause_at >= 0 && t >= pause_at && t < pause_at + pause_for) {
+        printf("X %llu %zu pause\n", (unsigned long long)avr->cycle, sent);
+        control('p');
+        return when + 16000000; /* the feed hold repeated every second: the host is alive */
+    }
+    if (pause_at >= 0 && t >= pause_at + pause_for) {
+        printf("X %llu %zu resume\n", (unsigned long long)avr->cycle, sent);
+        control('r');
+        pause_at = -1;
+    }
+    if (abort_at >= 0 && t >= abort_at) {
+        printf("X %llu %zu abort\n", (unsigned long long)avr->cycle, sent);
+        control('x');
+        abort_at = -1;
+    }
+    if (estop_at >= 0 && t >= estop_at) {
+        printf("X %llu %zu estop\n", (unsigned long long)avr->cycle, sent);
+        estop_switch(1);
+        estop_at = -1;
+    }
+    {   /* the next event */
+        double next = 1e30;
+        if (pause_at >= 0) next = pause_at < t ? pause_at + pause_for : pause_at;
+        if (abort_at >= 0 && abort_at < next) next = abort_at;
+        if (estop_at >= 0 && estop_at < next) next = estop_at;
+        return next > 1e29 ? 0 : (avr_cycle_count_t)(next * 16e6) + 1;
     }
 }
 
@@ -269,6 +339,14 @@ int main(int argc, char **argv)
     for (a = 4; a < argc; a++)
         if (!strcmp(argv[a], "--seconds") && a + 1 < argc) seconds = atof(argv[++a]);
         else if (!strcmp(argv[a], "--after") && a + 1 < argc) after = atof(argv[++a]);
+        else if (!strcmp(argv[a], "--pause") && a + 1 < argc) {
+            if (sscanf(argv[++a], "%lf,%lf", &pause_at, &pause_for) != 2) {
+                fprintf(stderr, "error: --pause takes AT_SECONDS,FOR_SECONDS\n");
+                return 2;
+            }
+        } else if (!strcmp(argv[a], "--abort") && a + 1 < argc) abort_at = atof(argv[++a]);
+        else if (!strcmp(argv[a], "--estop") && a + 1 < argc) estop_at = atof(argv[++a]);
+        else if (!strcmp(argv[a], "--unframed")) unframed = 1;
         else if (!strcmp(argv[a], "--cut") && a + 1 < argc) cut_at = (size_t)atol(argv[++a]);
         else if (!strcmp(argv[a], "--stall") && a + 1 < argc) {
             long at;
@@ -352,6 +430,13 @@ int main(int argc, char **argv)
         watch('H', 5, heater_pin, 1);
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
         avr_cycle_timer_register(avr, 160000, thermal_log, NULL);
+        estop_switch(0);
+    }
+    if (pause_at >= 0 || abort_at >= 0 || estop_at >= 0) {
+        double first = pause_at >= 0 ? pause_at : 1e30;
+        if (abort_at >= 0 && abort_at < first) first = abort_at;
+        if (estop_at >= 0 && estop_at < first) first = estop_at;
+        avr_cycle_timer_register(avr, (avr_cycle_count_t)(first * 16e6) + 1, host_events, NULL);
     }
     while (state != cpu_Done && state != cpu_Crashed && !done && avr->cycle < (avr_cycle_count_t)(seconds * 16e6))
         state = avr_run(avr);

@@ -15,4 +15,5 @@
 #define DSL_CFG_HOLD_DROP_X10 {40, 20}
 #define DSL_CFG_WAIT_TIMEOUT_DS 9000 /* the longest heating wait */
 #define DSL_CFG_HOST_TIMEOUT_DS 50 /* no byte asked for this long: the host is gone */
+#define DSL_CFG_RAMP_MS 200 /* feed hold: full rate to a stop, ms */
 #endif
