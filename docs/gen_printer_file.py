@@ -138,10 +138,14 @@ DOCS = {
     ("safety", "bed_hold_drop"): ("deg C", "As hotend_hold_drop, for the bed (THERMAL_PROTECTION_BED_HYSTERESIS).", None),
     ("safety", "wait_timeout"): ("s", "The longest a heating wait may hold the stream; the board's `# heating` lines do not extend it.", None),
     ("safety", "host_timeout"): ("s", "A board that has asked for bytes and gets none for this long switches its heaters off, stops and reports it (the host is gone).", None),
+    # homing (the Mega player: docs/bring-up.md)
+    ("homing", "endstop"): ("", "Per joint, the side of its end stop: 1 at the joint's high end (it trips moving up), -1 at its low end, 0 none (put at the rest pose by hand). A player with end stops homes at the start of every job, then moves to the rest pose.", None),
+    ("homing", "endstop_position"): ("deg or mm", "The joint position where its switch trips (measure it: docs/bring-up.md).", "position_max (position_min for -1)"),
+    ("homing", "speed"): ("deg/s or mm/s", "Speed of the approach to the switch and of the move from it to the rest pose; at most velocity_max.", "velocity_max / 10"),
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",
-                 "bed", "slicing", "planning", "safety"]
+                 "bed", "slicing", "planning", "safety", "homing"]
 
 
 def collect():

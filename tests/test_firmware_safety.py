@@ -306,3 +306,44 @@ def test_a_sender_of_the_unframed_protocol_is_refused(build, atlas_stream):
     code, out = simulate(build, *MEGA, atlas_stream, 10, "--unframed", "--after", "1")
     assert out["L"] and out["L"][0].startswith("ERR serial: byte 137 between chunks"), out["L"]
     assert not out["T"] and not any(level for _h, _c, level in heater_timeline(out))
+
+
+@pytest.mark.parametrize("name, elf, offset", [("fivebar_atlas", "mega_stepper_player.elf", (300, -250, 800)),
+                                               ("linear_kossel", "mega_stepper_player_kossel.elf", (-2000, -1500, -2500))])
+def test_homing_finds_the_rest_pose_then_every_step_is_exact(build, tmp_path, name, elf, offset):
+    """The machine powers up away from its rest pose (the arms turned, the carriages lower): the
+    player homes every joint against its simulated end stop ([homing] of the printer file), steps
+    to the rest pose and plays the stream from there, every step count exact."""
+    from test_firmware_targets import endstops_at_rest
+
+    p = printer(name)
+    s, _ = realistic(name, layers=1)
+    path = tmp_path / f"{name}.dsl"
+    write_samples(blocks(s, 2500), p, path, fmt="stream", rate=p.planning.output_rate)
+    _, counts = read_counts(path)
+    code, out = simulate(build, "atmega2560", elf, path, 60, "--endstops", endstops_at_rest(name, offset))
+    assert code == 0 and out["L"] == [f"OK {len(counts)}"], out["L"]
+    T = assert_steps_exact(out, counts)
+    # the first sample finds the motors exactly there: the rest pose is where they powered up less
+    # the offset, and this stream (a test trajectory) starts a little off it
+    values = np.zeros((1, len(p.limits.counts_per_unit)))
+    values[0, :3] = p.rest_pose
+    rest = p.limits.to_counts(values)[0, :3]
+    assert list(T[0, 2:5]) == list(counts[0, :3] - rest - np.array(offset)), T[0]
+
+
+def test_an_end_stop_that_never_trips_is_a_fault(build, atlas_stream):
+    code, out = simulate(build, *MEGA, atlas_stream, 30, "--endstops", "h99999,l-433,l-4000", "--after", "1")
+    assert out["L"] == ["ERR joint 1: end stop not found within the joint's range"], out["L"]
+    assert not out["T"] and disabled_at(out) is not None
+    F = [int(x) for x in out["F"][0].split()]
+    assert F[0] == 11734  # DSL_CFG_HOME_MAX_STEPS: the joint's range and a tenth, then it stopped
+
+
+def test_an_end_stop_with_a_broken_wire_is_a_fault(build, atlas_stream):
+    # no switch on the pin: the pull-up reads tripped (open), and backing off does not release it
+    code, out = simulate(build, *MEGA, atlas_stream, 30, "--endstops", "n,l-433,l-4000", "--after", "1")
+    assert out["L"] == ["ERR joint 1: end stop tripped and not released by backing off (a broken wire?)"], out["L"]
+    assert not out["T"] and disabled_at(out) is not None
+    F = [int(x) for x in out["F"][0].split()]
+    assert F[0] == -(11734 // 16)  # backed off a sixteenth of the range, away from the switch

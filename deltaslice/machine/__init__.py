@@ -13,13 +13,13 @@ from __future__ import annotations
 from .limits import ChannelLimits, LimitMonitor, Limits
 from .printer import Printer
 from .reader import ACTUATOR_KINDS, check_reach, load_printer, printer_from_dict
-from .settings import Bed, PlanningSettings, SafetySettings, SlicingSettings
+from .settings import Bed, HomingSettings, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 load_machine = load_printer
 Machine = Printer
 
 __all__ = [
-    "ACTUATOR_KINDS", "Bed", "ChannelLimits", "Extruder", "Laser", "LimitMonitor", "Limits", "Machine", "PlanningSettings",
+    "ACTUATOR_KINDS", "Bed", "ChannelLimits", "Extruder", "HomingSettings", "Laser", "LimitMonitor", "Limits", "Machine", "PlanningSettings",
     "Printer", "SafetySettings", "SlicingSettings", "Tool", "check_reach", "load_machine", "load_printer", "printer_from_dict",
 ]

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..kinematics import Kinematics
 from .limits import ChannelLimits, Limits
-from .settings import Bed, PlanningSettings, SafetySettings, SlicingSettings
+from .settings import Bed, HomingSettings, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Tool
 
 
@@ -22,7 +22,7 @@ class Printer:
     the tool channel); ``rest_pose`` (J,) joint units: where every trajectory starts and ends;
     ``sensor_table`` per joint: ``((reading, joint value), ...)`` sorted by reading, joint units
     (rad or mm), () for a joint without an absolute sensor; ``safety``: the players' heater
-    protection and host time-out (``[safety]``)."""
+    protection and host time-out (``[safety]``); ``homing``: their end stops (``[homing]``)."""
 
     name: str
     path: str
@@ -44,6 +44,7 @@ class Printer:
     reach_checked: bool = field(default=True, repr=False, compare=False)
     # what the firmware players guard (heater limits, host time-out): not the trajectory's
     safety: SafetySettings = field(default_factory=SafetySettings, compare=False)
+    homing: HomingSettings = field(default_factory=HomingSettings, compare=False)
 
     @property
     def n_joints(self) -> int:

@@ -24,7 +24,7 @@ from ..errors import PrinterFileError
 from ..kinematics import FAMILIES, family, make_kinematics
 from .limits import Limits
 from .printer import Printer
-from .settings import Bed, PlanningSettings, SafetySettings, SlicingSettings
+from .settings import Bed, HomingSettings, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
@@ -235,7 +235,34 @@ def _read_safety(sec: Section, tool: Tool | None) -> SafetySettings:
     return SafetySettings(**got)
 
 
-SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "safety", "sources")
+def _read_homing(sec: Section, joints: dict | None) -> HomingSettings | None:
+    """``[homing]``: per joint the end stop's side (+1 high end, -1 low end, 0 none), the joint
+    position where it trips (file units, within the joint's limits) and the approach speed (file
+    units per s, default a tenth of velocity_max, at most velocity_max). None without joints."""
+    if joints is None:
+        sec.used.update(sec.data)
+        return None
+    n = len(joints["kinds"])
+    ks = [math.radians(1.0) if kind == "revolute" else 1.0 for kind in joints["kinds"]]
+    side = sec.getfloats("endstop", n, default=[0.0] * n, minval=-1, maxval=1)
+    lo = [v / k for v, k in zip(joints["position_min"], ks)]
+    hi = [v / k for v, k in zip(joints["position_max"], ks)]
+    vmax = [v / k for v, k in zip(joints["velocity"], ks)]
+    default = [lo[i] if side[i] < 0 else hi[i] for i in range(n)]
+    pos = sec.getfloats("endstop_position", n, default=default)
+    speed = sec.getfloats("speed", n, default=[v / 10 for v in vmax], above=0)
+    if any(v not in (-1.0, 0.0, 1.0) for v in side):
+        sec.fail("endstop", list(side), "-1 (a switch at the joint's low end), 1 (high end) or 0 (none) per joint")
+    for i in range(n):
+        if side[i] and not lo[i] <= pos[i] <= hi[i]:
+            sec.fail("endstop_position", list(pos), f"within the joint limits (joint {i + 1}: {lo[i]:g}..{hi[i]:g})")
+        if speed[i] > vmax[i] * (1 + 1e-9):
+            sec.fail("speed", list(speed), f"at most [joints] velocity_max (joint {i + 1}: {vmax[i]:g})")
+    return HomingSettings(endstop=tuple(int(v) for v in side), position=tuple(p * k for p, k in zip(pos, ks)),
+                          speed=tuple(v * k for v, k in zip(speed, ks)))
+
+
+SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "planning", "safety", "homing", "sources")
 
 
 def resolve_printer(path) -> Path:
@@ -345,6 +372,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     ksec, jsec, tsec = section("kinematics"), section("joints"), section("tool")
     bsec, ssec, psec = section("bed"), section("slicing"), section("planning", default={})
     fsec = section("safety", default={})
+    hsec = section("homing", default={})
 
     family_name = module = None
     if ksec is not None:
@@ -363,6 +391,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     slicing = read(ssec, _read_slicing, tool) if tool is not None else read(ssec, _read_slicing, Laser(1.0, 1.0, 0.0))
     planning = read(psec, _read_planning)
     safety = read(fsec, _read_safety, tool)
+    homing = read(hsec, _read_homing, joints)
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
@@ -392,6 +421,7 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
         sources=dict(sources),
         reach_checked=False,
         safety=safety,
+        homing=homing,
     )
     return check_reach(printer) if reach_checks else printer
 

@@ -96,3 +96,20 @@ class SafetySettings:
     bed_hold_drop: float = 2.0
     wait_timeout: float = 900.0
     host_timeout: float = 5.0
+
+
+@dataclass(frozen=True)
+class HomingSettings:
+    """Where a player finds its joints at the start of a job (``[homing]``): per joint, the side of
+    its end stop (``endstop``: +1 at the joint's high end, -1 at its low end, 0 none: the joint is
+    put at the rest pose by hand), the joint position where that switch trips and the speed it is
+    approached at (joint units: rad or mm, per s). A player with end stops homes every joint that
+    has one, then moves to the rest pose, then plays."""
+
+    endstop: tuple = ()
+    position: tuple = ()
+    speed: tuple = ()
+
+    @property
+    def enabled(self) -> bool:
+        return any(self.endstop)

@@ -12,6 +12,9 @@
  *   strobe   D13 (PB7, the LED) toggles at every sample (a scope or the simulator counts them)
  *   E-stop   D41 (PG0, Marlin's KILL_PIN on the RAMPS), a normally closed switch to GND: the pin
  *            reading high (the switch pressed, or its wire broken) stops everything
+ *   end stops X min D3 (PE5) / max D2 (PE4), Y min D14 (PJ1) / max D15 (PJ0), Z min D18 (PD3) /
+ *            max D19 (PD2), normally closed to GND: high is tripped (or a broken wire); the
+ *            printer file's [homing] says which of them a joint has (dsl_config.h)
  *
  * Timer1 interrupts DSL_SUBTICKS times per sample period; dsl_stepper.h spreads each sample's
  * count differences evenly over the period. The machine must be at the stream's first sample
@@ -222,6 +225,9 @@ static void pins_init(void)
 {
     DDRG &= (uint8_t)~_BV(PG0); /* the E-stop, pulled up: open reads high */
     PORTG |= _BV(PG0);
+    PORTE |= _BV(PE4) | _BV(PE5); /* the end stops (inputs), pulled up: tripped reads high */
+    PORTJ |= _BV(PJ0) | _BV(PJ1);
+    PORTD |= _BV(PD2) | _BV(PD3);
     DDRF |= _BV(PF0) | _BV(PF1) | _BV(PF6) | _BV(PF7) | _BV(PF2);
     DDRD |= _BV(PD7);
     DDRL |= _BV(PL3) | _BV(PL1);
@@ -345,6 +351,118 @@ static void safety_checks(void)
 /* The stream's verdict. "OK": every sample played, heaters off, the motors holding the rest pose.
    An error of the stream (or made for another printer): the intact samples before it played, then
    heaters and motors off. */
+/* poll() every 100 ms, from every loop that runs for long */
+static uint16_t poll_last;
+static void poll(void);
+
+static void poll_due(void)
+{
+    if ((uint16_t)(TCNT3 - poll_last) < HEATER_POLL_TICKS) return;
+    poll_last = (uint16_t)(poll_last + HEATER_POLL_TICKS);
+    poll();
+}
+
+/* Homing, at the first sample (after the heating waits before it, as a print's start G-code heats
+   then homes): every joint with an end stop steps towards it at its homing speed until the switch
+   trips (there its count is DSL_CFG_HOME_COUNTS), then all step to the first sample (the rest
+   pose), where the stream starts. The heaters go on being regulated meanwhile. One approach, no second slower bump: the switch's repeatability is
+   the rest pose's. A switch not found within the joint's range is a fault. */
+static const int8_t home_dir[3] = DSL_CFG_HOME_DIR;
+
+static uint8_t endstop_tripped(uint8_t a)
+{
+    uint8_t high = home_dir[a] > 0;
+    if (a == 0) return high ? (PINE & _BV(PE4)) != 0 : (PINE & _BV(PE5)) != 0;
+    if (a == 1) return high ? (PINJ & _BV(PJ0)) != 0 : (PINJ & _BV(PJ1)) != 0;
+    return high ? (PIND & _BV(PD2)) != 0 : (PIND & _BV(PD3)) != 0;
+}
+
+static void home_fault(uint8_t a, const char *what_P)
+{
+    heaters_off();
+    motors_off();
+    serial_puts_P(PSTR("ERR joint "));
+    serial_putu(a + 1u);
+    serial_puts_P(what_P);
+    halt();
+}
+
+/* Step the axes of `todo` (steps per axis, directions set) each at its own period, in Timer3 ticks
+   (16 us). seek 1: an axis stops when its switch trips, running out of steps is a fault; seek 2
+   (backing off a switch tripped at the start): an axis stops once its switch is released, and
+   running out of steps is a fault (a broken wire reads tripped: open). */
+static void home_steps(uint32_t *todo, uint8_t seek)
+{
+    static const uint16_t step_us[3] = DSL_CFG_HOME_STEP_US;
+    uint16_t next[3], now = TCNT3;
+    uint8_t a, active = 0;
+    for (a = 0; a < 3; a++) {
+        next[a] = now;
+        if (todo[a] && !(seek && endstop_tripped(a) == (seek == 1))) active |= (uint8_t)(1u << a);
+    }
+    while (active) {
+        uint8_t m = 0;
+        safety_checks();
+        poll_due();
+        now = TCNT3;
+        for (a = 0; a < 3; a++) {
+            if (!(active & (1u << a)) || (int16_t)(now - next[a]) < 0) continue;
+            next[a] = (uint16_t)(next[a] + step_us[a] / 16u);
+            m |= (uint8_t)(1u << a);
+            if (--todo[a] == 0) active &= (uint8_t)~(1u << a);
+        }
+        if (!m) continue;
+        pulse(m);
+        for (a = 0; a < 3 && seek; a++) {
+            if (!(m & (1u << a))) continue;
+            if (endstop_tripped(a) == (seek == 1)) {
+                active &= (uint8_t)~(1u << a);
+                todo[a] = 1; /* found (or released) */
+            } else if (!(active & (1u << a))) {
+                home_fault(a, seek == 1 ? PSTR(": end stop not found within the joint's range")
+                                        : PSTR(": end stop tripped and not released by backing off (a broken wire?)"));
+            }
+        }
+    }
+}
+
+/* Home the joints with end stops and take them to `first`; a joint without one is where the
+   stream's first sample is (put there by hand). */
+static void home(const int32_t *first)
+{
+    static const uint32_t max_steps[3] = DSL_CFG_HOME_MAX_STEPS;
+    static const int32_t home_counts[3] = DSL_CFG_HOME_COUNTS;
+    uint32_t todo[3];
+    uint8_t a, dirs = 0, any = 0;
+    for (a = 0; a < 3; a++) {
+        todo[a] = home_dir[a] ? max_steps[a] : 0;
+        if (home_dir[a] > 0) dirs |= (uint8_t)(1u << a);
+        any |= home_dir[a] != 0;
+    }
+    if (!any) return;
+    /* a switch tripped already: back off it first (a sixteenth of the range at most), as Marlin
+       bumps, so a broken wire is not taken for the switch */
+    {
+        uint32_t off[3];
+        for (a = 0; a < 3; a++) off[a] = home_dir[a] && endstop_tripped(a) ? max_steps[a] / 16 : 0;
+        set_dirs((uint8_t)~dirs);
+        __builtin_avr_delay_cycles(32);
+        home_steps(off, 2);
+    }
+    set_dirs(dirs);
+    __builtin_avr_delay_cycles(32); /* direction set-up before the first step */
+    home_steps(todo, 1);
+    dirs = 0;
+    for (a = 0; a < 3; a++) {
+        int32_t d = home_dir[a] ? first[a] - home_counts[a] : 0;
+        if (d > 0) dirs |= (uint8_t)(1u << a);
+        todo[a] = (uint32_t)(d < 0 ? -d : d);
+    }
+    set_dirs(dirs);
+    __builtin_avr_delay_cycles(32);
+    home_steps(todo, 0);
+}
+
 static void stop(const char *message_P)
 {
     while (playing && !idle && (rate || rate_target)) { /* (a clock ramped to a stop plays no more) */
@@ -421,7 +539,6 @@ int main(void)
 {
     int32_t counts[DSL_MAX_CHANNELS];
     uint8_t started = 0, hb = 0, have = 0, k;
-    uint16_t heater_last;
 
     pins_init();
     TCCR3A = 0;
@@ -436,7 +553,7 @@ int main(void)
     safety_start();
     heater_update(0); /* the readings before any set point (and a shorted sensor at power-up) */
     heater_update(1);
-    heater_last = TCNT3;
+    poll_last = TCNT3;
     sei();
     for (;;) {
         int r;
@@ -444,10 +561,7 @@ int main(void)
         serial_grant();
         if (!have) have = serial_take(&hb);
         while (have && dsl_feed(&player, &hb, 1) == 1) have = serial_take(&hb);
-        if ((uint16_t)(TCNT3 - heater_last) >= HEATER_POLL_TICKS) { /* every 100 ms */
-            heater_last = (uint16_t)(heater_last + HEATER_POLL_TICKS);
-            poll();
-        }
+        poll_due();
         if (!started) {
             if (player.rx_state == DSL_S_ERROR) stop(0);
             if (!player.header_ok) continue;
@@ -484,7 +598,10 @@ int main(void)
             continue;
         }
         if (r == DSL_SAMPLE) {
-            if (!playing) dsl_stepper_init(&stepper, counts, AXES); /* the machine is at the first sample */
+            if (!playing) { /* homed to the first sample, or put there by hand */
+                home(counts);
+                dsl_stepper_init(&stepper, counts, AXES);
+            }
             /* the slot from the main loop's own index: ring_head + ring_count read here could mix
                the values before and after a step interrupt and overwrite a queued sample */
             for (k = 0; k < AXES; k++) ring[ring_tail][k] = counts[k];

@@ -4,7 +4,7 @@
  *
  *   sim_harness atmega328p|atmega2560 PLAYER.elf STREAM.dsl [--seconds S] [--thermistors H,B]
  *               [--fix-thermistor HEATER,ADC,FROM_S] [--cut BYTES] [--stall BYTES,SECONDS] [--after S]
- *               [--pause AT_S,FOR_S] [--abort AT_S] [--estop AT_S] [--unframed]
+ *               [--pause AT_S,FOR_S] [--abort AT_S] [--estop AT_S] [--unframed] [--endstops h|l|n<steps> x3]
  *
  *   P <pin> <rise_cycle> <width_cycles>     every pulse of a watched pin (16 cycles = 1 us)
  *   T <sample> <cycle> <pos1> <pos2> <pos3> <pos4>  the step positions at each sample strobe (Mega)
@@ -26,6 +26,10 @@
  * deltaslice send does) at AT_S for FOR_S, then 'r'; --abort: 'x' at AT_S; --estop: the Mega's
  * E-stop input D41 (held low, the normally closed switch) opens at AT_S; --unframed: the chunks
  * without their length byte (a sender of the protocol before the framing).
+ *
+ * --endstops: the Mega's end stops, per axis a side and a step position counted from power-up
+ * (h300: a max switch tripping at 300 steps and beyond, l-250: a min switch at -250 and below, n:
+ * none); a tripped switch reads high (normally closed to GND, open), on the RAMPS pins.
  *
  * The sender frames every chunk with its length and puts the controls between chunks only, as
  * deltaslice send does.
@@ -229,11 +233,36 @@ static long pos[4];
 static int dir[4], step_level[4];
 static long strobes;
 
+static int endstop_side[3];
+static long endstop_at[3];
+static const char endstop_port[3][2] = {{'E', 'E'}, {'J', 'J'}, {'D', 'D'}}; /* [axis][max?] */
+static const int endstop_bit[3][2] = {{5, 4}, {1, 0}, {3, 2}};                 /* min, max */
+
+/* Put each axis's switch on its pin (the pull-up's level is what a tripped, open switch reads). */
+static void endstops_update(void)
+{
+    int k;
+    for (k = 0; k < 3; k++) {
+        int hi = endstop_side[k] > 0, open;
+        avr_ioport_external_t ext;
+        if (!endstop_side[k]) continue;
+        open = hi ? pos[k] >= endstop_at[k] : pos[k] <= endstop_at[k];
+        ext.name = endstop_port[k][hi];
+        ext.mask = (unsigned)(1 << endstop_bit[k][hi]);
+        ext.value = open ? ext.mask : 0;
+        avr_ioctl(avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(endstop_port[k][hi]), &ext);
+        avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(endstop_port[k][hi]), endstop_bit[k][hi]), (uint32_t)open);
+    }
+}
+
 static void step_pin(avr_irq_t *irq, uint32_t value, void *param)
 {
     int k = (int)(intptr_t)param;
     (void)irq;
-    if (value && !step_level[k]) pos[k] += dir[k] ? 1 : -1;
+    if (value && !step_level[k]) {
+        pos[k] += dir[k] ? 1 : -1;
+        if (k < 3 && endstop_side[k]) endstops_update();
+    }
     step_level[k] = value != 0;
 }
 
@@ -347,6 +376,20 @@ int main(int argc, char **argv)
         } else if (!strcmp(argv[a], "--abort") && a + 1 < argc) abort_at = atof(argv[++a]);
         else if (!strcmp(argv[a], "--estop") && a + 1 < argc) estop_at = atof(argv[++a]);
         else if (!strcmp(argv[a], "--unframed")) unframed = 1;
+        else if (!strcmp(argv[a], "--endstops") && a + 1 < argc) {
+            const char *q = argv[++a];
+            int k;
+            for (k = 0; k < 3; k++) { /* h<pos>: a max switch, l<pos>: a min switch, n: none */
+                char *end;
+                endstop_side[k] = *q == 'h' ? 1 : *q == 'l' ? -1 : 0;
+                endstop_at[k] = strtol(q + 1, &end, 10);
+                if ((*q != 'h' && *q != 'l' && *q != 'n') || (k < 2 && *end != ',')) {
+                    fprintf(stderr, "error: --endstops takes three of h<steps> (max switch), l<steps> (min), n (none)\n");
+                    return 2;
+                }
+                q = end + 1;
+            }
+        }
         else if (!strcmp(argv[a], "--cut") && a + 1 < argc) cut_at = (size_t)atol(argv[++a]);
         else if (!strcmp(argv[a], "--stall") && a + 1 < argc) {
             long at;
@@ -431,6 +474,7 @@ int main(int argc, char **argv)
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
         avr_cycle_timer_register(avr, 160000, thermal_log, NULL);
         estop_switch(0);
+        endstops_update();
     }
     if (pause_at >= 0 || abort_at >= 0 || estop_at >= 0) {
         double first = pause_at >= 0 ? pause_at : 1e30;
