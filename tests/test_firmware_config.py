@@ -105,3 +105,16 @@ def test_safety_settings_reach_the_header():
 def test_bad_safety_setting_named(overrides, why):
     with pytest.raises(PrinterFileError, match=why):
         load_printer("fivebar_atlas", overrides)
+
+
+def test_homing_and_limits_reach_the_header():
+    text = write_firmware_config("linear_kossel")
+    # top end stops at 480 mm x 80 counts/mm, approached at 30 mm/s (2400 steps/s: 417 us)
+    for line in ("DSL_CFG_HOME_DIR {1, 1, 1}", "DSL_CFG_HOME_COUNTS {38400, 38400, 38400}",
+                 "DSL_CFG_HOME_STEP_US {417, 417, 417}", "DSL_CFG_RAMP_MS 200"):
+        assert f"#define {line}" in text
+    assert "#define DSL_CFG_HOME_DIR {0, 0, 0}" in write_firmware_config("delta_etitc")
+    with pytest.raises(PrinterFileError, match=r"homing\.endstop_position = .*within the joint limits"):
+        load_printer("linear_kossel", {"homing.endstop_position": 500})
+    with pytest.raises(PrinterFileError, match=r"homing\.speed = .*at most \[joints\] velocity_max"):
+        load_printer("linear_kossel", {"homing.speed": 400})

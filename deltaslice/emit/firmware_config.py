@@ -84,6 +84,9 @@ def firmware_config(printer) -> str:
         f"#define DSL_CFG_SENSOR_COUNTS {_c_array(counts)} /* joint counts at those readings */",
     ]
     sf = printer.safety
+    cpu = np.abs(np.asarray(lim.counts_per_unit[:J], float))
+    vmax = np.floor(np.asarray(lim.velocity[:J], float) * cpu)
+    amax = np.floor(np.asarray(lim.acceleration[:J], float) * cpu)
 
     def pair(key, scale=10):
         return "{" + ", ".join(str(round(getattr(sf, f"{h}_{key}") * scale)) for h in ("hotend", "bed")) + "}"
@@ -98,6 +101,8 @@ def firmware_config(printer) -> str:
         f"#define DSL_CFG_WAIT_TIMEOUT_DS {round(sf.wait_timeout * 10)} /* the longest heating wait */",
         f"#define DSL_CFG_HOST_TIMEOUT_DS {round(sf.host_timeout * 10)} /* no byte asked for this long: the host is gone */",
         f"#define DSL_CFG_RAMP_MS {ramp_ms(printer)} /* feed hold: full rate to a stop, ms */",
+        f"#define DSL_CFG_JOINT_VMAX {{{', '.join(str(int(v)) for v in vmax)}}} /* counts/s: velocity_max */",
+        f"#define DSL_CFG_JOINT_AMAX {{{', '.join(str(int(a)) for a in amax)}}} /* counts/s^2: acceleration_max */",
         *_homing_lines(printer),
         "#endif",
     ]

@@ -17,8 +17,8 @@
  *            printer file's [homing] says which of them a joint has (dsl_config.h)
  *
  * Timer1 interrupts DSL_SUBTICKS times per sample period; dsl_stepper.h spreads each sample's
- * count differences evenly over the period. The machine must be at the stream's first sample
- * (the rest pose, dsl_config.h) when playback starts: home it there first.
+ * count differences evenly over the period. At the first sample the joints with end stops are
+ * homed and taken to it (the rest pose); a joint without one must be put there by hand.
  * Heater events switch the heaters bang-bang (2 C hysteresis) from the thermistors (100k NTC,
  * beta 3950, 4.7k pull-up: dsl_thermistor.h), read every 100 ms; a wait event holds the sample
  * clock until the heater is within 2 C, and the board sends "# heating" once a second meanwhile

@@ -16,6 +16,8 @@
 #define DSL_CFG_WAIT_TIMEOUT_DS 9000 /* the longest heating wait */
 #define DSL_CFG_HOST_TIMEOUT_DS 50 /* no byte asked for this long: the host is gone */
 #define DSL_CFG_RAMP_MS 172 /* feed hold: full rate to a stop, ms */
+#define DSL_CFG_JOINT_VMAX {3333, 3333, 3333} /* counts/s: velocity_max */
+#define DSL_CFG_JOINT_AMAX {38888, 38888, 38888} /* counts/s^2: acceleration_max */
 #define DSL_CFG_HOME_DIR {0, 0, 0} /* end stop direction in counts; 0: no end stop */
 #define DSL_CFG_HOME_COUNTS {0, 0, 0} /* counts where the switches trip */
 #define DSL_CFG_HOME_STEP_US {0, 0, 0} /* between homing steps */

@@ -16,6 +16,8 @@
 #define DSL_CFG_WAIT_TIMEOUT_DS 9000 /* the longest heating wait */
 #define DSL_CFG_HOST_TIMEOUT_DS 50 /* no byte asked for this long: the host is gone */
 #define DSL_CFG_RAMP_MS 200 /* feed hold: full rate to a stop, ms */
+#define DSL_CFG_JOINT_VMAX {24000, 24000, 24000} /* counts/s: velocity_max */
+#define DSL_CFG_JOINT_AMAX {240000, 240000, 240000} /* counts/s^2: acceleration_max */
 #define DSL_CFG_HOME_DIR {1, 1, 1} /* end stop direction in counts; 0: no end stop */
 #define DSL_CFG_HOME_COUNTS {38400, 38400, 38400} /* counts where the switches trip */
 #define DSL_CFG_HOME_STEP_US {417, 417, 417} /* between homing steps */
