@@ -305,9 +305,10 @@ ISR(TIMER1_COMPA_vect)
     pulse(dsl_stepper_tick(&stepper, AXES));
 }
 
-/* The rate the clock heads for: 0 during the host's feed hold, and while fewer samples are buffered than a ramp from full rate to
-   a stop plays (ramp_samples: half the ramp's periods) and more are still to come, full again
-   once twice that many are in, or the receive side can take no more, or the stream is whole. */
+/* The rate the clock heads for: 0 during the host's feed hold, and while fewer samples are
+   buffered than a ramp from full rate to a stop plays (ramp_samples: half the ramp's periods) and
+   more are still to come (or an error ended the stream); full again once twice that many are in,
+   or the receive side can take no more, or the stream is whole. */
 static uint16_t ramp_samples = 1;
 
 static void feed_hold_update(void)
@@ -365,8 +366,9 @@ static void poll_due(void)
 /* Homing, at the first sample (after the heating waits before it, as a print's start G-code heats
    then homes): every joint with an end stop steps towards it at its homing speed until the switch
    trips (there its count is DSL_CFG_HOME_COUNTS), then all step to the first sample (the rest
-   pose), where the stream starts. The heaters go on being regulated meanwhile. One approach, no second slower bump: the switch's repeatability is
-   the rest pose's. A switch not found within the joint's range is a fault. */
+   pose), where the stream starts. The heaters go on being regulated meanwhile. One approach, no
+   second slower bump: the switch's repeatability is the rest pose's. A switch not found within
+   the joint's range is a fault. */
 static const int8_t home_dir[3] = DSL_CFG_HOME_DIR;
 
 static uint8_t endstop_tripped(uint8_t a)

@@ -195,8 +195,9 @@ static void stop(const char *message_P)
     }
 }
 
-/* 0 during the host's feed hold, and while fewer samples are buffered than a ramp to a stop plays and more are coming; full again
-   once twice that many are in, the buffers are full, or the stream is whole. */
+/* 0 during the host's feed hold, and while fewer samples are buffered than a ramp to a stop plays
+   and more are coming; full again once twice that many are in, the buffers are full, or the
+   stream is whole. */
 static void feed_hold_update(void)
 {
     uint16_t avail, target = rate_target;
@@ -230,7 +231,8 @@ int main(void)
         int r;
         wdt_reset();
         if (serial_abort) stop(PSTR("aborted by the host: the servos hold, the extruder is off"));
-        if (serial_bad) stop(PSTR("serial: a byte between chunks is no chunk length nor control (a sender of the unframed protocol?)"));
+        if (serial_bad)
+            stop(PSTR("serial: a byte between chunks is no chunk length nor control (a sender of the unframed protocol?)"));
         serial_grant();
         /* a few bytes per pass, so a burst of received bytes never delays a sample by more than
            a fraction of its period */
@@ -261,6 +263,13 @@ int main(void)
             started = 1;
         }
         feed_hold_update();
+        if (player.rx_state == DSL_S_ERROR && !rate_target) { /* the clock ramps to a stop before the damage */
+            uint16_t r;
+            cli();
+            r = rate;
+            sei();
+            if (!r) stop(0);
+        }
         if (!sample_due) continue;
         r = dsl_next(&player, counts);
         if (r == DSL_SAMPLE) {
