@@ -10,6 +10,10 @@ and the step pulses, not only the board's text.
 * No host, no heat: a sender gone silent mid-job switches the heaters off within host_timeout.
 * A corrupt block: its full message (not cut at 40 characters), heaters and steppers off.
 * Every AVR image feeds the hardware watchdog.
+* Feed hold: a sender stall and the host's pause ramp the playback clock to a stop and back, the
+  path exact, the joints within their limits; abort, the E-stop and an unframed sender stop all.
+* Homing (Mega): from an offset power-up against simulated end stops, then every step exact; a
+  switch that never trips or reads tripped for good (a broken wire) is a fault.
 
 Needs what tests/test_firmware_targets.py needs (gcc-avr, avr-libc, simavr, libsimavr-dev).
 """
