@@ -426,16 +426,25 @@ def workspace_cmd(printer_path, overrides, plot_path, as_json):
 @click.option("--quiet", is_flag=True, help="No progress output.")
 def send_cmd(stream, port, baud, timeout, printer_path, quiet):
     """Send a checked .dsl stream to a board running a deltaslice player (examples/firmware), with
-    its credit flow control, and report what the board played.
+    its credit flow control, and report what the board played. From a terminal, type p (pause: a
+    feed hold, the board ramps its clock to a stop), r (resume) or x (abort: heaters and motors
+    off at once), each followed by Enter; Ctrl-C aborts too.
 
     \b
     Example:
       deltaslice send cube.dsl --port /dev/ttyACM0
     """
-    from .pipeline import send_file
+    import sys
 
+    from .pipeline import send_file
+    from .send import keyboard_commands
+
+    commands = None
+    if sys.stdin is not None and sys.stdin.isatty():
+        click.echo("p + Enter: pause, r: resume, x: abort (Ctrl-C aborts too)", err=True)
+        commands = keyboard_commands(echo=lambda what: click.echo(f"{what}: sent to the board", err=True))
     result = _run(send_file, stream, port, baud=baud, timeout=timeout, progress=not quiet,
-                  printer=None if printer_path is None else _printer(printer_path, None))
+                  printer=None if printer_path is None else _printer(printer_path, None), commands=commands)
     click.echo(f"sent {result.bytes_sent} bytes; the board played {result.samples} samples in {result.seconds:.1f} s")
 
 

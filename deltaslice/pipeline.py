@@ -675,15 +675,19 @@ def decode_stream(path, out, *, units=False, printer=None) -> int:
         return decode_to_text(f, out, units=units, printer=loaded, name=str(path))
 
 
-def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=False, printer=None):
+def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=False, printer=None, wait_limit=None,
+              commands=None):
     """Check a stream file whole, then send it to the board on ``port_name`` (see :mod:`deltaslice.send`).
     printer: a path, name or Printer whose fingerprint the stream must carry, or None.
+    wait_limit: the longest heating wait the sender sits through, s (None: the printer's
+    ``[safety] wait_timeout`` plus a minute, or :data:`~deltaslice.send.WAIT_LIMIT`).
+    commands: pause/resume/abort as :func:`~deltaslice.send.send_stream` takes them.
     Returns a :class:`~deltaslice.send.SendResult`."""
     import io
 
     from .emit.stream import decode_to_text
     from .errors import SendError
-    from .send import send_stream
+    from .send import WAIT_LIMIT, send_stream
 
     _check_path(stream_path, "stream")
     try:
@@ -691,8 +695,11 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     except OSError as exc:
         raise StreamError(f"{stream_path}: cannot open stream: {exc.strerror or exc}") from None
     # a damaged file is refused before the port is opened: the board would stop mid-print
-    decode_to_text(io.BytesIO(data), io.StringIO(), printer=None if printer is None else _printer(printer),
-                   name=str(stream_path))
+    printer = None if printer is None else _printer(printer)
+    decode_to_text(io.BytesIO(data), io.StringIO(), printer=printer, name=str(stream_path))
+    # the board's own wait limit is the printer file's: the sender waits a minute longer
+    if wait_limit is None:
+        wait_limit = WAIT_LIMIT if printer is None else printer.safety.wait_timeout + 60.0
     try:
         import serial
     except ImportError:
@@ -704,8 +711,8 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
         raise SendError(f"{port_name}: cannot open the serial port: {exc}") from None
     with port:
         try:
-            return send_stream(data, port, timeout=timeout, name=str(stream_path),
-                               progress=stderr_progress(progress, "sending", unit="B"))
+            return send_stream(data, port, timeout=timeout, name=str(stream_path), wait_limit=wait_limit,
+                               commands=commands, progress=stderr_progress(progress, "sending", unit="B"))
         except (serial.SerialException, OSError) as exc:  # unplugged, or the far end closed
             raise SendError(f"{port_name}: the link to the board failed: {exc}") from None
 

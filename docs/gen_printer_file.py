@@ -177,11 +177,30 @@ DOCS = {
     ("planning", "approach_height"): ("mm", "Height above the first point from which every job comes down onto it, and above the printed part to which it lifts at the end (lower where the machine cannot reach so high). Default: Marlin's Z_CLEARANCE_BETWEEN_PROBES.", None),
     ("planning", "approach_speed"): ("mm/s", "Speed of that vertical descent and lift, in both speed limits. Default: Marlin's Z homing feed (HOMING_FEEDRATE_MM_M, 4*60 mm/min).", None),
     ("planning", "torque_limit"): ("", "Where the file has `[dynamics]`: `on` plans runs and travels within the actuators' stall torque and speed-torque line as well as the joints' limits; `off` to the joints' constant limits alone.", None),
+    # safety (firmware players: docs/bring-up.md, "What the players guard")
+    ("safety", "hotend_min_temp"): ("deg C", "A hot end that reads colder than this while set is a fault (Marlin's HEATER_0_MINTEMP): a loose or open thermistor.", None),
+    ("safety", "hotend_max_temp"): ("deg C", "A hot end that reads hotter than this is a fault, set or not (HEATER_0_MAXTEMP); at least hotend_temperature + 15.", None),
+    ("safety", "bed_min_temp"): ("deg C", "The bed's minimum (BED_MINTEMP).", None),
+    ("safety", "bed_max_temp"): ("deg C", "The bed's maximum (BED_MAXTEMP); at least bed_temperature + 10.", None),
+    ("safety", "hotend_heating_period"): ("s", "While heating towards its set point the hot end must rise by hotend_heating_gain within every such period (Marlin's WATCH_TEMP_PERIOD).", None),
+    ("safety", "hotend_heating_gain"): ("deg C", "The rise expected within each heating period (WATCH_TEMP_INCREASE).", None),
+    ("safety", "bed_heating_period"): ("s", "As hotend_heating_period, for the bed (WATCH_BED_TEMP_PERIOD).", None),
+    ("safety", "bed_heating_gain"): ("deg C", "As hotend_heating_gain, for the bed (WATCH_BED_TEMP_INCREASE).", None),
+    ("safety", "hotend_hold_period"): ("s", "Once at its set point, a hot end more than hotend_hold_drop below it for this long is a thermal runaway (THERMAL_PROTECTION_PERIOD).", None),
+    ("safety", "hotend_hold_drop"): ("deg C", "The drop below the set point that starts the hold period's count (THERMAL_PROTECTION_HYSTERESIS).", None),
+    ("safety", "bed_hold_period"): ("s", "As hotend_hold_period, for the bed (THERMAL_PROTECTION_BED_PERIOD).", None),
+    ("safety", "bed_hold_drop"): ("deg C", "As hotend_hold_drop, for the bed (THERMAL_PROTECTION_BED_HYSTERESIS).", None),
+    ("safety", "wait_timeout"): ("s", "The longest a heating wait may hold the stream; the board's `# heating` lines do not extend it.", None),
+    ("safety", "host_timeout"): ("s", "A board that has asked for bytes and gets none for this long switches its heaters off, stops and reports it (the host is gone).", None),
+    # homing (the Mega player: docs/bring-up.md)
+    ("homing", "endstop"): ("", "Per joint, the side of its end stop: 1 at the joint's high end (it trips moving up), -1 at its low end, 0 none (put at the rest pose by hand). A player with end stops homes at the start of every job, then moves to the rest pose.", None),
+    ("homing", "endstop_position"): ("deg or mm", "The joint position where its switch trips (measure it: docs/bring-up.md).", "position_max (position_min for -1)"),
+    ("homing", "speed"): ("deg/s or mm/s", "Speed of the approach to the switch and of the move from it to the rest pose; at most velocity_max.", "velocity_max / 10"),
 }
 
 SECTION_ORDER = ["top level", "kinematics", "rotary_delta", "linear_delta", "five_bar", "cartesian", "joints", "tool",
                  "bed", "slicing", "cooling", "planning", "dynamics", "rotary_delta dynamics", "linear_delta dynamics",
-                 "five_bar dynamics"]
+                 "five_bar dynamics", "safety", "homing"]
 
 
 def collect():

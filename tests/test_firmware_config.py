@@ -82,3 +82,39 @@ def test_ucb_potentiometers_to_counts_end_to_end(tmp_path):
     # the document's calibration points: 0 deg and 90 deg exactly
     first = subprocess.run([str(tmp_path / "sensor_check"), "1790", "1810", "2000"], capture_output=True, text=True)
     assert [int(ln.split()[2]) for ln in first.stdout.splitlines()] == [800, 800, 800]
+
+
+def test_safety_settings_reach_the_header():
+    # Marlin 2.1's defaults (HEATER_0_MAXTEMP 275, THERMAL_PROTECTION_PERIOD 40 / HYSTERESIS 4, ...)
+    text = write_firmware_config("fivebar_atlas")
+    for line in ("DSL_CFG_HEATER_MIN_X10 {50, 50}", "DSL_CFG_HEATER_MAX_X10 {2750, 1500}",
+                 "DSL_CFG_HEATING_PERIOD_DS {400, 600}", "DSL_CFG_HOLD_PERIOD_DS {400, 200}",
+                 "DSL_CFG_HOLD_DROP_X10 {40, 20}", "DSL_CFG_HOST_TIMEOUT_DS 50"):
+        assert f"#define {line}" in text
+    p = load_printer("fivebar_atlas", {"safety.host_timeout": 8, "safety.bed_hold_drop": 3.5})
+    text = write_firmware_config(p)
+    assert "#define DSL_CFG_HOST_TIMEOUT_DS 80" in text and "#define DSL_CFG_HOLD_DROP_X10 {40, 35}" in text
+
+
+@pytest.mark.parametrize("overrides, why", [
+    ({"safety.hotend_max_temp": 210}, r"safety\.hotend_max_temp = 210.*hotend_temperature \+ 15 C = 215 C"),
+    ({"safety.bed_min_temp": 90, "safety.bed_max_temp": 80}, r"safety\.bed_min_temp = 90.*below bed_max_temp = 80 C"),
+    ({"safety.host_timeout": 0.5}, r"safety\.host_timeout = 0\.5.*>= 1"),
+    ({"safety.hotend_hold_drop": 0}, r"safety\.hotend_hold_drop = 0.*> 0"),
+])
+def test_bad_safety_setting_named(overrides, why):
+    with pytest.raises(PrinterFileError, match=why):
+        load_printer("fivebar_atlas", overrides)
+
+
+def test_homing_and_limits_reach_the_header():
+    text = write_firmware_config("linear_kossel")
+    # top end stops at 480 mm x 80 counts/mm, approached at 30 mm/s (2400 steps/s: 417 us)
+    for line in ("DSL_CFG_HOME_DIR {1, 1, 1}", "DSL_CFG_HOME_COUNTS {38400, 38400, 38400}",
+                 "DSL_CFG_HOME_STEP_US {417, 417, 417}", "DSL_CFG_RAMP_MS 200"):
+        assert f"#define {line}" in text
+    assert "#define DSL_CFG_HOME_DIR {0, 0, 0}" in write_firmware_config("delta_etitc")
+    with pytest.raises(PrinterFileError, match=r"homing\.endstop_position = .*within the joint limits"):
+        load_printer("linear_kossel", {"homing.endstop_position": 500})
+    with pytest.raises(PrinterFileError, match=r"homing\.speed = .*at most \[joints\] velocity_max"):
+        load_printer("linear_kossel", {"homing.speed": 400})

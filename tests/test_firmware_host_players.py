@@ -159,13 +159,28 @@ def test_ucb_steps_from_the_pots_to_rest_then_plays_the_stream(build, ucb_stream
     sensors = [[int(x) for x in i[1:]] for i in info if i[0] == "sensor"]
     assert [s[3] for s in sensors] == [steps] * 3
     home = next([int(x) for x in i[1:]] for i in info if i[0] == "home")
-    assert home[0] == -(-abs(steps) // 31)  # 31 steps per axis per period at most
     assert home[1:] == list(counts[0, :3])  # the stream starts at rest, where the power-up move ends
+    # the power-up move keeps to the joints' limits (it went from 0 to 3,460 deg/s in one period):
+    # speed and acceleration over 20-period windows (the counts are whole)
+    p = printer("delta_ucb")
+    cpu = abs(p.limits.counts_per_unit[0])
+    vmax, amax = p.limits.velocity[0] * cpu, p.limits.acceleration[0] * cpu  # counts/s, counts/s^2
+    move = np.array([[int(x) for x in i[1:]] for i in info if i[0] == "move"])
+    assert len(move) == home[0]
+    if steps:
+        w, dt = 20, 20e-3
+        pos = move
+        speed = (pos[w:] - pos[:-w]) / dt
+        assert np.abs(speed).max() <= vmax * 1.02, (np.abs(speed).max(), vmax)
+        acc = (speed[w:] - speed[:-w]) / dt
+        assert np.abs(acc).max() <= amax * 1.05, (np.abs(acc).max(), amax)
+        t_min = 2 * np.sqrt(abs(steps) / amax)  # a triangle at the acceleration limit (measured 183 ms)
+        assert len(move) * 1e-3 >= t_min * 0.95, (len(move), t_min)  # per-period steps: a few ms less
     out = np.loadtxt([ln for ln in r.stdout.splitlines() if not ln.startswith("#")], dtype=np.int64)
     assert len(out) == len(counts) and np.array_equal(out[:, 0], np.arange(len(counts)))
     # the pulses counted at the end of every sample's period take each axis to the sample's counts
     assert np.array_equal(out[:, 1:], counts[:, :4])
-    assert next(i for i in info if i[0] == "overruns") == ["overruns", "0"]
+    assert next(i for i in info if i[0] == "overruns") == ["overruns", "0"]  # nor in the power-up move
     assert (np.diff(counts[:, :3], axis=0) != 0).any()
 
 

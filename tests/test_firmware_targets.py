@@ -59,12 +59,29 @@ def build(tmp_path_factory):
     return out
 
 
+def endstops_at_rest(name, offset=(0, 0, 0)):
+    """sim_harness --endstops for a Mega build of printer ``name`` that powers up at its rest pose
+    moved by ``offset`` steps: each switch where the printer file's [homing] puts it."""
+    p = printer(name)
+    J = p.n_joints
+    values = np.zeros((2, len(p.limits.counts_per_unit)))
+    values[0, :J], values[1, :J] = p.homing.position, p.rest_pose
+    home, rest = p.limits.to_counts(values)[:, :J]
+    sides = np.array(p.homing.endstop) * np.sign(p.limits.counts_per_unit[:J])
+    at = home - rest - np.asarray(offset)
+    return ",".join(f"{'h' if s > 0 else 'l'}{int(a)}" if s else "n" for s, a in zip(sides, at))
+
+
 def simulate(build, mcu, elf, stream, seconds=60, *options):
+    """Run the harness; a Mega build gets end stops as if the machine powered up at rest (unless
+    the options give them): homing then takes it back there before the first sample."""
+    if mcu == "atmega2560" and "--endstops" not in options:
+        options = (*options, "--endstops", endstops_at_rest("linear_kossel" if "kossel" in str(elf) else "fivebar_atlas"))
     r = subprocess.run([str(build / "sim_harness"), mcu, str(build / elf), str(stream), "--seconds", str(seconds),
                         *options], capture_output=True, text=True, timeout=300)
-    kinds = ("P ", "S ", "T ", "L ", "F ", "H ", "K ", "I ")
+    kinds = ("P ", "S ", "T ", "L ", "F ", "H ", "K ", "I ", "N ", "X ")
     lines = [ln.split(" ", 1) for ln in r.stdout.splitlines() if ln[:2] in kinds]
-    out = {k: [] for k in "PSTLFHKI"}
+    out = {k: [] for k in "PSTLFHKINX"}
     for k, rest in lines:
         out[k].append(rest)
     return r.returncode, out
@@ -144,15 +161,16 @@ def test_uno_stops_at_a_corrupt_block(build, etitc_stream, tmp_path):
 
 
 def assert_steps_exact(out, counts):
-    """At the start of sample j the steps of every sample before it have been issued; at the end all."""
+    """At the start of sample j the steps of every sample before it have been issued; at the end all
+    (counted from where the first sample found the motors: after homing, the rest pose)."""
     T = np.array([[int(x) for x in t.split()] for t in out["T"]])  # sample, cycle, 4 positions
     assert len(T) == len(counts)
     rel = counts[:, :4] - counts[0, :4]
     expect = np.vstack([np.zeros((1, 4), np.int64), rel[:-1]])
-    off = np.nonzero((T[:, 2:] != expect).any(axis=1))[0]
+    off = np.nonzero((T[:, 2:] - T[0, 2:] != expect).any(axis=1))[0]
     assert not len(off), (len(off), off[:5])
     final = np.array([int(x) for x in out["F"][0].split()])
-    assert np.array_equal(final, rel[-1])
+    assert np.array_equal(final - T[0, 2:], rel[-1])
     return T
 
 
@@ -184,11 +202,13 @@ def test_mega_heaters_hold_the_first_sample_until_hot(build, atlas_stream):
         assert sw[0, 2] == 1 and sw[0, 1] < t0 and sw[0, 3] == 250  # switched on cold, before any sample
         assert sw[-1, 2] == 0  # off at the end
     # the first sample waits until both are within 2 C of their set points (the model's
-    # temperature at the first strobe, between two 10 ms log lines), and not much longer: 200 ms
-    # before it the hot end (the later of the two) was still short of it
+    # temperature at the first strobe, between two 10 ms log lines), and not much longer: the wait
+    # ends within 200 ms of the hot end (the later of the two) getting there, then homing (the
+    # lead screw 4000 steps to its switch and back at 10 mm/s: 2 s) comes before the first sample
     at = lambda c, col: np.interp(c, K[:, 0], K[:, col]) / 10  # noqa: E731
     assert at(t0, 1) >= hot - 2.5 and at(t0, 2) >= bed - 2.5, (at(t0, 1), at(t0, 2))
-    assert at(t0 - 0.2 * CYCLES_PER_US * 1e6, 1) < hot - 2, at(t0 - 0.2 * CYCLES_PER_US * 1e6, 1)
+    reached = K[np.argmax(K[:, 1] >= (hot - 2) * 10), 0]
+    assert 2.0 * CYCLES_PER_US * 1e6 < t0 - reached < 2.4 * CYCLES_PER_US * 1e6, (t0 - reached) / (CYCLES_PER_US * 1e6)
     assert t0 > 1.0 * CYCLES_PER_US * 1e6  # seconds of waiting (the model: ~3.9 s), not milliseconds
     # while the part plays, bang-bang holds the hot end near its set point (the model heats at
     # 50 C/s, the player reads the thermistors every 100 ms: measured 197.1-206.3 C); the part ends
@@ -202,8 +222,10 @@ def test_mega_heaters_hold_the_first_sample_until_hot(build, atlas_stream):
     # meanwhile the board says "# heating" about once a second (deltaslice send's timeout is 10 s)
     info = [i.split(" ", 1) for i in out["I"]]
     assert info and {text for _, text in info} == {"# heating"}
-    beats = np.array([int(c) for c, _ in info] + [t0]) / (CYCLES_PER_US * 1e6)
-    assert beats[0] < 1.2 and np.diff(beats).max() < 1.2 and int(beats[-2] * CYCLES_PER_US * 1e6) < t0, beats
+    # until the wait ends (homing follows it, before the first sample)
+    beats = np.array([int(c) for c, _ in info] + [reached]) / (CYCLES_PER_US * 1e6)
+    beats -= H[0, 1] / (CYCLES_PER_US * 1e6)  # from the heaters' set
+    assert beats[0] < 1.2 and np.diff(beats).max() < 1.2, beats
 
 
 @pytest.mark.parametrize("name, elf", [("fivebar_atlas", "mega_stepper_player.elf"),

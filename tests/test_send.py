@@ -43,6 +43,23 @@ class FakeBoard(threading.Thread):
         self.stop = False
         self.hold = hold
         self.keepalives = 0
+        self.chunk_left = 0
+        self.chunks, self.controls = [], []
+
+    def unframe(self, raw: bytes) -> bytes:
+        """The stream bytes of what arrived, as avr_serial.h's RX interrupt takes them: a length
+        byte opens each chunk; between chunks ``p``/``r``/``x`` are controls (kept in ``controls``)."""
+        out = bytearray()
+        for b in raw:
+            if self.chunk_left:
+                out.append(b)
+                self.chunk_left -= 1
+            elif 1 <= b <= CHUNK:
+                self.chunk_left = b
+                self.chunks.append(b)
+            else:
+                self.controls.append(chr(b))
+        return bytes(out)
 
     def run(self):
         # like an Arduino reset by the port opening (DTR): silent while it boots, so the host has
@@ -72,7 +89,7 @@ class FakeBoard(threading.Thread):
                 granted += CHUNK
             self.max_outstanding = max(self.max_outstanding, -(-(granted - len(self.received)) // CHUNK))
             try:
-                data = os.read(self.master, 256)
+                data = self.unframe(os.read(self.master, 256))
             except BlockingIOError:
                 data = b""
             if data:
@@ -80,6 +97,9 @@ class FakeBoard(threading.Thread):
                 buffered += len(data)
                 self.max_buffered = max(self.max_buffered, buffered)  # over RING - 1: bytes lost
             buffered = max(0, buffered - 32)  # the player takes bytes as it plays
+            if "x" in self.controls:
+                os.write(self.master, b"ERR aborted by the host: heaters off, motors off\n")
+                return
             if self.mode == "err" and len(self.received) >= self.err_after:
                 os.write(self.master, b"ERR block 3 at byte offset 999: CRC mismatch: block is corrupt\n")
                 return
@@ -108,6 +128,8 @@ def test_every_byte_arrives_in_credited_chunks(stream):
     assert result.bytes_sent == len(data) and result.samples == 1234
     assert board.max_outstanding <= 2  # never more than the board granted
     assert 0 < board.max_buffered <= RING - 1  # the ring never overflowed
+    assert set(board.chunks[:-1]) == {CHUNK} and board.chunks[-1] == len(data) - CHUNK * (len(board.chunks) - 1)
+    assert not board.controls
 
 
 def test_cli_reports_and_exits_zero(stream):
@@ -162,3 +184,70 @@ def test_heater_wait_keepalive_keeps_the_sender_waiting(stream):
     with pytest.raises(SendError, match=r"no answer from the board for 1 s after \d+ of"):
         send_file(stream, board.path, timeout=1.0)
     board.stop = True
+
+
+def test_heating_keepalive_cannot_hold_the_sender_past_the_wait_limit(stream):
+    # a board stuck in its heating wait (an old player without its own limit) says "# heating"
+    # for ever: the sender gives up after wait_limit, though every line restarts its timeout
+    data = stream.read_bytes()
+    board = FakeBoard(len(data), hold=(600, 4.0, 0.2))
+    board.start()
+    t0 = time.monotonic()
+    with pytest.raises(SendError, match=r"heating for over 1\.5 s after \d+ of \d+ bytes \(its keep-alive does not"):
+        send_file(stream, board.path, timeout=1.0, wait_limit=1.5)
+    assert time.monotonic() - t0 < 3.5
+    board.stop = True
+
+
+def test_board_fault_line_ends_the_send_with_a_non_zero_exit(stream):
+    class FaultBoard(FakeBoard):
+        def run(self):
+            time.sleep(0.5)
+            os.write(self.master, b">ERR hot end: thermistor open (ADC 1023)\n")
+
+    board = FaultBoard(1)
+    board.start()
+    r = CliRunner().invoke(main, ["send", str(stream), "--port", board.path, "--quiet"])
+    assert r.exit_code == 1
+    assert r.output.rstrip().endswith("the board stopped after 64 of "
+                                      f"{len(stream.read_bytes())} bytes: hot end: thermistor open (ADC 1023)"), r.output
+
+
+def test_pause_resume_and_abort_go_between_chunks(stream):
+    # the keyboard's commands: a feed hold repeated every second while it lasts (the host's sign of
+    # life), a resume, an abort; each between two chunks (the board's RX interrupt would take a
+    # control inside a chunk for data), answered by the board's ERR line
+    data = stream.read_bytes()
+    board = FakeBoard(len(data), hold=(600, 5.0, 0.5))  # busy for 5 s: the commands wait on the wire
+    board.start()
+    t0 = time.monotonic()
+    plan = [(1.0, "pause"), (3.5, "resume"), (4.0, "abort")]
+
+    def commands():
+        if plan and time.monotonic() - t0 >= plan[0][0]:
+            return plan.pop(0)[1]
+        return None
+
+    import serial as pyserial
+
+    from deltaslice.send import send_stream
+
+    with pytest.raises(SendError, match=r"the board stopped after \d+ of \d+ bytes: aborted by the host"):
+        with pyserial.Serial(board.path, 115200, timeout=0.2) as port:
+            send_stream(data, port, timeout=3.0, commands=commands)
+    board.stop = True
+    assert board.controls[0] == "p" and board.controls.count("p") >= 2, board.controls  # repeated while paused
+    assert board.controls[-2:] == ["r", "x"], board.controls
+    assert bytes(board.received) == data[:len(board.received)]  # the stream bytes intact around them
+
+
+def test_keyboard_commands_read_lines():
+    import io
+
+    from deltaslice.send import keyboard_commands
+
+    heard = []
+    commands = keyboard_commands(io.StringIO("p\nresume\nhello\nq\n"), echo=heard.append)
+    time.sleep(0.2)
+    assert [commands() for _ in range(4)] == ["pause", "resume", "abort", None]
+    assert heard == ["pause", "resume", "abort"]

@@ -11,6 +11,40 @@ def _c_array(rows) -> str:
     return "{" + ", ".join("{" + ", ".join(str(int(v)) for v in r) + "}" for r in rows) + "}"
 
 
+def _homing_lines(printer) -> list[str]:
+    """``[homing]`` in counts: per joint the direction of its end stop in counts (+1, -1; 0 none),
+    the count where it trips, the microseconds between homing steps and the most steps before the
+    switch must have tripped (the joint's whole range and a tenth); zeros for a joint without one."""
+    J = printer.n_joints
+    lim = printer.limits
+    h = printer.homing
+    side = list(h.endstop) or [0] * J
+    cpu = np.asarray(lim.counts_per_unit[:J], float)
+    direction = [int(s * np.sign(c)) for s, c in zip(side, cpu)]
+    values = np.zeros((1, len(lim.counts_per_unit)))
+    values[0, :J] = list(h.position) or [0.0] * J
+    counts = lim.to_counts(values)[0, :J]
+    speed = list(h.speed) or [1.0] * J
+    step_us = [int(min(65535, round(1e6 / (v * abs(c))))) for v, c in zip(speed, cpu)]
+    span = (np.asarray(lim.position_max[:J]) - np.asarray(lim.position_min[:J])) * np.abs(cpu)
+    max_steps = [int(np.ceil(1.1 * s)) for s in span]
+    counts, step_us, max_steps = ([v if d else 0 for v, d in zip(col, direction)] for col in (counts, step_us, max_steps))
+    return [
+        f"#define DSL_CFG_HOME_DIR {{{', '.join(map(str, direction))}}} /* end stop direction in counts; 0: no end stop */",
+        f"#define DSL_CFG_HOME_COUNTS {{{', '.join(str(int(c)) for c in counts)}}} /* counts where the switches trip */",
+        f"#define DSL_CFG_HOME_STEP_US {{{', '.join(map(str, step_us))}}} /* between homing steps */",
+        f"#define DSL_CFG_HOME_MAX_STEPS {{{', '.join(f'{m}UL' for m in max_steps)}}} /* no switch by then: a fault */",
+    ]
+
+
+def ramp_ms(printer) -> int:
+    """The feed-hold ramp of ``printer``'s players, ms: 2 x max over joints of velocity / acceleration."""
+    J = printer.n_joints
+    lim = printer.limits
+    ratio = np.asarray(lim.velocity[:J], float) / np.asarray(lim.acceleration[:J], float)
+    return int(np.ceil(2000.0 * ratio.max()))
+
+
 def firmware_config(printer) -> str:
     """The C header text for ``printer`` (a :class:`~deltaslice.machine.Printer`).
 
@@ -48,6 +82,28 @@ def firmware_config(printer) -> str:
         f"#define DSL_CFG_SENSOR_POINTS {n_points} /* points per joint in the sensor table; 0: no sensors */",
         f"#define DSL_CFG_SENSOR_ADC {_c_array(adc)} /* raw readings, per joint, ascending */",
         f"#define DSL_CFG_SENSOR_COUNTS {_c_array(counts)} /* joint counts at those readings */",
+    ]
+    sf = printer.safety
+    cpu = np.abs(np.asarray(lim.counts_per_unit[:J], float))
+    vmax = np.floor(np.asarray(lim.velocity[:J], float) * cpu)
+    amax = np.floor(np.asarray(lim.acceleration[:J], float) * cpu)
+
+    def pair(key, scale=10):
+        return "{" + ", ".join(str(round(getattr(sf, f"{h}_{key}") * scale)) for h in ("hotend", "bed")) + "}"
+
+    lines += [
+        f"#define DSL_CFG_HEATER_MIN_X10 {pair('min_temp')} /* {{hot end, bed}}: colder while set is a fault */",
+        f"#define DSL_CFG_HEATER_MAX_X10 {pair('max_temp')} /* hotter is a fault */",
+        f"#define DSL_CFG_HEATING_PERIOD_DS {pair('heating_period')} /* heating: rise by the gain within this */",
+        f"#define DSL_CFG_HEATING_GAIN_X10 {pair('heating_gain')}",
+        f"#define DSL_CFG_HOLD_PERIOD_DS {pair('hold_period')} /* at the set point: a drop held this long */",
+        f"#define DSL_CFG_HOLD_DROP_X10 {pair('hold_drop')}",
+        f"#define DSL_CFG_WAIT_TIMEOUT_DS {round(sf.wait_timeout * 10)} /* the longest heating wait */",
+        f"#define DSL_CFG_HOST_TIMEOUT_DS {round(sf.host_timeout * 10)} /* no byte asked for this long: the host is gone */",
+        f"#define DSL_CFG_RAMP_MS {ramp_ms(printer)} /* feed hold: full rate to a stop, ms */",
+        f"#define DSL_CFG_JOINT_VMAX {{{', '.join(str(int(v)) for v in vmax)}}} /* counts/s: velocity_max */",
+        f"#define DSL_CFG_JOINT_AMAX {{{', '.join(str(int(a)) for a in amax)}}} /* counts/s^2: acceleration_max */",
+        *_homing_lines(printer),
         "#endif",
     ]
     return "\n".join(lines) + "\n"

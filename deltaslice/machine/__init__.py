@@ -14,13 +14,14 @@ from .dynamics import ActuatorCurves, Dynamics
 from .limits import ChannelLimits, LimitMonitor, Limits
 from .printer import Printer
 from .reader import ACTUATOR_KINDS, check_reach, load_printer, printer_from_dict
-from .settings import Bed, PlanningSettings, SlicingSettings
+from .settings import Bed, HomingSettings, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 load_machine = load_printer
 Machine = Printer
 
 __all__ = [
-    "ACTUATOR_KINDS", "ActuatorCurves", "Bed", "ChannelLimits", "Dynamics", "Extruder", "Laser", "LimitMonitor", "Limits",
-    "Machine", "PlanningSettings", "Printer", "SlicingSettings", "Tool", "check_reach", "load_machine", "load_printer", "printer_from_dict",
+    "ACTUATOR_KINDS", "ActuatorCurves", "Bed", "ChannelLimits", "Dynamics", "Extruder", "HomingSettings", "Laser",
+    "LimitMonitor", "Limits", "Machine", "PlanningSettings", "Printer", "SafetySettings", "SlicingSettings", "Tool",
+    "check_reach", "load_machine", "load_printer", "printer_from_dict",
 ]

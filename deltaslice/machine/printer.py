@@ -10,7 +10,7 @@ import numpy as np
 from ..kinematics import Kinematics
 from .dynamics import Dynamics
 from .limits import ChannelLimits, Limits
-from .settings import Bed, PlanningSettings, SlicingSettings
+from .settings import Bed, HomingSettings, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Tool
 
 
@@ -23,7 +23,8 @@ class Printer:
     the tool channel); ``rest_pose`` (J,) joint units: where every trajectory starts and ends;
     ``sensor_table`` per joint: ``((reading, joint value), ...)`` sorted by reading, joint units
     (rad or mm), () for a joint without an absolute sensor; ``dynamics``: the ``[dynamics]`` table
-    (masses and actuator curves), None where the file has none."""
+    (masses and actuator curves), None where the file has none; ``safety``: the players' heater
+    protection and host time-out (``[safety]``); ``homing``: their end stops (``[homing]``)."""
 
     name: str
     path: str
@@ -44,6 +45,9 @@ class Printer:
     # False for a printer read with load_printer(reach_checks=False) and not yet through
     # machine.check_reach: its rest pose may be unset and nothing plans with it
     reach_checked: bool = field(default=True, repr=False, compare=False)
+    # what the firmware players guard (heater limits, host time-out): not the trajectory's
+    safety: SafetySettings = field(default_factory=SafetySettings, compare=False)
+    homing: HomingSettings = field(default_factory=HomingSettings, compare=False)
 
     @property
     def n_joints(self) -> int:

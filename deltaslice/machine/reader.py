@@ -26,7 +26,7 @@ from ..kinematics import FAMILIES, family, make_kinematics
 from .dynamics import Dynamics, read_actuators
 from .limits import Limits
 from .printer import Printer
-from .settings import Bed, CoolingSettings, PlanningSettings, SlicingSettings
+from .settings import Bed, CoolingSettings, HomingSettings, PlanningSettings, SafetySettings, SlicingSettings
 from .tool import Extruder, Laser, Tool
 
 ACTUATOR_KINDS = ("servo_pwm", "stepper", "dc_encoder", "dynamixel")
@@ -277,7 +277,62 @@ def _read_bed(sec: Section) -> Bed:
     )
 
 
-SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "cooling", "planning", "dynamics", "sources")
+def _read_safety(sec: Section, tool: Tool | None) -> SafetySettings:
+    """``[safety]``: the firmware players' heater protection and host time-out (defaults:
+    :class:`SafetySettings`). The print temperatures must sit below the maxima with Marlin's
+    margins (HOTEND_OVERSHOOT 15 C, BED_OVERSHOOT 10 C), or bang-bang overshoot would trip them."""
+    d = SafetySettings()
+    got = {}
+    for heater in ("hotend", "bed"):
+        lo = sec.getfloat(f"{heater}_min_temp", getattr(d, f"{heater}_min_temp"), minval=0, maxval=100)
+        hi = sec.getfloat(f"{heater}_max_temp", getattr(d, f"{heater}_max_temp"), above=0, maxval=500)
+        if lo >= hi:
+            sec.fail(f"{heater}_min_temp", lo, f"below {heater}_max_temp = {hi:g} C")
+        got[f"{heater}_min_temp"], got[f"{heater}_max_temp"] = lo, hi
+    for key in ("hotend_heating_period", "bed_heating_period", "hotend_hold_period", "bed_hold_period"):
+        got[key] = sec.getfloat(key, getattr(d, key), minval=1, maxval=600)
+    for key in ("hotend_heating_gain", "bed_heating_gain", "hotend_hold_drop", "bed_hold_drop"):
+        got[key] = sec.getfloat(key, getattr(d, key), above=0, maxval=50)
+    got["wait_timeout"] = sec.getfloat("wait_timeout", d.wait_timeout, minval=10, maxval=3600)
+    got["host_timeout"] = sec.getfloat("host_timeout", d.host_timeout, minval=1, maxval=60)
+    if isinstance(tool, Extruder):
+        for heater, margin in (("hotend", 15.0), ("bed", 10.0)):
+            temp, hi = getattr(tool, f"{heater}_temperature"), got[f"{heater}_max_temp"]
+            if temp > 0 and temp > hi - margin:
+                sec.fail(f"{heater}_max_temp", hi, f"at least [tool] {heater}_temperature + {margin:g} C = "
+                         f"{temp + margin:g} C (the bang-bang overshoot must not trip it)")
+    return SafetySettings(**got)
+
+
+def _read_homing(sec: Section, joints: dict | None) -> HomingSettings | None:
+    """``[homing]``: per joint the end stop's side (+1 high end, -1 low end, 0 none), the joint
+    position where it trips (file units, within the joint's limits) and the approach speed (file
+    units per s, default a tenth of velocity_max, at most velocity_max). None without joints."""
+    if joints is None:
+        sec.used.update(sec.data)
+        return None
+    n = len(joints["kinds"])
+    ks = [math.radians(1.0) if kind == "revolute" else 1.0 for kind in joints["kinds"]]
+    side = sec.getfloats("endstop", n, default=[0.0] * n, minval=-1, maxval=1)
+    lo = [v / k for v, k in zip(joints["position_min"], ks)]
+    hi = [v / k for v, k in zip(joints["position_max"], ks)]
+    vmax = [v / k for v, k in zip(joints["velocity"], ks)]
+    default = [lo[i] if side[i] < 0 else hi[i] for i in range(n)]
+    pos = sec.getfloats("endstop_position", n, default=default)
+    speed = sec.getfloats("speed", n, default=[v / 10 for v in vmax], above=0)
+    if any(v not in (-1.0, 0.0, 1.0) for v in side):
+        sec.fail("endstop", list(side), "-1 (a switch at the joint's low end), 1 (high end) or 0 (none) per joint")
+    for i in range(n):
+        if side[i] and not lo[i] <= pos[i] <= hi[i]:
+            sec.fail("endstop_position", list(pos), f"within the joint limits (joint {i + 1}: {lo[i]:g}..{hi[i]:g})")
+        if speed[i] > vmax[i] * (1 + 1e-9):
+            sec.fail("speed", list(speed), f"at most [joints] velocity_max (joint {i + 1}: {vmax[i]:g})")
+    return HomingSettings(endstop=tuple(int(v) for v in side), position=tuple(p * k for p, k in zip(pos, ks)),
+                          speed=tuple(v * k for v, k in zip(speed, ks)))
+
+
+SECTIONS = ("kinematics", "joints", "tool", "bed", "slicing", "cooling", "planning", "dynamics", "safety", "homing",
+            "sources")
 
 
 def resolve_printer(path) -> Path:
@@ -404,6 +459,8 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     ksec, jsec, tsec = section("kinematics"), section("joints"), section("tool")
     bsec, ssec, psec = section("bed"), section("slicing"), section("planning", default={})
     csec = section("cooling", default={})
+    fsec = section("safety", default={})
+    hsec = section("homing", default={})
 
     family_name = module = None
     if ksec is not None:
@@ -426,6 +483,8 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
     if "dynamics" in data:
         dsec = section("dynamics")
         dynamics = read(dsec, _read_dynamics, module, geometry, actuator) if module is not None else None
+    safety = read(fsec, _read_safety, tool)
+    homing = read(hsec, _read_homing, joints)
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not all(isinstance(v, str) for v in sources.values()):
@@ -456,6 +515,8 @@ def printer_from_dict(data: dict, path: str = "<printer>", *, overridden=(), rea
         dynamics=dynamics,
         sources=dict(sources),
         reach_checked=False,
+        safety=safety,
+        homing=homing,
     )
     return check_reach(printer) if reach_checks else printer
 

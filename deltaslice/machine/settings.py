@@ -137,3 +137,48 @@ class PlanningSettings:
     approach_height: float = 5.0
     approach_speed: float = 4.0
     torque_limit: str = "on"
+
+
+@dataclass(frozen=True)
+class SafetySettings:
+    """What a firmware player guards, written into its configuration header (``deltaslice
+    firmware-config``). Temperatures deg C, times s. The defaults are Marlin 2.1's
+    (``Configuration.h`` HEATER_0_MINTEMP/MAXTEMP, BED_MINTEMP/MAXTEMP; ``Configuration_adv.h``
+    WATCH_TEMP_*, WATCH_BED_TEMP_*, THERMAL_PROTECTION_*): a heater being heated must rise by
+    ``*_heating_gain`` within every ``*_heating_period`` until it reaches its set point; once there,
+    a drop of more than ``*_hold_drop`` below it lasting ``*_hold_period`` is a thermal runaway.
+    ``wait_timeout``: the longest heating wait; ``host_timeout``: the longest the board waits for a
+    byte it has asked for before it switches its heaters off (Klipper's MCU drops a heater its host
+    has not refreshed for 3 s, its MAX_HEAT_TIME)."""
+
+    hotend_min_temp: float = 5.0
+    hotend_max_temp: float = 275.0
+    bed_min_temp: float = 5.0
+    bed_max_temp: float = 150.0
+    hotend_heating_period: float = 40.0
+    hotend_heating_gain: float = 2.0
+    bed_heating_period: float = 60.0
+    bed_heating_gain: float = 2.0
+    hotend_hold_period: float = 40.0
+    hotend_hold_drop: float = 4.0
+    bed_hold_period: float = 20.0
+    bed_hold_drop: float = 2.0
+    wait_timeout: float = 900.0
+    host_timeout: float = 5.0
+
+
+@dataclass(frozen=True)
+class HomingSettings:
+    """Where a player finds its joints at the start of a job (``[homing]``): per joint, the side of
+    its end stop (``endstop``: +1 at the joint's high end, -1 at its low end, 0 none: the joint is
+    put at the rest pose by hand), the joint position where that switch trips and the speed it is
+    approached at (joint units: rad or mm, per s). A player with end stops homes every joint that
+    has one, then moves to the rest pose, then plays."""
+
+    endstop: tuple = ()
+    position: tuple = ()
+    speed: tuple = ()
+
+    @property
+    def enabled(self) -> bool:
+        return any(self.endstop)

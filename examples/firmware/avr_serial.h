@@ -3,7 +3,10 @@
  * filled by the RX interrupt, and the credit flow control of `deltaslice send`:
  *
  *   board -> host  '>'            one credit: the board has room for one more chunk
- *   host  -> board <= 64 bytes    one chunk per credit (DSL_CHUNK; the last one may be shorter)
+ *   host  -> board n, n bytes     one chunk per credit: its length n (1..DSL_CHUNK, 64; the last one
+ *                                 may be shorter), then n bytes of the stream
+ *                  'p' 'r' 'x'    between chunks: feed hold (pause; repeated at least once a second
+ *                                 while paused, the host's sign of life), resume, abort
  *   board -> host  "OK <n>\n"     the stream ended intact after n samples
  *                  "ERR <msg>\n"  the stream is damaged or meant for another printer; the player stopped
  *                  "# <text>\n"   information outside the protocol ("# heating" once a second while a
@@ -13,6 +16,9 @@
  * filled nor promised to a chunk on its way is a whole chunk: the first at start, the second as
  * soon as the board has taken the first byte of the first chunk, and so on, so the next chunk is
  * on the wire while the board decodes the one before; nothing is ever dropped.
+ * The RX interrupt takes the framing off: only stream bytes reach the ring (and count for the
+ * credits); the controls set flags at once, however full the ring. Any other byte between chunks
+ * (a host of the unframed protocol before version 2 of it, line noise) is a protocol error.
  * Strings live in flash (PSTR) to keep static RAM for the record buffers.
  */
 #ifndef AVR_SERIAL_H
@@ -31,13 +37,32 @@ static volatile uint8_t serial_head;     /* written by the ISR */
 static uint8_t serial_tail;              /* written by the main loop */
 static volatile uint8_t serial_received; /* bytes received, mod 256 (the ISR counts them) */
 static uint8_t serial_granted;           /* bytes credited to the host, mod 256 */
+static uint8_t serial_chunk_left;        /* stream bytes still to come in this chunk */
+static volatile uint8_t serial_heard;    /* any byte at all, controls included, mod 256 */
+static volatile uint8_t serial_paused;   /* the host's feed hold: 'p' sets it, 'r' clears it */
+static volatile uint8_t serial_abort;    /* 'x' */
+static volatile uint8_t serial_bad;      /* a byte outside a chunk that is no control, or 0 */
 
 ISR(USART_RX_vect_NAME)
 {
     uint8_t b = UDR0;
-    serial_ring[serial_head] = b;
-    serial_head = (uint8_t)((serial_head + 1) & (SERIAL_RING - 1));
-    serial_received++;
+    serial_heard++;
+    if (serial_chunk_left) {
+        serial_chunk_left--;
+        serial_ring[serial_head] = b;
+        serial_head = (uint8_t)((serial_head + 1) & (SERIAL_RING - 1));
+        serial_received++;
+    } else if (b >= 1 && b <= DSL_CHUNK) {
+        serial_chunk_left = b;
+    } else if (b == 'p') {
+        serial_paused = 1;
+    } else if (b == 'r') {
+        serial_paused = 0;
+    } else if (b == 'x') {
+        serial_abort = 1;
+    } else if (!serial_bad) {
+        serial_bad = b ? b : 0xFF;
+    }
 }
 
 static void serial_init(void)
@@ -100,20 +125,6 @@ static uint8_t serial_take(uint8_t *b)
     *b = serial_ring[serial_tail];
     serial_tail = (uint8_t)((serial_tail + 1) & (SERIAL_RING - 1));
     return 1;
-}
-
-/* The player's last line: "ERR <message in flash>", "ERR <error in RAM>" or "OK <samples>". */
-static void serial_verdict(const char *message_P, const char *error, uint32_t samples)
-{
-    if (message_P || (error && *error)) {
-        serial_puts_P(PSTR("ERR "));
-        if (message_P) serial_puts_P(message_P);
-        else while (*error) serial_put((uint8_t)*error++);
-    } else {
-        serial_puts_P(PSTR("OK "));
-        serial_putu(samples);
-    }
-    serial_put('\n');
 }
 
 #endif

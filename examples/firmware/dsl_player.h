@@ -106,6 +106,9 @@ typedef struct {
     int32_t event_value;
     uint8_t event_kind;
     char error[DSL_ERROR_LEN];
+    const char *error_what; /* the error's cause without its place (in flash on AVR), for a player
+                               that prints the whole message itself rather than keep it in RAM */
+    uint8_t error_in_header;
 } dsl_player;
 
 /* ---- CRC-32 (IEEE, reflected 0xEDB88320), 16-entry nibble table: 64 bytes ---- */
@@ -155,6 +158,8 @@ static void dsl_init(dsl_player *p)
 /* what: a message in flash on AVR (DSL_STR), so the player's strings take no RAM there. */
 static void dsl_fail(dsl_player *p, const char *what)
 {
+    p->error_what = what;
+    p->error_in_header = p->rx_state == DSL_S_HEADER;
 #if defined(__AVR__)
     if (p->rx_state == DSL_S_HEADER)
         snprintf_P(p->error, sizeof p->error, PSTR("header: %S"), what);

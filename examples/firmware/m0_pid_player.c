@@ -29,21 +29,40 @@
 static dsl_player player;
 static uint8_t ring[RING];
 static uint32_t head, tail;       /* bytes put into and taken from the ring */
-static uint32_t received, granted; /* bytes received and credited, since power-up */
+static uint32_t received, granted; /* stream bytes received and credited, since power-up */
+static uint32_t heard;             /* any byte at all, framing and controls included */
+static uint8_t chunk_left;         /* stream bytes still to come in this chunk */
+static uint8_t paused, aborted, bad; /* the host's 'p' (until 'r') and 'x'; a byte outside a chunk */
 
 static void serial_puts(const char *s)
 {
     while (*s) board_uart_write((uint8_t)*s++);
 }
 
-/* Move what the UART holds into the ring; the credits keep it from overflowing. */
+/* Move what the UART holds into the ring, the framing taken off (examples/firmware/README.md,
+   "Serial protocol": a length byte before each chunk, 'p' 'r' 'x' between chunks); the credits
+   keep the ring from overflowing. */
 static void serial_poll(void)
 {
     uint8_t b;
     while (head - tail < RING - 1 && board_uart_read(&b)) {
-        ring[head % RING] = b;
-        head++;
-        received++;
+        heard++;
+        if (chunk_left) {
+            chunk_left--;
+            ring[head % RING] = b;
+            head++;
+            received++;
+        } else if (b >= 1 && b <= CHUNK) {
+            chunk_left = b;
+        } else if (b == 'p') {
+            paused = 1;
+        } else if (b == 'r') {
+            paused = 0;
+        } else if (b == 'x') {
+            aborted = 1;
+        } else if (!bad) {
+            bad = b ? b : 0xFF;
+        }
     }
 }
 
@@ -65,7 +84,7 @@ static void serial_grant(void)
 static void serial_recredit(void)
 {
     static uint32_t last;
-    if (received || board_ms() - last < RECREDIT_MS) return;
+    if (heard || board_ms() - last < RECREDIT_MS) return;
     last = board_ms();
     board_uart_write('>');
 }
@@ -145,6 +164,8 @@ int main(void)
     for (;;) {
         int r, budget;
         serial_poll();
+        if (aborted) stop("aborted by the host");
+        if (bad) stop("serial: a byte outside a chunk (a sender of the unframed protocol?)");
         serial_grant();
         serial_recredit();
         for (budget = 64; budget && tail != head; budget--) {
@@ -159,6 +180,11 @@ int main(void)
             if (player.q_count < DSL_BUFFERS && player.rx_state != DSL_S_END) continue; /* both buffers first */
             period_us = (uint32_t)(1000000000ull / player.rate_mhz);
             started = 1;
+        }
+        if (paused && player.sample_index) {
+            /* the host's feed hold: the last setpoints held, the loop closed, until 'r' */
+            control(line);
+            continue;
         }
         r = dsl_next(&player, counts);
         if (r == DSL_DONE || r == DSL_ERROR) stop(0);

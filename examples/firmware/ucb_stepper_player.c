@@ -6,8 +6,9 @@
  *     ucb_stepper_player STREAM.dsl R1 R2 R3     the pots' raw readings at power-up
  *
  * 1. Power-up: each joint's reading becomes its count (dsl_sensor.h: the printer file's
- *    sensor_table); the steppers then step from there to the rest pose (DSL_CFG_REST_COUNTS), at
- *    most DSL_SUBTICKS - 1 steps per axis per sample period.
+ *    sensor_table); the steppers then step from there to the rest pose (DSL_CFG_REST_COUNTS) along
+ *    a trapezoid of each joint's own limits (DSL_CFG_JOINT_VMAX, DSL_CFG_JOINT_AMAX), a setpoint
+ *    per sample period as the stream's.
  * 2. Playback: every sample's count differences as step pulses spread over its period
  *    (dsl_stepper.h), as on the Mega; the extruder (the tool channel) starts where the stream does.
  *
@@ -15,6 +16,7 @@
  * set at the sample start. Output, all positions counted from the pulses:
  *
  *     # sensor <joint> <reading> <counts> <steps to rest>   one per joint
+ *     # move <pos1> <pos2> <pos3>                            the power-up move, each period
  *     # home <periods> <pos1> <pos2> <pos3>                  where the power-up move ended
  *     <i> <pos1> <pos2> <pos3> <pos4>                        at the end of each sample's period
  *     # overruns <n>                                         samples whose steps did not fit
@@ -46,6 +48,24 @@ static void period(const int32_t *target, uint8_t axes)
         for (a = 0; a < axes; a++)
             if (m & (1u << a)) pins_pos[a] += dirs & (1u << a) ? 1 : -1;
     }
+}
+
+/* The power-up move's next setpoint of one joint: a trapezoid in Q16 counts per period (v, a:
+   speed and its change per period, the limits' own), braking once the distance left is what
+   braking from this speed takes. Integer arithmetic, once per period, only at power-up. */
+typedef struct {
+    int64_t left, v, vmax, a; /* Q16 */
+} ramp;
+
+static int64_t ramp_step(ramp *r)
+{
+    int64_t d;
+    if (r->left <= 0) return 0;
+    if (r->v * r->v / (2 * r->a) >= r->left) r->v = r->v - r->a > r->a ? r->v - r->a : r->a;
+    else if (r->v < r->vmax) r->v = r->v + r->a < r->vmax ? r->v + r->a : r->vmax;
+    d = r->v < r->left ? r->v : r->left;
+    r->left -= d;
+    return d;
 }
 
 int main(int argc, char **argv)
@@ -82,14 +102,35 @@ int main(int argc, char **argv)
                 }
                 for (a = 0; a < axes; a++) pins_pos[a] = start[a];
                 dsl_stepper_init(&stepper, start, axes);
-                for (;;) { /* step to the rest pose */
-                    for (a = 0; a < axes && stepper.pos[a] == target[a]; a++) {
+                {   /* to the rest pose along each joint's trapezoid */
+                    static const int32_t vmax[DSL_CFG_JOINTS] = DSL_CFG_JOINT_VMAX, amax[DSL_CFG_JOINTS] = DSL_CFG_JOINT_AMAX;
+                    int64_t rate = (int64_t)(player.rate_mhz / 1000u), done[AXES] = {0};
+                    int32_t set[AXES];
+                    ramp rp[DSL_CFG_JOINTS];
+                    uint8_t moving = 1;
+                    for (j = 0; j < DSL_CFG_JOINTS && j < axes; j++) {
+                        int32_t d = target[j] - start[j];
+                        rp[j].left = (int64_t)(d < 0 ? -d : d) << 16;
+                        rp[j].v = 0;
+                        rp[j].vmax = ((int64_t)vmax[j] << 16) / rate;
+                        rp[j].a = ((int64_t)amax[j] << 16) / (rate * rate);
+                        if (rp[j].a < 1) rp[j].a = 1;
                     }
-                    if (a == axes) break;
-                    period(target, axes);
-                    periods++;
+                    for (a = 0; a < axes; a++) set[a] = start[a];
+                    while (moving) {
+                        moving = 0;
+                        for (j = 0; j < DSL_CFG_JOINTS && j < axes; j++) {
+                            done[j] += ramp_step(&rp[j]);
+                            moving |= rp[j].left > 0;
+                            set[j] = start[j] + (int32_t)((target[j] < start[j] ? -done[j] : done[j]) / 65536);
+                        }
+                        period(set, axes);
+                        periods++;
+                        printf("# move");
+                        for (j = 0; j < DSL_CFG_JOINTS; j++) printf(" %ld", (long)pins_pos[j]);
+                        putchar('\n');
+                    }
                 }
-                stepper.overruns = 0; /* the power-up move runs at full step rate by design */
                 printf("# home %lu", periods);
                 for (j = 0; j < DSL_CFG_JOINTS; j++) printf(" %ld", (long)pins_pos[j]);
                 putchar('\n');

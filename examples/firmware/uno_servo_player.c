@@ -23,8 +23,9 @@
 #include "avr_serial.h"
 
 #define DSL_BUFFERS 2
-#define DSL_ERROR_LEN 40
+#define DSL_ERROR_LEN 1 /* the message is printed whole from flash (avr_safety.h), not kept */
 #include "dsl_player.h"
+#include "avr_safety.h"
 #include DSL_CONFIG
 
 #define SERVOS 3
@@ -32,7 +33,7 @@
 
 static dsl_player player;
 static volatile uint16_t width_us[SERVOS]; /* the widths of the sample being played */
-static volatile uint8_t sample_due;        /* sample ticks not yet played */
+static volatile uint8_t sample_due;        /* a sample tick not yet played (0 or 1) */
 static volatile uint8_t clock_on;          /* the sample ticks count once playback has started */
 static uint16_t period_us = 1000;          /* the sample period (1 ms until the header says) */
 static uint16_t frame_us;                  /* time since the last frame start */
@@ -99,10 +100,26 @@ ISR(TIMER2_COMPA_vect)
     servo_left = (uint16_t)(servo_left - 16);
 }
 
+/* The playback clock's rate (RATE_ONE: the stream's own), ramped by rate_step per period to 0 and
+   back when the buffer runs low (as on the Mega: the samples played exactly, only slower, so the
+   servos slow down and speed up rather than stop dead). A sample falls due when the phase passes
+   RATE_ONE, one at a time: an underrun never leaves a backlog to play in a burst. */
+#define RATE_ONE 32768u
+static volatile uint16_t rate, rate_target;
+static uint16_t phase, rate_step = 1, ramp_samples = 1;
+
 /* Timer1 (CTC) ticks once per sample period: the sample clock and the 20 ms servo frames. */
 ISR(TIMER1_COMPA_vect)
 {
-    if (clock_on && sample_due < 255) sample_due++;
+    if (clock_on) {
+        if (rate < rate_target) rate = rate_target - rate > rate_step ? rate + rate_step : rate_target;
+        else if (rate > rate_target) rate = rate - rate_target > rate_step ? rate - rate_step : rate_target;
+        phase += rate;
+        if (phase >= RATE_ONE) {
+            phase -= RATE_ONE;
+            sample_due = 1;
+        }
+    }
     frame_us = (uint16_t)(frame_us + period_us);
     if (frame_us >= 20000) {
         frame_us = (uint16_t)(frame_us - 20000);
@@ -157,11 +174,44 @@ static void extruder_to(int32_t target)
     }
 }
 
+/* The verdict, then nothing more is played. On an error the extruder's driver is disabled and the
+   servos go on holding the last widths: a hobby servo without pulses goes limp (or holds, by
+   model), and a limp rotary delta drops its platform onto the part; held, the arms stay put. */
 static void stop(const char *message_P)
 {
     clock_on = 0;
-    serial_verdict(message_P, player.rx_state == DSL_S_ERROR ? player.error : 0, player.sample_index);
+    if (message_P || player.rx_state == DSL_S_ERROR) {
+        PORTB |= _BV(PB0);
+        serial_puts_P(PSTR("ERR "));
+        if (message_P) serial_puts_P(message_P);
+        else serial_player_error(&player);
+    } else {
+        serial_puts_P(PSTR("OK "));
+        serial_putu(player.sample_index);
+    }
+    serial_put('\n');
     for (;;) {
+        wdt_reset();
+    }
+}
+
+/* 0 during the host's feed hold, and while fewer samples are buffered than a ramp to a stop plays
+   and more are coming; full again once twice that many are in, the buffers are full, or the
+   stream is whole. */
+static void feed_hold_update(void)
+{
+    uint16_t avail, target = rate_target;
+    uint8_t coming = player.rx_state != DSL_S_END && player.rx_state != DSL_S_ERROR;
+    uint8_t full = player.q_count == DSL_BUFFERS || player.ev_count == DSL_MAX_EVENTS;
+    uint32_t n = player.rx_samples - player.sample_index;
+    avail = n > 0xFFFF ? 0xFFFF : (uint16_t)n;
+    if (serial_paused) target = 0;
+    else if (avail < ramp_samples && (player.rx_state == DSL_S_ERROR || (coming && !full))) target = 0;
+    else if (avail >= 2 * ramp_samples || full || !coming) target = RATE_ONE;
+    if (target != rate_target) {
+        cli();
+        rate_target = target;
+        sei();
     }
 }
 
@@ -175,8 +225,14 @@ int main(void)
     serial_init();
     dsl_init(&player);
     sei();
+    if (safety_watchdog_reset()) stop(PSTR("watchdog reset: the player hung; the servos hold the rest pose"));
+    safety_start();
     for (;;) {
         int r;
+        wdt_reset();
+        if (serial_abort) stop(PSTR("aborted by the host: the servos hold, the extruder is off"));
+        if (serial_bad)
+            stop(PSTR("serial: a byte between chunks is no chunk length nor control (a sender of the unframed protocol?)"));
         serial_grant();
         /* a few bytes per pass, so a burst of received bytes never delays a sample by more than
            a fraction of its period */
@@ -196,9 +252,23 @@ int main(void)
                 OCR1A = (uint16_t)(2 * period_us - 1); /* 0.5 us ticks: periods up to 32 ms */
                 TCNT1 = 0;
             }
+            {   /* the ramp in sample periods, and the samples it plays from full rate */
+                uint32_t periods = (uint32_t)DSL_CFG_RAMP_MS * 1000u / period_us;
+                rate_step = periods >= RATE_ONE ? 1 : (uint16_t)(RATE_ONE / (periods ? periods : 1));
+                ramp_samples = (uint16_t)(RATE_ONE / rate_step / 2 + 8);
+            }
+            rate = rate_target = RATE_ONE;
             clock_on = 1;
             sei();
             started = 1;
+        }
+        feed_hold_update();
+        if (player.rx_state == DSL_S_ERROR && !rate_target) { /* the clock ramps to a stop before the damage */
+            uint16_t r;
+            cli();
+            r = rate;
+            sei();
+            if (!r) stop(0);
         }
         if (!sample_due) continue;
         r = dsl_next(&player, counts);
@@ -214,7 +284,7 @@ int main(void)
             stop(0);
         }
         /* DSL_EVENT: heater and fan events are not this board's (the ETITC hot end has its own
-           controller). DSL_AGAIN: an underrun; the servos hold the last widths and the samples
-           due are played as soon as the bytes arrive, so the time base is kept. */
+           controller). DSL_AGAIN: an underrun the ramp did not foresee; the servos hold the last
+           widths and the sample due is played as soon as the bytes arrive. */
     }
 }

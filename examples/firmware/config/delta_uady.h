@@ -7,4 +7,19 @@
 #define DSL_CFG_SENSOR_POINTS 0 /* points per joint in the sensor table; 0: no sensors */
 #define DSL_CFG_SENSOR_ADC {{0}} /* raw readings, per joint, ascending */
 #define DSL_CFG_SENSOR_COUNTS {{0}} /* joint counts at those readings */
+#define DSL_CFG_HEATER_MIN_X10 {50, 50} /* {hot end, bed}: colder while set is a fault */
+#define DSL_CFG_HEATER_MAX_X10 {2750, 1500} /* hotter is a fault */
+#define DSL_CFG_HEATING_PERIOD_DS {400, 600} /* heating: rise by the gain within this */
+#define DSL_CFG_HEATING_GAIN_X10 {20, 20}
+#define DSL_CFG_HOLD_PERIOD_DS {400, 200} /* at the set point: a drop held this long */
+#define DSL_CFG_HOLD_DROP_X10 {40, 20}
+#define DSL_CFG_WAIT_TIMEOUT_DS 9000 /* the longest heating wait */
+#define DSL_CFG_HOST_TIMEOUT_DS 50 /* no byte asked for this long: the host is gone */
+#define DSL_CFG_RAMP_MS 241 /* feed hold: full rate to a stop, ms */
+#define DSL_CFG_JOINT_VMAX {748, 748, 748} /* counts/s: velocity_max */
+#define DSL_CFG_JOINT_AMAX {6233, 6233, 6233} /* counts/s^2: acceleration_max */
+#define DSL_CFG_HOME_DIR {0, 0, 0} /* end stop direction in counts; 0: no end stop */
+#define DSL_CFG_HOME_COUNTS {0, 0, 0} /* counts where the switches trip */
+#define DSL_CFG_HOME_STEP_US {0, 0, 0} /* between homing steps */
+#define DSL_CFG_HOME_MAX_STEPS {0UL, 0UL, 0UL} /* no switch by then: a fault */
 #endif
