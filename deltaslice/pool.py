@@ -135,7 +135,14 @@ def forked_map(fn, tasks, workers: int, *, started=None, in_flight: int = 2, **i
 
 def stop_pool(pool) -> None:
     """Shut a pool down, its tasks not started dropped: once its running tasks end, or at once after
-    a Ctrl-C. Its forked workers then leave on the same signal (:mod:`.interrupt`), perhaps halfway
-    through sending a result, and waiting for the executor's thread, which waits for the rest of
-    that result, hung the compile (the command line leaves with os._exit, not joining it)."""
-    pool.shutdown(wait=not interrupt.requested(), cancel_futures=True)
+    a Ctrl-C. A terminal's Ctrl-C reaches the workers too and they leave (:mod:`.interrupt`),
+    perhaps halfway through sending a result, and waiting for the executor's thread, which waits
+    for the rest of that result, hung the compile. A Ctrl-C that reached this process alone leaves
+    the workers blocked on the pool's pipes, which they hold open themselves: they are ended here,
+    or they would outlive the command (which leaves with os._exit) and hold its output pipes."""
+    if not interrupt.requested():
+        pool.shutdown(wait=True, cancel_futures=True)
+        return
+    pool.shutdown(wait=False, cancel_futures=True)
+    for child in multiprocessing.active_children():
+        child.terminate()

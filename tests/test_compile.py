@@ -87,7 +87,9 @@ def test_an_output_beyond_a_limit_fails_the_compile_and_writes_nothing(tmp_path,
     monkeypatch.setattr(Printer, "planned_limits", lambda self: real(self).scaled(1.5))
     monkeypatch.setattr(topp, "CHECK_TOLERANCE", float("inf"))  # past the planner's own stage-wise check too
     r = CliRunner().invoke(main, [str(CUBE), "--printer", str(ROOT / "printers" / "delta_etitc.toml"), "-o", str(out),
-                                  "--scale", "0.3", "--quiet", "--workers", "1"])
+                                  "--scale", "0.3", "--quiet", "--workers", "1",
+                                  # the joint accelerations, not the servos' torque, must be what binds
+                                  "--set", "planning.torque_limit=off"])
     assert r.exit_code == 1, r.output
     assert "beyond the limits" in r.output and "acc" in r.output and "Traceback" not in r.output
     assert out.read_bytes() == b"previous output"

@@ -151,6 +151,18 @@ static void heater_set(uint8_t h, int32_t t10)
     }
 }
 
+/* Switch a heater's pin. Through a pointer the port is read, changed and written back, not set
+   by one sbi/cbi: the step interrupt toggling the strobe on the same port in between would be
+   undone (a sample strobed twice), so the interrupts wait. */
+static void heater_pin(volatile uint8_t *port, uint8_t bit, uint8_t on)
+{
+    uint8_t sreg = SREG;
+    cli();
+    if (on) *port |= bit;
+    else *port &= (uint8_t)~bit;
+    SREG = sreg;
+}
+
 /* Read, check and switch one heater; 1 when it is within 2 C below its set point or hotter. */
 static uint8_t heater_update(uint8_t h)
 {
@@ -176,7 +188,7 @@ static uint8_t heater_update(uint8_t h)
         halt();
     }
     if (!target) {
-        *port &= (uint8_t)~bit;
+        heater_pin(port, bit, 0);
         return 0;
     }
     if (!heater_holding[h]) {
@@ -214,8 +226,8 @@ static uint8_t heater_update(uint8_t h)
     } else {
         drop_polls[h] = 0;
     }
-    if (t > target + 20) *port &= (uint8_t)~bit;
-    else if (t < target - 20) *port |= bit;
+    if (t > target + 20) heater_pin(port, bit, 0);
+    else if (t < target - 20) heater_pin(port, bit, 1);
     return t >= target - 20;
 }
 
