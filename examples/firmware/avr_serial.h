@@ -29,6 +29,8 @@
 #include <avr/pgmspace.h>
 #include <stdint.h>
 
+#include "avr_uart.h"
+
 #define DSL_CHUNK 64
 #define SERIAL_RING 128 /* a power of two; holds SERIAL_RING - 1 bytes */
 
@@ -71,30 +73,6 @@ static void serial_init(void)
     UBRR0 = (F_CPU / 8 / 115200UL) - 1; /* 16 MHz: 16 -> 117647 baud (+2.1 %) */
     UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);
-}
-
-static void serial_put(uint8_t c)
-{
-    while (!(UCSR0A & _BV(UDRE0))) {
-    }
-    UDR0 = c;
-}
-
-static void serial_puts_P(const char *s)
-{
-    char c;
-    while ((c = (char)pgm_read_byte(s++)) != 0) serial_put((uint8_t)c);
-}
-
-static void serial_putu(uint32_t v)
-{
-    char d[11];
-    uint8_t n = 0;
-    do {
-        d[n++] = (char)('0' + v % 10);
-        v /= 10;
-    } while (v);
-    while (n) serial_put((uint8_t)d[--n]);
 }
 
 static uint8_t serial_used(void)

@@ -27,6 +27,8 @@
 #include <avr/wdt.h>
 #include <stdint.h>
 
+#include "avr_uart.h"
+
 #define LASER_TIMEOUT_MS 250
 #define RING 32 /* a power of two */
 
@@ -77,30 +79,6 @@ ISR(TIMER1_COMPA_vect)
     }
 }
 
-static void put(uint8_t c)
-{
-    while (!(UCSR0A & _BV(UDRE0))) {
-    }
-    UDR0 = c;
-}
-
-static void puts_P(const char *s)
-{
-    char c;
-    while ((c = (char)pgm_read_byte(s++)) != 0) put((uint8_t)c);
-}
-
-static void putu(uint32_t v)
-{
-    char d[11];
-    uint8_t n = 0;
-    do {
-        d[n++] = (char)('0' + v % 10);
-        v /= 10;
-    } while (v);
-    while (n) put((uint8_t)d[--n]);
-}
-
 static const char *error_P; /* the first error, said again to every frame after it */
 
 static void fail(const char *message_P)
@@ -111,16 +89,16 @@ static void fail(const char *message_P)
     laser_off();
     sei();
     if (!error_P) error_P = message_P;
-    puts_P(PSTR("ERR "));
-    puts_P(error_P);
-    put('\n');
+    serial_puts_P(PSTR("ERR "));
+    serial_puts_P(error_P);
+    serial_put('\n');
 }
 
 static void ready(void)
 {
-    puts_P(PSTR("LASER "));
-    putu(LASER_TIMEOUT_MS);
-    put('\n');
+    serial_puts_P(PSTR("LASER "));
+    serial_putu(LASER_TIMEOUT_MS);
+    serial_put('\n');
 }
 
 static void frame(uint8_t kind, uint8_t value, uint8_t check)
@@ -145,9 +123,9 @@ static void frame(uint8_t kind, uint8_t value, uint8_t check)
         armed = 0;
         laser_off();
         sei();
-        puts_P(PSTR("OK "));
-        putu(frames);
-        put('\n');
+        serial_puts_P(PSTR("OK "));
+        serial_putu(frames);
+        serial_put('\n');
         frames = 0;
     } else if (kind == 'Q') {
         ready();
