@@ -312,27 +312,31 @@ def main():
 def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner, solver, scale, rotate, keep_position, center,
                 workers, max_time, max_size, quiet, as_json, **engrave):
     """Compile PART (mesh, G-code, or an image or SVG for a laser) into a trajectory for the printer."""
+    from . import jit
     from .pipeline import compile_part
+    from .progress import stderr_progress
     from .report import compile_summary
 
-    result = _run(
-        compile_part,
-        part,
-        _printer(printer_path, overrides, reach_checks=False),  # compile_part checks it while slicing starts
-        output=output,
-        fmt=fmt,
-        speed_limit=speed_limit,
-        planner=planner,
-        solver=solver,
-        workers=workers,
-        progress=not quiet,
-        echo=lambda s: click.echo(s, err=True),
-        max_duration_s=max_time * 3600.0 or None,
-        max_bytes=max(1, round(max_size * 1024**2)) if max_size else None,
-        engrave=_engrave_dict(**engrave),
-        center=center,
-        **_placement(scale, rotate, keep_position),
-    )
+    # a first run (numba's cache empty) says it compiles the kernels, and how far it is
+    with jit.reporting(stderr_progress(not quiet, jit.FIRST_RUN_LABEL, unit="kernels")):
+        result = _run(
+            compile_part,
+            part,
+            _printer(printer_path, overrides, reach_checks=False),  # compile_part checks it while slicing starts
+            output=output,
+            fmt=fmt,
+            speed_limit=speed_limit,
+            planner=planner,
+            solver=solver,
+            workers=workers,
+            progress=not quiet,
+            echo=lambda s: click.echo(s, err=True),
+            max_duration_s=max_time * 3600.0 or None,
+            max_bytes=max(1, round(max_size * 1024**2)) if max_size else None,
+            engrave=_engrave_dict(**engrave),
+            center=center,
+            **_placement(scale, rotate, keep_position),
+        )
     if as_json:
         _echo_json(result, err=_to_stderr(output))
     else:

@@ -13,14 +13,34 @@ workers (which run no kernel) slice. Until then ``njit`` gives a
 stand-in (:class:`Deferred`); the first call of any stand-in (or :func:`load`) makes numba's
 dispatcher of every kernel defined so far and puts it in place of the stand-in wherever a
 ``deltaslice`` module holds it, so kernels calling kernels compile against dispatchers, and later
-calls from Python go straight to them."""
+calls from Python go straight to them.
+
+A first run (an empty cache) compiles the kernels it needs in parallel before it goes on
+(:func:`warm_up`): ``kernels.json`` lists the kernels the README's first compile calls from Python
+with their argument types (``scripts/record_kernels.py`` writes it), and each is compiled by
+numba's documented eager form (``numba.njit([signature], cache=True)``) in this process and in
+one worker process per further core, which share the result through numba's cache; the run then
+loads them from the cache as a later run does. A kernel called with other types, or one not
+listed, compiles at its first call as before."""
 
 from __future__ import annotations
 
+import json
+import multiprocessing
+import os
+import signal
 import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
 
 _PENDING: list = []  # the stand-ins made before numba was imported, in definition order
 _NJIT = None  # numba.njit once imported (a pass-through where numba is missing)
+_KERNELS: dict = {}  # (module, qualname) -> the Python function and its options, for warm_up
+_REPORT = {"progress": None}  # progress(done, total) for the first run's compile (see reporting)
+MANIFEST = Path(__file__).with_name("kernels.json")
+FIRST_RUN_LABEL = "compiling kernels (first run only)"
 
 
 def _pass_through(*args, **kwargs):  # pragma: no cover
@@ -72,13 +92,17 @@ def loaded() -> bool:
     return _NJIT is not None
 
 
-def load() -> None:
+def load(warm: bool = True) -> None:
     """Import numba and make every deferred kernel's dispatcher, put in its place in every
-    ``deltaslice`` module (kernels are found by name from the kernels that call them). Does
-    nothing the second time."""
+    ``deltaslice`` module (kernels are found by name from the kernels that call them); then, with
+    ``warm``, compile the listed kernels in parallel if numba's cache has none of them
+    (:func:`warm_up`). Does nothing the second time."""
     global _NJIT
     if _NJIT is not None:
         return
+    entries = _manifest() if warm and multiprocessing.parent_process() is None else []
+    for module in sorted({e["module"] for e in entries}):
+        __import__(module)  # their kernels are made below with the others
     try:  # numba is a declared dependency
         from numba import njit as numba_njit
     except ImportError:  # pragma: no cover
@@ -95,6 +119,8 @@ def load() -> None:
             if type(value) is Deferred:
                 space[key] = value.dispatcher
     _PENDING.clear()
+    if entries and _NJIT is not _pass_through:
+        warm_up(entries, progress=_REPORT["progress"])
 
 
 def njit(*args, **kwargs):
@@ -107,6 +133,7 @@ def njit(*args, **kwargs):
         raise TypeError("njit: give options as keywords (the kernels here are typed at their first call)")
 
     def make(fn):
+        _KERNELS[(fn.__module__, fn.__qualname__)] = (fn, kwargs)
         if _NJIT is not None:
             return _NJIT(**kwargs)(fn)
         stand_in = Deferred(fn, kwargs)
@@ -114,3 +141,164 @@ def njit(*args, **kwargs):
         return stand_in
 
     return make(args[0]) if args else make
+
+
+@contextmanager
+def reporting(progress):
+    """While the block runs, a first run's compile of the kernels (:func:`warm_up`) reports to
+    ``progress(done, total)`` (in kernels; None: silent)."""
+    before = _REPORT["progress"]
+    _REPORT["progress"] = progress
+    try:
+        yield
+    finally:
+        _REPORT["progress"] = before
+
+
+def _manifest() -> list:
+    """kernels.json's kernels (dicts of module, name, seconds, signatures), or [] where it is missing
+    or unreadable (every kernel then compiles at its first call)."""
+    try:
+        return list(json.loads(MANIFEST.read_text())["kernels"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+
+
+def _signatures(texts) -> list:
+    """Argument types as numba writes them (``repr`` of a signature: ``(Array(float64, 1, 'C', False,
+    aligned=True), int64)``), read back with the names of numba's public ``numba.types``."""
+    import numba.types
+
+    space = dict(vars(numba.types))
+    return [eval(text, {"__builtins__": {}}, space) for text in texts]  # noqa: S307 (our own file)
+
+
+def _compile(module: str, name: str, signatures) -> object:
+    """numba's dispatcher of kernel ``module.name`` compiled now, for ``signatures`` (texts), by the
+    documented eager form: a new dispatcher of the same function, written to (or read from) the cache
+    the kernel's own dispatcher reads at its first call."""
+    import numba
+
+    fn, options = _KERNELS[(module, name)]
+    return numba.njit(_signatures(signatures), **options)(fn)
+
+
+def _reached(fn, seen=None) -> set:
+    """The kernels (module, qualname) that kernel ``fn`` calls, directly or through others: numba
+    compiles them with it, so kernels sharing one are best compiled in the same process."""
+    seen = set() if seen is None else seen
+    codes = [fn.__code__]
+    while codes:
+        code = codes.pop()
+        codes.extend(c for c in code.co_consts if hasattr(c, "co_names"))
+        for word in code.co_names:
+            inner = getattr(fn.__globals__.get(word), "py_func", None)
+            key = (getattr(inner, "__module__", None), getattr(inner, "__qualname__", None))
+            if key in _KERNELS and key not in seen:
+                seen.add(key)
+                _reached(inner, seen)
+    return seen
+
+
+def _shares(jobs: list, processes: int) -> list:
+    """``jobs`` (manifest entries) split into at most ``processes`` lists of about equal recorded
+    compile time; kernels that call a common kernel stay together (in manifest order)."""
+    groups = []  # [kernels reached, [job indices]]
+    for i, job in enumerate(jobs):
+        reach = _reached(_KERNELS[(job["module"], job["name"])][0]) | {(job["module"], job["name"])}
+        joined = [g for g in groups if g[0] & reach]
+        for g in joined:
+            groups.remove(g)
+            reach |= g[0]
+        groups.append([reach, sorted([i] + [k for g in joined for k in g[1]])])
+    shares, load = [[] for _ in range(processes)], [0.0] * processes
+    for _reach, members in sorted(groups, key=lambda g: -sum(jobs[k]["seconds"] for k in g[1])):
+        j = load.index(min(load))
+        shares[j].extend(members)
+        load[j] += sum(jobs[k]["seconds"] for k in members)
+    return [[jobs[k] for k in sorted(share)] for share in shares if share]
+
+
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _compile_share(jobs: list, conn) -> None:
+    """A warm-up worker: compile each job into the cache, sending 1 (or 0 on a failure: that kernel
+    compiles at its first call) after each. Ctrl-C ends it silently (the parent reports it)."""
+    signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+    for module in sorted({job["module"] for job in jobs}):
+        __import__(module)
+    load(warm=False)
+    for job in jobs:
+        try:
+            _compile(job["module"], job["name"], job["signatures"])
+            conn.send(1)
+        except Exception:  # noqa: BLE001 - a kernel that fails here fails again, with its message, when called
+            conn.send(0)
+    conn.close()
+
+
+def warm_up(entries: list, progress=None, processes: int | None = None) -> int:
+    """Compile the kernels of ``entries`` (kernels.json's) into numba's cache, in this process and in
+    ``processes - 1`` workers (default: one per core), if the cache holds none of them: the
+    cheapest is compiled (or loaded) first, here, and a cache hit means a warm cache (nothing more
+    is done). ``progress(done, total)`` hears of each kernel, and again every 0.5 s while one
+    compiles. Returns the number of kernels compiled (0 when the cache was warm)."""
+    import numba  # noqa: F401 (loaded by load())
+
+    jobs = [e for e in entries if (e["module"], e["name"]) in _KERNELS]
+    if not jobs:
+        return 0
+    cheapest = min(range(len(jobs)), key=lambda k: jobs[k]["seconds"])
+    jobs.insert(0, jobs.pop(cheapest))
+    probe = _compile(jobs[0]["module"], jobs[0]["name"], jobs[0]["signatures"])
+    stats = getattr(probe, "stats", None)
+    if stats is None or not sum(stats.cache_misses.values()):
+        return 0
+    shares = _shares(jobs[1:], max(1, min(processes or _cores(), len(jobs) - 1)))
+    done, stop = [1, 0], threading.Event()  # kernels compiled here (the probe too), by the workers
+    context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else None)
+    workers = []
+    try:
+        for share in shares[1:]:
+            recv, send = context.Pipe(duplex=False)
+            worker = context.Process(target=_compile_share, args=(share, send), daemon=True)
+            worker.start()
+            send.close()
+            workers.append((worker, recv))
+        reporter = threading.Thread(target=_report, args=(workers, done, len(jobs), progress, stop), daemon=True)
+        reporter.start()
+        for job in shares[0] if shares else []:
+            try:
+                _compile(job["module"], job["name"], job["signatures"])
+            except Exception:  # noqa: BLE001 - it fails again, with its message, when the run calls it
+                pass
+            done[0] += 1
+        for worker, _recv in workers:
+            worker.join()
+    finally:
+        stop.set()
+        for worker, _recv in workers:
+            if worker.is_alive():
+                worker.terminate()
+                worker.join()
+    reporter.join()
+    if progress is not None:
+        progress(len(jobs), len(jobs))
+    return len(jobs)
+
+
+def _report(workers, done: list, total: int, progress, stop) -> None:
+    """The warm-up's reporter thread: counts the workers' kernels into ``done[1]`` and calls
+    ``progress`` every 0.5 s until ``stop``."""
+    started = time.monotonic()
+    while not stop.wait(0.5 if time.monotonic() - started > 0.5 else 0.1):
+        for _worker, recv in workers:
+            try:
+                while recv.poll():
+                    done[1] += recv.recv()
+            except (EOFError, OSError):
+                pass
+        if progress is not None:
+            progress(min(sum(done), total - 1), total)

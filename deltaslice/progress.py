@@ -1,8 +1,9 @@
 """Progress reporting for long work: a ``progress(done, total)`` callback on stderr.
 
 On a terminal it is a tqdm bar (rate and ETA). In a pipe or a log file there is no
-carriage return: one plain line per tenth of the work (and at the end), each with the
-elapsed time and tqdm's ETA, so a log holds at most a dozen lines per stage.
+carriage return: one plain line per tenth of the work (and at the end), and one whenever
+``PIPE_INTERVAL_S`` has passed since the last (a slow stage still speaks at a steady pace),
+each with the elapsed time since the stage's first report and tqdm's ETA.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ import sys
 import time
 
 PIPE_STEPS = 10
+PIPE_INTERVAL_S = 2.0  # at most this long between two lines of a stage that reports (a pipe's)
+_now = time.monotonic
 
 
 def stderr_progress(enabled: bool, label: str, unit: str = "it", stream=None):
@@ -42,7 +45,7 @@ class _TtyBar:
 class _PipeLines:
     def __init__(self, label, unit, stream):
         self.label, self.unit, self.stream = label, unit, stream
-        self.t0 = time.monotonic()
+        self.t0 = self.last = None  # the first report's time (the stage starts there), the last line's
         self.next_step = 1
         self.finished = False
 
@@ -51,11 +54,15 @@ class _PipeLines:
 
         if self.finished:
             return
+        now = _now()
+        if self.t0 is None:
+            self.t0 = self.last = now
         frac = done / total if total > 0 else 1.0
-        if frac < self.next_step / PIPE_STEPS and done < total:
+        if frac < self.next_step / PIPE_STEPS and done < total and now - self.last < PIPE_INTERVAL_S:
             return
-        self.next_step = int(frac * PIPE_STEPS) + 1
-        elapsed = time.monotonic() - self.t0
+        self.next_step = max(self.next_step, int(frac * PIPE_STEPS) + 1)
+        self.last = now
+        elapsed = now - self.t0
         eta = "" if done >= total or frac <= 0 else f", ETA {tqdm.format_interval(elapsed * (1 - frac) / frac)}"
         shown = f"{done:.0f}/{total:.0f} {self.unit}" if self.unit == "s" else f"{done}/{total}"
         self.stream.write(f"{self.label}: {shown} ({100 * frac:.0f}%), {tqdm.format_interval(elapsed)} elapsed{eta}\n")
