@@ -25,6 +25,7 @@ listed, compiles at its first call as before."""
 
 from __future__ import annotations
 
+import gc
 import json
 import multiprocessing
 import os
@@ -264,7 +265,11 @@ def warm_up(entries: list, progress=None, processes: int | None = None) -> int:
         for share in shares[1:]:
             recv, send = context.Pipe(duplex=False)
             worker = context.Process(target=_compile_share, args=(share, send), daemon=True)
-            worker.start()
+            gc.freeze()  # a forked worker's collections skip what it inherits (as pool.start_pool's)
+            try:
+                worker.start()
+            finally:
+                gc.unfreeze()
             send.close()
             workers.append((worker, recv))
         reporter = threading.Thread(target=_report, args=(workers, done, len(jobs), progress, stop), daemon=True)

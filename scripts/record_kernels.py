@@ -44,12 +44,23 @@ kernels = json.loads(sys.stdin.read())
 for k in kernels:
     __import__(k["module"])
 jit.load(warm=False)
+import numba
+numba.njit(lambda x: x + 1)(1)  # numba's own set-up, paid once by any process, is no kernel's
 for k in kernels:
     t = time.perf_counter()
     jit._compile(k["module"], k["name"], k["signatures"])
     k["seconds"] = round(time.perf_counter() - t, 2)
 print(json.dumps(kernels))
 """
+
+
+def _child(code: str, argv: list, env: dict, stdin: str | None = None):
+    """Run ``code`` in a new Python process; the JSON of its last line."""
+    r = subprocess.run([sys.executable, "-c", code, *argv], input=stdin, env=env, capture_output=True, text=True,
+                       cwd=ROOT)
+    if r.returncode != 0:
+        raise SystemExit(f"record_kernels: a child process failed:\n{r.stderr[-3000:]}")
+    return json.loads(r.stdout.splitlines()[-1])
 
 
 def main() -> None:
@@ -59,12 +70,8 @@ def main() -> None:
     args = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     with tempfile.TemporaryDirectory() as tmp:
-        out = subprocess.run([sys.executable, "-c", SIGNATURES, args.part, args.printer, str(Path(tmp) / "x.dsl")],
-                             env=env, capture_output=True, text=True, check=True, cwd=ROOT)
-        kernels = json.loads(out.stdout.splitlines()[-1])
-        timed = subprocess.run([sys.executable, "-c", TIMES], input=json.dumps(kernels),
-                               env=dict(env, NUMBA_CACHE_DIR=tmp), capture_output=True, text=True, check=True, cwd=ROOT)
-        kernels = json.loads(timed.stdout.splitlines()[-1])
+        out = _child(SIGNATURES, [args.part, args.printer, str(Path(tmp) / "x.dsl")], env)
+        kernels = _child(TIMES, [], dict(env, NUMBA_CACHE_DIR=tmp), stdin=json.dumps(out))
     manifest = {"about": "kernels a first run compiles in parallel (deltaslice.jit.warm_up); "
                          "written by scripts/record_kernels.py",
                 "part": Path(args.part).name, "printer": args.printer, "kernels": kernels}

@@ -322,6 +322,8 @@ def blend_runs(points: np.ndarray, starts: np.ndarray, tolerance: np.ndarray) ->
                       np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap),
                       np.empty(cap, dtype=np.int64), np.empty(cap, dtype=bool))
     lengths = np.empty(cap)
+    points = points.view()
+    points.flags.writeable = False  # one compiled signature whether the caller's array is writable or not
     k = _lay_out(points, d, seg_len, starts, setback, arc_len, radius, normal, out.offsets, lengths, out.kind, out.p0,
                  out.d0, out.normal, out.radius, out.segment)
     run_cumsum(lengths[:k], out.offsets, out.piece_start)
