@@ -121,7 +121,10 @@ def load(warm: bool = True) -> None:
                 space[key] = value.dispatcher
     _PENDING.clear()
     if entries and _NJIT is not _pass_through:
-        warm_up(entries, progress=_REPORT["progress"])
+        try:
+            warm_up(entries, progress=_REPORT["progress"])
+        except (OSError, ValueError, TypeError, KeyError, SyntaxError, NameError):
+            pass  # no process or a stale list: every kernel still compiles at its first call
 
 
 def njit(*args, **kwargs):
