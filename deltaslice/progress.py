@@ -1,9 +1,9 @@
 """Progress reporting for long work: a ``progress(done, total)`` callback on stderr.
 
 On a terminal it is a tqdm bar (rate and ETA). In a pipe or a log file there is no
-carriage return: one plain line per tenth of the work (and at the end), and one whenever
-``PIPE_INTERVAL_S`` has passed since the last (a slow stage still speaks at a steady pace),
-each with the elapsed time since the stage's first report and tqdm's ETA.
+carriage return: one plain line at the stage's first report, one per tenth of the work (and at
+the end), and one whenever ``PIPE_INTERVAL_S`` has passed since the last (a slow stage still
+speaks at a steady pace), each with the elapsed time since the first report and tqdm's ETA.
 """
 
 from __future__ import annotations
@@ -55,10 +55,11 @@ class _PipeLines:
         if self.finished:
             return
         now = _now()
-        if self.t0 is None:
+        first = self.t0 is None  # the stage's first report is said at once: the stage has begun
+        if first:
             self.t0 = self.last = now
         frac = done / total if total > 0 else 1.0
-        if frac < self.next_step / PIPE_STEPS and done < total and now - self.last < PIPE_INTERVAL_S:
+        if not first and frac < self.next_step / PIPE_STEPS and done < total and now - self.last < PIPE_INTERVAL_S:
             return
         self.next_step = max(self.next_step, int(frac * PIPE_STEPS) + 1)
         self.last = now
