@@ -318,7 +318,7 @@ def compile_cmd(part, printer_path, overrides, output, fmt, speed_limit, planner
     from .report import compile_summary
 
     # a first run (numba's cache empty) says it compiles the kernels, and how far it is
-    with jit.reporting(stderr_progress(not quiet, jit.FIRST_RUN_LABEL, unit="kernels")):
+    with jit.first_run(stderr_progress(not quiet, jit.FIRST_RUN_LABEL, unit="kernels")):
         result = _run(
             compile_part,
             part,

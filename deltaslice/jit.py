@@ -15,8 +15,8 @@ dispatcher of every kernel defined so far and puts it in place of the stand-in w
 ``deltaslice`` module holds it, so kernels calling kernels compile against dispatchers, and later
 calls from Python go straight to them.
 
-A first run (an empty cache) compiles the kernels it needs in parallel before it goes on
-(:func:`warm_up`): ``kernels.json`` lists the kernels the README's first compile calls from Python
+A first compile (an empty cache, inside :func:`first_run`) compiles the kernels it needs in
+parallel before it goes on (:func:`warm_up`): ``kernels.json`` lists the kernels the README's first compile calls from Python
 with their argument types (``scripts/record_kernels.py`` writes it), and each is compiled by
 numba's documented eager form (``numba.njit([signature], cache=True)``) in this process and in
 one worker process per further core, which share the result through numba's cache; the run then
@@ -39,7 +39,7 @@ from pathlib import Path
 _PENDING: list = []  # the stand-ins made before numba was imported, in definition order
 _NJIT = None  # numba.njit once imported (a pass-through where numba is missing)
 _KERNELS: dict = {}  # (module, qualname) -> the Python function and its options, for warm_up
-_REPORT = {"progress": None}  # progress(done, total) for the first run's compile (see reporting)
+_FIRST_RUN = {"on": False, "progress": None}  # set by first_run(): warm_up at load, reported there
 MANIFEST = Path(__file__).with_name("kernels.json")
 FIRST_RUN_LABEL = "compiling kernels (first run only)"
 
@@ -96,12 +96,12 @@ def loaded() -> bool:
 def load(warm: bool = True) -> None:
     """Import numba and make every deferred kernel's dispatcher, put in its place in every
     ``deltaslice`` module (kernels are found by name from the kernels that call them); then, with
-    ``warm``, compile the listed kernels in parallel if numba's cache has none of them
-    (:func:`warm_up`). Does nothing the second time."""
+    ``warm`` inside :func:`first_run`, compile the listed kernels in parallel if numba's cache has
+    none of them (:func:`warm_up`). Does nothing the second time."""
     global _NJIT
     if _NJIT is not None:
         return
-    entries = _manifest() if warm and multiprocessing.parent_process() is None else []
+    entries = _manifest() if warm and _FIRST_RUN["on"] and multiprocessing.parent_process() is None else []
     for module in sorted({e["module"] for e in entries}):
         __import__(module)  # their kernels are made below with the others
     try:  # numba is a declared dependency
@@ -122,7 +122,7 @@ def load(warm: bool = True) -> None:
     _PENDING.clear()
     if entries and _NJIT is not _pass_through:
         try:
-            warm_up(entries, progress=_REPORT["progress"])
+            warm_up(entries, progress=_FIRST_RUN["progress"])
         except (OSError, ValueError, TypeError, KeyError, SyntaxError, NameError):
             pass  # no process or a stale list: every kernel still compiles at its first call
 
@@ -148,15 +148,17 @@ def njit(*args, **kwargs):
 
 
 @contextmanager
-def reporting(progress):
-    """While the block runs, a first run's compile of the kernels (:func:`warm_up`) reports to
-    ``progress(done, total)`` (in kernels; None: silent)."""
-    before = _REPORT["progress"]
-    _REPORT["progress"] = progress
+def first_run(progress=None):
+    """While the block runs, numba's first load (:func:`load`) compiles kernels.json's kernels in
+    parallel if the cache has none (:func:`warm_up`), reporting to ``progress(done, total)`` (in
+    kernels; None: silent). The compile command's (the README's first command) asks for it;
+    elsewhere (a library call, a command using a few kernels) each compiles at its first call."""
+    before = dict(_FIRST_RUN)
+    _FIRST_RUN.update(on=True, progress=progress)
     try:
         yield
     finally:
-        _REPORT["progress"] = before
+        _FIRST_RUN.update(before)
 
 
 def _manifest() -> list:
