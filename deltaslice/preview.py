@@ -170,10 +170,9 @@ def trajectory_figure(samples, printer, *, title="", tool_state=True):
         axes[0, j].set_title(f"{name}: position ({unit})")
         axes[1, j].set_title(f"{name}: speed ({unit}/s), peak {100 * _peak(v, ch.velocity_max):.0f} % of limit")
         axes[2, j].set_title(f"{name}: acceleration ({unit}/s²), peak {100 * _peak(a, ch.acceleration_max):.0f} % of limit")
-    tool = lim.channel(J)
     values = printer.tool.channel_values(samples.e, samples.tool)
     ax = axes[3, 0]
-    if tool.kind == "laser":
+    if printer.tool.channel_is_power:
         _series(ax, t, values, "#e377c2", 1.0, 0.0)
         ax.set_title("laser power (0..1)")
     else:

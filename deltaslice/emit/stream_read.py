@@ -10,6 +10,7 @@ import zlib
 import numpy as np
 
 from ..errors import StreamError
+from ..machine.tool import tool_class
 from ..samples import Samples
 from ..toolpath import EVENT_NAMES, EventKind
 from . import csv as csvfmt
@@ -177,23 +178,18 @@ class UnitConverter:
         ch = header.channels
         self.cpu = np.array([c.counts_per_unit for c in ch[:-1]])
         self.zero = np.array([c.zero_count for c in ch[:-1]])
-        self.last_e = None
+        self.tool = tool_class(header.tool_kind)  # what the tool channel's values mean
+        self.last = None
 
     def __call__(self, counts: np.ndarray, first: int) -> Samples:
         h = self.h
         n = len(counts)
         t = (first + np.arange(n)) * 1000.0 / h.rate_mhz
         q = (counts[:, :-1] - self.zero) / self.cpu
-        tool_ch = h.channels[-1]
-        if h.tool_kind == "laser":  # the power fraction; an extruder's state is its rising count
-            tool = counts[:, -1] / tool_ch.counts_per_unit
-            e = np.zeros(n)
-        else:
-            e = counts[:, -1] / tool_ch.counts_per_unit
-            prev = np.concatenate([[e[0] if self.last_e is None else self.last_e], e[:-1]])
-            tool = (e > prev).astype(float)
-            if n:
-                self.last_e = e[-1]
+        values = counts[:, -1] / h.channels[-1].counts_per_unit
+        e, tool = self.tool.from_channel(values, self.last)
+        if n:
+            self.last = values[-1]
         return Samples(t, q, e, tool)
 
 

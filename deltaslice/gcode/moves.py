@@ -161,7 +161,7 @@ def _apply_dialects(printer, e, kind, power, moved, moved_xy, e_words, bare_word
     laser = printer is not None and printer.tool.takes_laser_power
     if laser and laser_seen:
         s_max = getattr(printer.tool, "s_max", 1000.0)
-        # the tool channel is a fraction of full power (0..1); max_power (W) is reported only
+        # the tool channel is a fraction of full power (0..1); max_power (W) is what 1 burns (verify reports it)
         frac = np.clip(power / s_max, 0.0, 1.0)
         working = moved & (kind >= 1) & (frac > 0)
         return np.zeros(len(e)), np.where(working, frac, 0.0), working

@@ -540,6 +540,7 @@ def play_file(stream_path, bus_port, *, baud=1_000_000, ids=None, protocol=1, la
     :class:`~deltaslice.play.PlayResult`."""
     from ..emit.stream import StreamReader
     from ..errors import PlayError
+    from ..machine.tool import tool_class
     from ..play import Keys, open_bus, open_laser, play
 
     _check_path(stream_path, "stream")
@@ -556,7 +557,7 @@ def play_file(stream_path, bus_port, *, baud=1_000_000, ids=None, protocol=1, la
         loaded = _printer(printer)
         if loaded.fingerprint() != h.fingerprint:
             raise StreamError(f"{stream_path}: stream compiled for printer {h.printer_name!r}, not {loaded.name!r}")
-    if laser_port is not None and h.tool_kind != "laser":
+    if laser_port is not None and not tool_class(h.tool_kind).takes_laser_power:
         raise PlayError(f"{stream_path}: --laser given, but the stream's tool is {h.tool_kind!r}, not a laser")
     counts = np.concatenate(parts) if parts else np.zeros((0, h.n_channels), dtype=np.int64)
     ids = list(range(1, h.n_joints + 1)) if ids is None else list(ids)
