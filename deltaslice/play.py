@@ -265,15 +265,7 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
     :class:`PlayError` after the clean stop on an error or an abort (``.interrupted`` on Ctrl-C)."""
     bus = BUSES[protocol]
     ids = list(ids)
-    if len(ids) != n_joints:
-        raise PlayError(f"{name}: {n_joints} joints in the stream, {len(ids)} servo IDs given")
-    joints = counts[:, :n_joints]
-    if len(joints) == 0:
-        raise PlayError(f"{name}: the stream has no samples")
-    lo, hi = int(joints.min()), int(joints.max())
-    if lo < 0 or hi > bus.goal_max:
-        raise PlayError(f"{name}: joint counts {lo}..{hi} leave the servos' goal range 0..{bus.goal_max} "
-                        f"(protocol {protocol}): compiled for another servo?")
+    joints = _checked_joints(counts, n_joints, ids, bus, protocol, name)
     duty = laser_duty(counts, events, n_joints) if laser_port is not None else None
     k = decimation(bus, len(ids), baud, rate, min_interval)
     n, period = len(counts), 1.0 / rate
@@ -353,6 +345,21 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
         err.interrupted = stopped == "interrupt"
         raise err
     return result
+
+
+def _checked_joints(counts: np.ndarray, n_joints: int, ids: list, bus, protocol: int, name: str) -> np.ndarray:
+    """(n, n_joints) the joints' goal counts, or PlayError: an ID per joint, samples, every count in
+    the servos' goal range."""
+    if len(ids) != n_joints:
+        raise PlayError(f"{name}: {n_joints} joints in the stream, {len(ids)} servo IDs given")
+    joints = counts[:, :n_joints]
+    if len(joints) == 0:
+        raise PlayError(f"{name}: the stream has no samples")
+    lo, hi = int(joints.min()), int(joints.max())
+    if lo < 0 or hi > bus.goal_max:
+        raise PlayError(f"{name}: joint counts {lo}..{hi} leave the servos' goal range 0..{bus.goal_max} "
+                        f"(protocol {protocol}): compiled for another servo?")
+    return joints
 
 
 @contextlib.contextmanager
