@@ -38,6 +38,7 @@ import numpy as np
 
 from . import interrupt
 from .errors import PlayError
+from .tolerances import COUNT_ROUNDOFF
 
 LASER_BAUD = 115200
 LASER_SET, LASER_END, LASER_QUERY = ord("L"), ord("E"), ord("Q")
@@ -76,7 +77,7 @@ def decimation(bus: Bus, servos: int, baud: int, rate: float, min_interval: floa
     """Samples per packet: the fewest whole sample periods a packet fits in (and ``min_interval``)."""
     period = 1.0 / rate
     need = max(bus_seconds(bus.packet_bytes(servos), baud), min_interval)
-    return max(1, math.ceil(need / period - 1e-9))
+    return max(1, math.ceil(need / period - COUNT_ROUNDOFF))
 
 
 def laser_frame(kind: int, value: int) -> bytes:

@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from .machine.limits import windowed_differences
+from .tolerances import SAME_LENGTH
 from .toolpath import Role
 
 ROLE_STYLE = {  # role: (colour, label)
@@ -73,7 +74,7 @@ def toolpath_figure(toolpath, printer, *, layer=None, title=""):
     on_layer = toolpath.layer == layer
     working = toolpath.tool > 0
     _bed_outline(ax, printer.bed)
-    travel = on_layer & ~working & (toolpath.lengths > 1e-9)
+    travel = on_layer & ~working & (toolpath.lengths > SAME_LENGTH)
     if travel.any():
         segs = np.stack([starts[travel, :2], ends[travel, :2]], axis=1)
         ax.add_collection(LineCollection(segs, colors=TRAVEL_COLOUR, linewidths=0.7, linestyles=(0, (3, 2)), label="travel"))

@@ -45,6 +45,7 @@ import numpy as np
 
 from .errors import StreamError
 from .machine.limits import NOISE_FRACTION, TOLERANCE, windowed_differences
+from .tolerances import RELATIVE_ROUNDOFF, SAME_LENGTH, SHORTEST_TIME
 
 MARGIN = TOLERANCE  # shown in the report; the thresholds are Limits.sampled_check's
 CSV_RESOLUTION = 1e-10  # the CSV's 10 decimals (rounding error 5e-11)
@@ -229,7 +230,7 @@ class _Collector:
 
 MIN_RATE = 50.0  # Hz: below this the motion between samples is not constrained by anything checked here
 #: Relative difference below which a file's rate is the printer's output rate (a note otherwise).
-RATE_MATCH = 1e-9
+RATE_MATCH = RELATIVE_ROUNDOFF
 
 
 def _nan_argmax(x) -> int:
@@ -536,10 +537,10 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
 
     work = samples.tool > 0
     if quantised and printer.tool.takes_filament:  # a stream's extruder state is derived from rising counts
-        work = _close_gaps(work, max(1, int(round(GAP_FILL * len(samples) / max(samples.t[-1] - samples.t[0], 1e-9)))))
+        work = _close_gaps(work, max(1, int(round(GAP_FILL * len(samples) / max(samples.t[-1] - samples.t[0], SHORTEST_TIME)))))
     idx = np.flatnonzero(work)
     starts, ends = toolpath.starts, toolpath.xyz
-    seg_ok = (toolpath.tool > 0) & (toolpath.lengths > 1e-9)
+    seg_ok = (toolpath.tool > 0) & (toolpath.lengths > SAME_LENGTH)
     a, b = starts[seg_ok], ends[seg_ok]
     blend = printer.planning.blend_tolerance
     if len(idx) == 0 or len(a) == 0:

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from ..errors import GcodeError
+from ..tolerances import RELATIVE_ROUNDOFF, SAME_LENGTH
 
 #: Largest distance between an arc and its chords, mm.
 ARC_TOLERANCE = 0.01
@@ -44,19 +45,19 @@ def _arc_points(p0, p1, ij, r_word, clockwise: bool, where: str, budget: int | N
         cx, cy = x0 + ij[0], y0 + ij[1]
         r0 = math.hypot(x0 - cx, y0 - cy)
         r1 = math.hypot(x1 - cx, y1 - cy)
-        if not r0 > 1e-9:
+        if not r0 > SAME_LENGTH:
             raise GcodeError(f"{where}: arc with zero radius (I and J are 0)")
         if abs(r1 - r0) > ARC_END_TOLERANCE + 1e-3 * r0:
             raise GcodeError(
                 f"{where}: arc end ({x1:g}, {y1:g}) is {abs(r1 - r0):.4f} mm off the circle of radius {r0:.4f} "
                 f"about ({cx:g}, {cy:g}) (tolerance {ARC_END_TOLERANCE + 1e-3 * r0:.4f} mm)"
             )
-        full = d <= 1e-9
+        full = d <= SAME_LENGTH
     elif r_word is not None:
         r = abs(r_word)
-        if d <= 1e-9:
+        if d <= SAME_LENGTH:
             raise GcodeError(f"{where}: an R arc cannot end where it starts (use I/J for a full circle)")
-        if d > 2 * r * (1 + 1e-9) + 1e-6:
+        if d > 2 * r * (1 + RELATIVE_ROUNDOFF) + 1e-6:
             raise GcodeError(f"{where}: arc radius R{r_word:g} cannot join its end points {d:.4f} mm apart")
         half = d / (2 * r)
         # the short arc (R > 0) bulges by the sagitta; a nearly straight one is its chord

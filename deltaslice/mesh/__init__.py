@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MeshError, UnreachableError
+from ..tolerances import SAME_LENGTH
 from .readers import UNITS_MM, _binary_stl_count, _flatten_scene, _read_ascii_stl, _read_binary_stl, _read_obj
 from .repair import (MAX_EXTENT, MAX_HOLE_EDGES, MERGE_DIGITS, MIN_EXTENT, _manifold, _merge_vertices, _repair,
                      _to_manifold)
@@ -107,7 +108,7 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
             return read
     if suffix == ".3mf":
         _check_unpacked_size(path, shown)
-    import trimesh  # other formats only: STL and plain OBJ are read here, and importing trimesh takes 0.4-0.8 s
+    import trimesh  # other formats only: STL and plain OBJ are read here, and trimesh's import is slow
 
     try:
         loaded = trimesh.load(str(path), process=False)
@@ -281,7 +282,7 @@ def check_fits(mesh: Mesh, printer) -> None:
     height = float(v[:, 2].max())
     bed = printer.bed
     r_part = float(np.hypot(v[:, 0], v[:, 1]).max())
-    if height > bed.max_height + 1e-9:
+    if height > bed.max_height + SAME_LENGTH:
         raise UnreachableError(
             f"{mesh.path}: the part is {height:.2f} mm tall, {height - bed.max_height:.2f} mm more than "
             f"the printer's max height {bed.max_height:g} mm{_placed(mesh)}"
@@ -325,7 +326,7 @@ def _placed(mesh: Mesh) -> str:
 
 def _hull_xy(xy: np.ndarray) -> np.ndarray:
     """Convex hull of 2-D points, densified so no edge is longer than ~2 mm. GEOS's hull (shapely
-    is loaded for slicing anyway; scipy.spatial would cost the compile's main process 0.15 s)."""
+    is loaded for slicing anyway; scipy.spatial would add its import to the compile's start)."""
     import shapely
 
     outline = shapely.convex_hull(shapely.multipoints(xy))

@@ -114,7 +114,7 @@ def _repair(vertices: np.ndarray, faces: np.ndarray, shown: str, stl: bool = Fal
     notes: list[str] = []
     _check_surface(vertices, faces, shown)
     sound = _sound_surface(vertices, faces)
-    if sound is not None:  # the usual part: nothing to repair, and no trimesh to import (0.4 s)
+    if sound is not None:  # the usual part: nothing to repair, and no trimesh to import
         v, f, merged = sound
         notes = [f"merged {merged} duplicate vertices"] if merged and not stl else []
         if _signed_volume(v, f) < 0:
