@@ -74,6 +74,14 @@ class _Reader:
     mode, the plane, the laser's mode and power. Found so far: the dialect, layer and role
     comments, the settings block, events, skipped commands, the moves' columns."""
 
+    # slots: a dozen of these are read on every line of a file of millions
+    __slots__ = ("abs_e", "abs_xyz", "arc_chords", "bare_retracted", "bare_words", "bed", "block", "columns",
+                 "cura_settings", "default_feed", "e_most", "e_pushed", "e_reg", "e_words", "events", "feed", "handed",
+                 "have_layer_comments", "laser_mode", "laser_seen", "layer_idx", "layer_z_comment", "line_no",
+                 "motion_mode", "offset", "plane", "pos", "printer", "prusa_layers", "retract_bound", "role_comment",
+                 "s_value", "settings", "shown", "shown_line", "sink", "skipped", "start", "started", "takes_filament",
+                 "takes_laser_power", "tool", "unit", "where", "z_hi", "z_lo")
+
     def __init__(self, name: str, prusa_layers: bool, printer, sink, block: int):
         self.shown, self.prusa_layers, self.printer, self.sink, self.block = name, prusa_layers, printer, sink, block
         self.default_feed = printer.slicing.travel_speed if printer is not None and hasattr(printer, "slicing") \
@@ -355,17 +363,35 @@ class _Reader:
     def _append(self, x: list, y: list, z: list, e: list, cmd: str, params: dict, bare: bool) -> None:
         """Add k moves (their x, y, z, e lists) in the current modal state; hand a full block to the sink."""
         xs, ys, zs, es, fs, roles, layers, kinds, powers, lmodes = self.columns
-        k = len(x)
-        xs.extend(x)
-        ys.extend(y)
-        zs.extend(z)
-        es.extend(e)
-        fs.extend([self.feed if self.feed is not None else self.default_feed] * k)
-        roles.extend([self.role_comment if self.role_comment is not None else -1] * k)
-        layers.extend([max(self.layer_idx, 0)] * k)
-        kinds.extend([0 if cmd == "G0" else (3 if bare else (2 if "E" in params else 1))] * k)
-        powers.extend([self.s_value if self.laser_mode else 0.0] * k)
-        lmodes.extend([self.laser_mode] * k)
+        feed = self.feed if self.feed is not None else self.default_feed
+        role = self.role_comment if self.role_comment is not None else -1
+        layer = max(self.layer_idx, 0)
+        kind = 0 if cmd == "G0" else (3 if bare else (2 if "E" in params else 1))
+        mode = self.laser_mode
+        power = self.s_value if mode else 0.0
+        if len(x) == 1:  # a line, not an arc's chords
+            xs.append(x[0])
+            ys.append(y[0])
+            zs.append(z[0])
+            es.append(e[0])
+            fs.append(feed)
+            roles.append(role)
+            layers.append(layer)
+            kinds.append(kind)
+            powers.append(power)
+            lmodes.append(mode)
+        else:
+            k = len(x)
+            xs.extend(x)
+            ys.extend(y)
+            zs.extend(z)
+            es.extend(e)
+            fs.extend([feed] * k)
+            roles.extend([role] * k)
+            layers.extend([layer] * k)
+            kinds.extend([kind] * k)
+            powers.extend([power] * k)
+            lmodes.extend([mode] * k)
         if self.sink is not None and len(xs) >= self.block:
             self.sink(self.columns)
             self.handed += len(xs)
