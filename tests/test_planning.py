@@ -260,8 +260,8 @@ def test_parallel_equals_serial():
 
 @pytest.mark.parametrize("name", ["delta_ucb", "delta_espe_laser"])
 def test_jobs_named_by_their_moves_are_the_jobs_themselves(name):
-    """The planning workers get each job as the moves it is made from (a run's (i, j), a travel's
-    (i, j, printed top)) and make its arguments from the toolpath they inherit: the same RunSpec
+    """The planning workers get each job as the moves it is made from (its i, j and the printed
+    top before it) and make its arguments from the toolpath they inherit: the same RunSpec
     (a laser's too, with its power) and the same travel keywords as the parent makes: the first
     travel from the toolpath's start, those between runs from the run before, the last after the
     last run, the printed top before each."""
