@@ -1,18 +1,14 @@
-"""The planning package's structure (issue 51): modules of at most 800 lines, functions of at most
-100, no branch on the tool's kind (the Tool object answers: takes_filament, takes_laser_power,
-off_events), and no limit read from a printer (every limit comes from the PlanContext, built
+"""The planning package's structure (issue 51; the size bar is tests/test_module_size.py's): no
+branch on the tool's kind (the Tool object answers: takes_filament, takes_laser_power, off_events), and no limit read from a printer (every limit comes from the PlanContext, built
 once from ``printer.planned_limits()`` and ``printer.limits``)."""
 
 from __future__ import annotations
 
-import ast
 import re
 from pathlib import Path
 
 PLANNING = Path(__file__).resolve().parents[1] / "deltaslice" / "planning"
 MODULES = sorted(PLANNING.glob("*.py"))
-MAX_MODULE_LINES = 800
-MAX_FUNCTION_LINES = 100
 
 
 def _source(path: Path) -> str:
@@ -21,27 +17,6 @@ def _source(path: Path) -> str:
 
 def test_the_planning_package_is_scanned():
     assert len(MODULES) >= 10 and (PLANNING / "context.py") in MODULES
-
-
-def test_no_planning_module_over_800_lines():
-    long = {p.name: n for p in MODULES if (n := len(_source(p).splitlines())) > MAX_MODULE_LINES}
-    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
-
-
-def _functions(tree: ast.AST):
-    for node in ast.walk(tree):
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-            yield node
-
-
-def test_no_planning_function_over_100_lines():
-    long = {}
-    for path in MODULES:
-        for fn in _functions(ast.parse(_source(path))):
-            n = fn.end_lineno - fn.lineno + 1
-            if n > MAX_FUNCTION_LINES:
-                long[f"{path.name}:{fn.name}"] = n
-    assert not long, f"functions over {MAX_FUNCTION_LINES} lines: {long}"
 
 
 def test_planning_never_compares_the_tools_kind():
@@ -79,5 +54,3 @@ def test_the_structure_checks_would_see_the_bugs_they_name():
     assert not _RAW_LIMIT.search("acc = ctx.planned_limits.acceleration[-1]")
     assert not _RAW_LIMIT.search("names = ctx.machine_limits.names")
     assert re.search(r"\bchannel_kind\b", 'laser = printer.tool.channel_kind == "laser"')
-    long_fn = "def f():\n" + "    x = 1\n" * MAX_FUNCTION_LINES
-    assert any(fn.end_lineno - fn.lineno + 1 > MAX_FUNCTION_LINES for fn in _functions(ast.parse(long_fn)))
