@@ -1,12 +1,14 @@
 """Named tolerances of the planner: what each small number protects.
 
 Lengths are mm, filament mm, joints their own units (rad or mm); a relative tolerance is a
-fraction of the value it compares.
+fraction of the value it compares. Those the whole package shares come from deltaslice/tolerances.py.
 """
+
+from ..tolerances import JOINT_ROUNDOFF, SAME_LENGTH
 
 # mm: a move, step or lift shorter than this does not move the tool (zero-length moves,
 # repeated points); well under any machine's resolution and far above rounding of mm-sized sums.
-NO_MOTION = 1e-9
+NO_MOTION = SAME_LENGTH
 # mm of filament: a prime (the filament pushed or pulled before the first working move) smaller
 # than this is rounding of a sum of retracts and unretracts that cancel, not a move.
 NO_FILAMENT = 1e-12
@@ -18,7 +20,7 @@ ARC_SIDE = 1e-9
 SAME_SPEED = 1e-9
 # joint units: a joint this close outside its range is at its end (the inverse kinematics'
 # rounding), not beyond it, when an unreachable point is explained.
-JOINT_RANGE = 1e-9
+JOINT_RANGE = JOINT_ROUNDOFF
 # mm: grid points closer than this are one (nothing between them but ill-conditioned stages).
 GRID_POINT = 1e-7
 # relative: a unit vector's dot product with the next below 1 - this turns (a new piece).
