@@ -17,7 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from deltaslice.planning import plan, topp  # noqa: E402
+from deltaslice.planning import plan, stages  # noqa: E402
 from test_planning_limits import Z0, _run_peaks, peak_ratios, printer_at, star_part  # noqa: E402
 
 RATE = 10000
@@ -45,14 +45,14 @@ def main():
         printer = printer_at(name, RATE)
         toolpath = star_part(name)
         for mode in ("feed", "machine"):
-            topp.REFINE = 1
+            stages.REFINE = 1
             traj = plan(toolpath, printer, speed_limit=mode, workers=1)
             rv, ra = peak_ratios(printer, traj.samples(RATE), RATE)
             sv, sa = traj.stage_maxima()
             jr, jw = jerk_peaks(traj, RATE)
-            topp.REFINE = 10
+            stages.REFINE = 10
             fine = plan(toolpath, printer, speed_limit=mode, workers=1)
-            topp.REFINE = 1
+            stages.REFINE = 1
             runs = lambda t: sum(p.duration for p in t.pieces if p.kind == "run")  # noqa: E731
             d = (runs(traj) - runs(fine)) / runs(fine)
             print(

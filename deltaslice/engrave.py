@@ -40,6 +40,7 @@ import numpy as np
 
 from .errors import DeltasliceError
 from .formats import is_svg
+from .tolerances import SAME_LENGTH
 from .toolpath import Role, Toolpath, ToolpathBuilder
 
 MAX_PIXELS = 25_000_000  # larger images and rasters are refused: 5000 x 5000 px is far finer than any spot
@@ -301,7 +302,7 @@ def svg_polylines(path, tolerance: float) -> tuple[list[np.ndarray], tuple]:
                 if seg.end is not None and current:
                     current.append(point(seg.end))
             elif current:
-                chord = max(float(np.hypot(*(point(seg.end) - point(seg.start))[0])), 1e-9)
+                chord = max(float(np.hypot(*(point(seg.end) - point(seg.start))[0])), SAME_LENGTH)
                 n = int(np.clip(np.ceil(np.sqrt(chord / (8 * tolerance)) * 4), 4, 2000))
                 total[0] += n
                 if total[0] > MAX_SVG_POINTS:

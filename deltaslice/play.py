@@ -38,6 +38,7 @@ import numpy as np
 
 from . import interrupt
 from .errors import PlayError
+from .tolerances import COUNT_ROUNDOFF
 
 LASER_BAUD = 115200
 LASER_SET, LASER_END, LASER_QUERY = ord("L"), ord("E"), ord("Q")
@@ -76,7 +77,7 @@ def decimation(bus: Bus, servos: int, baud: int, rate: float, min_interval: floa
     """Samples per packet: the fewest whole sample periods a packet fits in (and ``min_interval``)."""
     period = 1.0 / rate
     need = max(bus_seconds(bus.packet_bytes(servos), baud), min_interval)
-    return max(1, math.ceil(need / period - 1e-9))
+    return max(1, math.ceil(need / period - COUNT_ROUNDOFF))
 
 
 def laser_frame(kind: int, value: int) -> bytes:
@@ -265,15 +266,7 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
     :class:`PlayError` after the clean stop on an error or an abort (``.interrupted`` on Ctrl-C)."""
     bus = BUSES[protocol]
     ids = list(ids)
-    if len(ids) != n_joints:
-        raise PlayError(f"{name}: {n_joints} joints in the stream, {len(ids)} servo IDs given")
-    joints = counts[:, :n_joints]
-    if len(joints) == 0:
-        raise PlayError(f"{name}: the stream has no samples")
-    lo, hi = int(joints.min()), int(joints.max())
-    if lo < 0 or hi > bus.goal_max:
-        raise PlayError(f"{name}: joint counts {lo}..{hi} leave the servos' goal range 0..{bus.goal_max} "
-                        f"(protocol {protocol}): compiled for another servo?")
+    joints = _checked_joints(counts, n_joints, ids, bus, protocol, name)
     duty = laser_duty(counts, events, n_joints) if laser_port is not None else None
     k = decimation(bus, len(ids), baud, rate, min_interval)
     n, period = len(counts), 1.0 / rate
@@ -353,6 +346,21 @@ def play(counts: np.ndarray, events, *, rate: float, n_joints: int, bus_port, ba
         err.interrupted = stopped == "interrupt"
         raise err
     return result
+
+
+def _checked_joints(counts: np.ndarray, n_joints: int, ids: list, bus, protocol: int, name: str) -> np.ndarray:
+    """(n, n_joints) the joints' goal counts, or PlayError: an ID per joint, samples, every count in
+    the servos' goal range."""
+    if len(ids) != n_joints:
+        raise PlayError(f"{name}: {n_joints} joints in the stream, {len(ids)} servo IDs given")
+    joints = counts[:, :n_joints]
+    if len(joints) == 0:
+        raise PlayError(f"{name}: the stream has no samples")
+    lo, hi = int(joints.min()), int(joints.max())
+    if lo < 0 or hi > bus.goal_max:
+        raise PlayError(f"{name}: joint counts {lo}..{hi} leave the servos' goal range 0..{bus.goal_max} "
+                        f"(protocol {protocol}): compiled for another servo?")
+    return joints
 
 
 @contextlib.contextmanager

@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from .machine.limits import windowed_differences
+from .tolerances import SAME_LENGTH
 from .toolpath import Role
 
 ROLE_STYLE = {  # role: (colour, label)
@@ -73,7 +74,7 @@ def toolpath_figure(toolpath, printer, *, layer=None, title=""):
     on_layer = toolpath.layer == layer
     working = toolpath.tool > 0
     _bed_outline(ax, printer.bed)
-    travel = on_layer & ~working & (toolpath.lengths > 1e-9)
+    travel = on_layer & ~working & (toolpath.lengths > SAME_LENGTH)
     if travel.any():
         segs = np.stack([starts[travel, :2], ends[travel, :2]], axis=1)
         ax.add_collection(LineCollection(segs, colors=TRAVEL_COLOUR, linewidths=0.7, linestyles=(0, (3, 2)), label="travel"))
@@ -170,10 +171,9 @@ def trajectory_figure(samples, printer, *, title="", tool_state=True):
         axes[0, j].set_title(f"{name}: position ({unit})")
         axes[1, j].set_title(f"{name}: speed ({unit}/s), peak {100 * _peak(v, ch.velocity_max):.0f} % of limit")
         axes[2, j].set_title(f"{name}: acceleration ({unit}/s²), peak {100 * _peak(a, ch.acceleration_max):.0f} % of limit")
-    tool = lim.channel(J)
     values = printer.tool.channel_values(samples.e, samples.tool)
     ax = axes[3, 0]
-    if tool.kind == "laser":
+    if printer.tool.channel_is_power:
         _series(ax, t, values, "#e377c2", 1.0, 0.0)
         ax.set_title("laser power (0..1)")
     else:

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import DeltasliceError
+from .tolerances import SAME_LENGTH
 
 
 class EventKind(enum.IntEnum):
@@ -205,7 +206,7 @@ class Toolpath:
         """This toolpath's moves followed by ``other``'s, which starts where this one ends: one
         stretch of a print handed over in chunks (layers keep their numbers; the layer heights
         are the longer list of the two)."""
-        if len(self) and not np.allclose(other.start, self.xyz[-1], rtol=0, atol=1e-9):
+        if len(self) and not np.allclose(other.start, self.xyz[-1], rtol=0, atol=SAME_LENGTH):
             raise DeltasliceError(f"Toolpath.then: the next stretch starts at {other.start.tolist()}, "
                                   f"not where this one ends ({self.xyz[-1].tolist()})")
         return Toolpath._joined([self, other], np.concatenate([self.layer, other.layer]),

@@ -45,6 +45,7 @@ import numpy as np
 
 from .errors import StreamError
 from .machine.limits import NOISE_FRACTION, TOLERANCE, windowed_differences
+from .tolerances import RELATIVE_ROUNDOFF, SAME_LENGTH, SHORTEST_TIME
 
 MARGIN = TOLERANCE  # shown in the report; the thresholds are Limits.sampled_check's
 CSV_RESOLUTION = 1e-10  # the CSV's 10 decimals (rounding error 5e-11)
@@ -228,6 +229,8 @@ class _Collector:
 
 
 MIN_RATE = 50.0  # Hz: below this the motion between samples is not constrained by anything checked here
+#: Relative difference below which a file's rate is the printer's output rate (a note otherwise).
+RATE_MATCH = RELATIVE_ROUNDOFF
 
 
 def _nan_argmax(x) -> int:
@@ -247,6 +250,38 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
     Fails (violations, not exceptions) on: no samples, any non-finite value, a rate below
     MIN_RATE, non-uniform time steps, and every limit. Raises StreamError on arguments that
     cannot describe a file (rate not a positive number, wrong joint count)."""
+    rate, assumed = _checked_arguments(samples, printer, rate, fmt, meta, output, assume_printer)
+    check = _Checks(samples, printer, rate, fmt)
+    check.basics()
+    check.fingerprint(meta or {}, assumed)
+    check.time_steps()
+    check.joints()
+    check.tool_channel()
+    n, t = check.n, check.t
+    if n > 2 and printer.dynamics is not None and np.isfinite(samples.q).all():
+        _torque_rows(samples.q, t, rate, printer, check.rows, check.notes)
+    max_dev = tol_max = None
+    n_dev = 0
+    if toolpath is not None and n:
+        max_dev, tol_max, n_dev, i_dev = _check_deviation(samples, printer, toolpath, check.quantised, check.col)
+        check.rows.append(CheckRow(
+            check="path deviation", channel="tool tip", unit="mm", peak=max_dev, limit=tol_max,
+            percent=100.0 * max_dev / tol_max if tol_max else None, time=float(t[i_dev]) if i_dev >= 0 else 0.0,
+            index=i_dev, place=None, ok=not check.col.failed("deviation", "path")))
+    rows = _with_places(check.rows, samples, printer)
+    col = check.col
+    col.items.sort(key=lambda v: (v.index, v.kind))
+    return VerifyReport(
+        output=str(output), printer=printer.name, format=fmt, n_samples=n, rate=rate,
+        duration=float(t[-1] - t[0]) if n > 1 else 0.0, channels=tuple(check.stats), violations=tuple(col.items),
+        violation_count=col.count, max_deviation=max_dev, deviation_tolerance=tol_max, deviation_samples=n_dev,
+        notes=tuple(check.notes), planner_margin=printer.planning.limit_margin, rows=tuple(rows),
+        printer_assumed=assumed,
+    )
+
+
+def _checked_arguments(samples, printer, rate, fmt, meta, output, assume_printer) -> tuple[float, bool]:
+    """(rate as a float, whether the printer is assumed) of verify_samples' arguments, or StreamError."""
     from .machine import Printer
     from .samples import Samples
 
@@ -268,77 +303,150 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
             f"{output}: the file does not say which printer it was made for (no fingerprint: a CSV's '#' header "
             f"lines are missing), so it cannot be confirmed as made for {printer.name}; if it was, say so with "
             "--assume-printer (assume_printer=True)")
-    meta = meta or {}
-    n = len(samples)
     if samples.n_joints != printer.n_joints:
         raise StreamError(f"{output}: {samples.n_joints} joint columns, printer {printer.name} has {printer.n_joints} joints")
-    t = samples.t
-    col = _Collector(t if n else np.zeros(1))
-    notes = []
-    rows: list[CheckRow] = []
+    return rate, assumed
 
-    if n == 0:
-        col.add(Violation("samples", "file", 0, 0.0, 0.0, 1.0, "(the file holds no samples)"))
-        rows.append(CheckRow("samples", "file", "", 0.0, 1.0, None, 0.0, -1, None, False))
-    if rate < MIN_RATE:
-        col.add(Violation("rate", "t", 0, 0.0, rate, MIN_RATE, "Hz (too slow to check the motion between samples)"))
-    # the one row whose limit is a minimum: named so ("rate t 1000, limit 50 Hz" read as a maximum)
-    rows.append(CheckRow("sample rate, at least", "samples", "Hz", rate, MIN_RATE, None, 0.0, -1, None,
-                         not col.failed("rate", "t")))
 
-    # any non-finite value fails; the checks below see the finite values only
-    arrays = [("t", t)] + [(f"q{j + 1}", samples.q[:, j]) for j in range(samples.n_joints)] + [("e", samples.e),
-                                                                                            ("tool", samples.tool)]
-    bad_total, first_bad = 0, -1
-    for name, x in arrays:
-        bad = ~np.isfinite(x)
-        if bad.any():
-            col.add_mask("non_finite", name, bad, np.where(bad, np.inf, 0.0), np.zeros(n), "")
-            bad_total += int(bad.sum())
-            i = int(np.argmax(bad))
-            first_bad = i if first_bad < 0 else min(first_bad, i)
-    rows.append(CheckRow("non-finite values", "all", "", float(bad_total), 0.0, None,
-                         float(np.nan_to_num(t[first_bad])) if first_bad >= 0 else 0.0, first_bad, None, bad_total == 0))
+class _Checks:
+    """The checks of one verify_samples call and what they found: violations (``col``), the table's
+    rows, notes and per-channel figures, in the order the report shows them."""
 
-    fp = meta.get("fingerprint")
-    if fp is not None:
-        try:
-            fp_val = int(fp, 16)
-        except (TypeError, ValueError):
-            fp_val = None
-        if fp_val != printer.fingerprint():
-            col.add(Violation("fingerprint", "printer", 0, 0.0, float(fp_val or 0), float(printer.fingerprint()),
-                              f"(file made for {meta.get('printer', '?')!r}, fingerprint {fp}, not 0x{printer.fingerprint():08x})"))
-        rows.append(CheckRow("printer fingerprint", str(meta.get("printer", "?")), "", float(fp_val or 0),
-                             float(printer.fingerprint()), None, 0.0, -1, None, not col.failed("fingerprint", "printer")))
-    elif assumed:
-        notes.append(f"the printer was assumed: the file does not say which printer it was made for; checked as made "
-                     f"for {printer.name} (--assume-printer)")
-    if abs(rate - printer.planning.output_rate) > 1e-9 * rate:
-        notes.append(f"file rate {rate:g} Hz differs from the printer's output_rate {printer.planning.output_rate:g} Hz")
+    def __init__(self, samples, printer, rate: float, fmt: str):
+        self.samples, self.printer, self.rate = samples, printer, rate
+        self.quantised = fmt == "stream"
+        self.n, self.t = len(samples), samples.t
+        self.lim = printer.limits
+        self.col = _Collector(self.t if self.n else np.zeros(1))
+        self.notes: list[str] = []
+        self.rows: list[CheckRow] = []
+        self.stats: list[ChannelStat] = []
 
-    # time steps
-    if n > 1:
-        period = 1.0 / rate
+    def _row(self, check, channel, unit, peak, limit, *, percent=None, time=0.0, index=-1, ok=True) -> None:
+        self.rows.append(CheckRow(check=check, channel=channel, unit=unit, peak=peak, limit=limit, percent=percent,
+                                  time=time, index=index, place=None, ok=ok))
+
+    def basics(self) -> None:
+        """Samples at all, a rate the motion can be checked at, finite values only."""
+        col, n, t, rate = self.col, self.n, self.t, self.rate
+        if n == 0:
+            col.add(Violation("samples", "file", 0, 0.0, 0.0, 1.0, "(the file holds no samples)"))
+            self._row("samples", "file", "", 0.0, 1.0, ok=False)
+        if rate < MIN_RATE:
+            col.add(Violation("rate", "t", 0, 0.0, rate, MIN_RATE, "Hz (too slow to check the motion between samples)"))
+        # the one row whose limit is a minimum: named so ("rate t 1000, limit 50 Hz" read as a maximum)
+        self._row("sample rate, at least", "samples", "Hz", rate, MIN_RATE, ok=not col.failed("rate", "t"))
+        # any non-finite value fails; the checks below see the finite values only
+        s = self.samples
+        arrays = [("t", t)] + [(f"q{j + 1}", s.q[:, j]) for j in range(s.n_joints)] + [("e", s.e), ("tool", s.tool)]
+        bad_total, first_bad = 0, -1
+        for name, x in arrays:
+            bad = ~np.isfinite(x)
+            if bad.any():
+                col.add_mask("non_finite", name, bad, np.where(bad, np.inf, 0.0), np.zeros(n), "")
+                bad_total += int(bad.sum())
+                i = int(np.argmax(bad))
+                first_bad = i if first_bad < 0 else min(first_bad, i)
+        self._row("non-finite values", "all", "", float(bad_total), 0.0,
+                  time=float(np.nan_to_num(t[first_bad])) if first_bad >= 0 else 0.0, index=first_bad,
+                  ok=bad_total == 0)
+
+    def fingerprint(self, meta: dict, assumed: bool) -> None:
+        """The file made for this printer (its fingerprint), or the printer assumed; the rate's note."""
+        printer = self.printer
+        fp = meta.get("fingerprint")
+        if fp is not None:
+            try:
+                fp_val = int(fp, 16)
+            except (TypeError, ValueError):
+                fp_val = None
+            if fp_val != printer.fingerprint():
+                self.col.add(Violation("fingerprint", "printer", 0, 0.0, float(fp_val or 0), float(printer.fingerprint()),
+                                       f"(file made for {meta.get('printer', '?')!r}, fingerprint {fp}, "
+                                       f"not 0x{printer.fingerprint():08x})"))
+            self._row("printer fingerprint", str(meta.get("printer", "?")), "", float(fp_val or 0),
+                      float(printer.fingerprint()), ok=not self.col.failed("fingerprint", "printer"))
+        elif assumed:
+            self.notes.append(f"the printer was assumed: the file does not say which printer it was made for; checked "
+                              f"as made for {printer.name} (--assume-printer)")
+        if abs(self.rate - printer.planning.output_rate) > RATE_MATCH * self.rate:
+            self.notes.append(f"file rate {self.rate:g} Hz differs from the printer's output_rate "
+                              f"{printer.planning.output_rate:g} Hz")
+
+    def time_steps(self) -> None:
+        """Every step 1 / rate (within a thousandth of it)."""
+        if self.n <= 1:
+            return
+        t, period = self.t, 1.0 / self.rate
         dt = np.diff(t)
         tol = max(1e-3 * period, 2e-9)
-        col.add_mask("time_step", "t", np.abs(dt - period) > tol, dt, period, "s", index_offset=1)
+        self.col.add_mask("time_step", "t", np.abs(dt - period) > tol, dt, period, "s", index_offset=1)
         err = np.abs(dt - period)
         k = _nan_argmax(err)
-        rows.append(CheckRow("time step error", "t", "s", float(err[k]) if k >= 0 else 0.0, tol, None,
-                             float(t[k + 1]) if k >= 0 else 0.0, k + 1 if k >= 0 else -1, None,
-                             not col.failed("time_step", "t")))
+        self._row("time step error", "t", "s", float(err[k]) if k >= 0 else 0.0, tol,
+                  time=float(t[k + 1]) if k >= 0 else 0.0, index=k + 1 if k >= 0 else -1,
+                  ok=not self.col.failed("time_step", "t"))
 
-    lim = printer.limits
-    quantised = fmt == "stream"
-    stats = []
+    def joints(self) -> None:
+        """Every joint's position, velocity and acceleration."""
+        if not self.n:
+            return
+        for j, joint in enumerate(self.lim.joints):
+            res = 1.0 / abs(joint.counts_per_unit) if self.quantised else CSV_RESOLUTION
+            self.channel(f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}", joint.unit,
+                         self.samples.q[:, j], joint.position_min, joint.position_max, j, res)
 
-    def channel(name, unit, x, lo, hi, i, resolution, vkind="velocity", akind="acceleration", vmax=None,
-                vlimit_arr=None):
-        check = lim.sampled_check(i, resolution, rate, NOISE_FRACTION, velocity=vmax)
+    def tool_channel(self) -> None:
+        """The tool channel, from its limits: a laser has a power range (0..1) and no rate limit; an
+        extruder has no range, a melt-flow speed limit while extruding and its retract speed when idle."""
+        lim, n, t, col, samples = self.lim, self.n, self.t, self.col, self.samples
+        T = lim.n_joints
+        ch = lim.channel(T)
+        x = self.printer.tool.channel_values(samples.e, samples.tool)
+        res = 1.0 / abs(ch.counts_per_unit) if self.quantised else CSV_RESOLUTION
+        if n and (math.isfinite(ch.position_min) or math.isfinite(ch.position_max)):
+            half = 0.5 * res if self.quantised else CSV_RESOLUTION
+            bad = (x < ch.position_min - half) | (x > ch.position_max + half)
+            col.add_mask(f"{ch.name}_power", "tool", bad, x, np.where(x < ch.position_min, ch.position_min,
+                                                                      ch.position_max), "")
+            i = _nan_argmax(x)
+            self._row(f"{ch.name} power", "tool", ch.unit, float(x[i]) if i >= 0 else 0.0, ch.position_max,
+                      percent=100.0 * float(x[i]) / ch.position_max if i >= 0 and ch.position_max > 0 else None,
+                      time=float(t[i]) if i >= 0 else 0.0, index=i, ok=not col.failed(f"{ch.name}_power", "tool"))
+            self._full_power_note(float(x[i]) if i >= 0 else 0.0)
+        if n and math.isfinite(ch.velocity_max):
+            # a stream carries no tool state: the larger of the working and idle limits; a CSV's
+            # windows are held to the working limit where the tool is on throughout
+            vmax, vlimit_arr = lim.sampled_tool_velocity(None if self.quantised else samples.tool, res, self.rate,
+                                                         NOISE_FRACTION)
+            if self.quantised:
+                self.notes.append(
+                    f"the stream carries no tool on/off state: {ch.name} speed checked against the larger of its "
+                    f"working and idle limits, {vmax:g} {ch.unit}/s"
+                )
+            self.channel("e", ch.unit, x, None, None, T, res, f"{ch.name}_speed", f"{ch.name}_acceleration", vmax=vmax,
+                         vlimit_arr=vlimit_arr)
+            tl = samples.tool
+            col.add_mask("tool", "tool", (tl < 0) | (tl > 1), tl, np.where(tl < 0, 0.0, 1.0), "")
+            self._row("tool state 0..1", "tool", "", float(np.nanmax(np.abs(tl))) if np.isfinite(tl).any() else 0.0,
+                      1.0, ok=not col.failed("tool", "tool"))
+
+    def _full_power_note(self, peak: float) -> None:
+        """What the peak power burns, in watts, for a tool that says what its full power is."""
+        watts = self.printer.tool.full_power_w
+        if watts is not None and math.isfinite(peak):
+            self.notes.append(f"peak power {peak:.3g} of full power: {peak * watts:.3g} W of the tool's "
+                              f"max_power {watts:g} W")
+
+    def channel(self, name, unit, x, lo, hi, i, resolution, vkind="velocity", akind="acceleration", vmax=None,
+                vlimit_arr=None) -> None:
+        """One channel's position range (when lo is given), velocity and acceleration: violations,
+        its ChannelStat and its rows."""
+        col, t, n = self.col, self.t, self.n
+        check = self.lim.sampled_check(i, resolution, self.rate, NOISE_FRACTION, velocity=vmax)
         vmax, amax = check.velocity_limit, check.acceleration_limit
         wv, wa = check.velocity_window, check.acceleration_window
-        half = 0.5 * resolution if quantised else CSV_RESOLUTION
+        half = 0.5 * resolution if self.quantised else CSV_RESOLUTION
         if lo is not None:
             col.add_mask("position", name, x < lo - half, x, lo, unit)
             col.add_mask("position", name, x > hi + half, x, hi, unit)
@@ -354,81 +462,33 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
         ia = _nan_argmax(np.abs(a)) if len(a) else -1
         finite = x[np.isfinite(x)]
         stat = ChannelStat(
-            name, unit, float(finite.min()) if len(finite) else 0.0, float(finite.max()) if len(finite) else 0.0,
-            float(abs(v[iv])) if iv >= 0 else 0.0, float(vbase[iv]) if iv >= 0 else float(vmax), wv,
-            float(abs(a[ia])) if ia >= 0 else 0.0, float(amax), wa,
-            min(iv + wv // 2, n - 1) if iv >= 0 else -1, min(ia + wa, n - 1) if ia >= 0 else -1,
-            -math.inf if lo is None else float(lo), math.inf if hi is None else float(hi),
+            name=name, unit=unit, low=float(finite.min()) if len(finite) else 0.0,
+            high=float(finite.max()) if len(finite) else 0.0, peak_velocity=float(abs(v[iv])) if iv >= 0 else 0.0,
+            velocity_limit=float(vbase[iv]) if iv >= 0 else float(vmax), velocity_window=wv,
+            peak_acceleration=float(abs(a[ia])) if ia >= 0 else 0.0, acceleration_limit=float(amax),
+            acceleration_window=wa, velocity_index=min(iv + wv // 2, n - 1) if iv >= 0 else -1,
+            acceleration_index=min(ia + wa, n - 1) if ia >= 0 else -1,
+            position_min=-math.inf if lo is None else float(lo), position_max=math.inf if hi is None else float(hi),
         )
-        stats.append(stat)
+        self.stats.append(stat)
         if lo is not None and len(finite):
             near_hi = (stat.high - hi) >= (lo - stat.low)
-            i = _nan_argmax(x if near_hi else -x)
-            rows.append(CheckRow("position", name, unit, stat.high if near_hi else stat.low, hi if near_hi else lo, None,
-                                 float(t[i]), i, None, not col.failed("position", name)))
-        pct = lambda peak, limit: 100.0 * peak / limit if limit > 0 else None  # noqa: E731
-        rows.append(CheckRow(vkind.replace("_", " "), name, f"{unit}/s", stat.peak_velocity, stat.velocity_limit,
-                             pct(stat.peak_velocity, stat.velocity_limit), float(t[stat.velocity_index]) if iv >= 0 else 0.0,
-                             stat.velocity_index, None, not col.failed(vkind, name)))
-        rows.append(CheckRow(akind.replace("_", " "), name, f"{unit}/s^2", stat.peak_acceleration, stat.acceleration_limit,
-                             pct(stat.peak_acceleration, stat.acceleration_limit),
-                             float(t[stat.acceleration_index]) if ia >= 0 else 0.0, stat.acceleration_index, None,
-                             not col.failed(akind, name)))
+            k = _nan_argmax(x if near_hi else -x)
+            self._row("position", name, unit, stat.high if near_hi else stat.low, hi if near_hi else lo,
+                      time=float(t[k]), index=k, ok=not col.failed("position", name))
+        self._row(vkind.replace("_", " "), name, f"{unit}/s", stat.peak_velocity, stat.velocity_limit,
+                  percent=_share(stat.peak_velocity, stat.velocity_limit),
+                  time=float(t[stat.velocity_index]) if iv >= 0 else 0.0, index=stat.velocity_index,
+                  ok=not col.failed(vkind, name))
+        self._row(akind.replace("_", " "), name, f"{unit}/s^2", stat.peak_acceleration, stat.acceleration_limit,
+                  percent=_share(stat.peak_acceleration, stat.acceleration_limit),
+                  time=float(t[stat.acceleration_index]) if ia >= 0 else 0.0, index=stat.acceleration_index,
+                  ok=not col.failed(akind, name))
 
-    if n:
-        for j, joint in enumerate(lim.joints):
-            res = 1.0 / abs(joint.counts_per_unit) if quantised else CSV_RESOLUTION
-            channel(f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}", joint.unit, samples.q[:, j],
-                    joint.position_min, joint.position_max, j, res)
 
-    # The tool channel, from its limits: a laser has a power range (0..1) and no rate limit; an
-    # extruder has no range, a melt-flow speed limit while extruding and its retract speed when idle.
-    T = lim.n_joints
-    ch = lim.channel(T)
-    x = printer.tool.channel_values(samples.e, samples.tool)
-    res = 1.0 / abs(ch.counts_per_unit) if quantised else CSV_RESOLUTION
-    if n and (math.isfinite(ch.position_min) or math.isfinite(ch.position_max)):
-        half = 0.5 * res if quantised else CSV_RESOLUTION
-        bad = (x < ch.position_min - half) | (x > ch.position_max + half)
-        col.add_mask(f"{ch.name}_power", "tool", bad, x, np.where(x < ch.position_min, ch.position_min, ch.position_max), "")
-        i = _nan_argmax(x)
-        rows.append(CheckRow(f"{ch.name} power", "tool", ch.unit, float(x[i]) if i >= 0 else 0.0, ch.position_max,
-                             100.0 * float(x[i]) / ch.position_max if i >= 0 and ch.position_max > 0 else None,
-                             float(t[i]) if i >= 0 else 0.0, i, None, not col.failed(f"{ch.name}_power", "tool")))
-    if n and math.isfinite(ch.velocity_max):
-        # a stream carries no tool state: the larger of the working and idle limits; a CSV's
-        # windows are held to the working limit where the tool is on throughout
-        vmax, vlimit_arr = lim.sampled_tool_velocity(None if quantised else samples.tool, res, rate, NOISE_FRACTION)
-        if quantised:
-            notes.append(
-                f"the stream carries no tool on/off state: {ch.name} speed checked against the larger of its "
-                f"working and idle limits, {vmax:g} {ch.unit}/s"
-            )
-        channel("e", ch.unit, x, None, None, T, res, f"{ch.name}_speed", f"{ch.name}_acceleration", vmax=vmax,
-                vlimit_arr=vlimit_arr)
-        tl = samples.tool
-        col.add_mask("tool", "tool", (tl < 0) | (tl > 1), tl, np.where(tl < 0, 0.0, 1.0), "")
-        rows.append(CheckRow("tool state 0..1", "tool", "", float(np.nanmax(np.abs(tl))) if np.isfinite(tl).any() else 0.0,
-                             1.0, None, 0.0, -1, None, not col.failed("tool", "tool")))
-
-    if n > 2 and printer.dynamics is not None and np.isfinite(samples.q).all():
-        _torque_rows(samples.q, t, rate, printer, rows, notes)
-
-    max_dev = tol_max = None
-    n_dev = 0
-    if toolpath is not None and n:
-        max_dev, tol_max, n_dev, i_dev = _check_deviation(samples, printer, toolpath, quantised, col)
-        rows.append(CheckRow("path deviation", "tool tip", "mm", max_dev, tol_max,
-                             100.0 * max_dev / tol_max if tol_max else None, float(t[i_dev]) if i_dev >= 0 else 0.0,
-                             i_dev, None, not col.failed("deviation", "path")))
-    rows = _with_places(rows, samples, printer)
-    col.items.sort(key=lambda v: (v.index, v.kind))
-    return VerifyReport(
-        output=str(output), printer=printer.name, format=fmt, n_samples=n, rate=rate,
-        duration=float(t[-1] - t[0]) if n > 1 else 0.0, channels=tuple(stats), violations=tuple(col.items),
-        violation_count=col.count, max_deviation=max_dev, deviation_tolerance=tol_max, deviation_samples=n_dev,
-        notes=tuple(notes), planner_margin=printer.planning.limit_margin, rows=tuple(rows), printer_assumed=assumed,
-    )
+def _share(peak: float, limit: float) -> float | None:
+    """The peak's share of its limit, percent (None for a limit of 0)."""
+    return 100.0 * peak / limit if limit > 0 else None
 
 
 def _torque_rows(q, t, rate, printer, rows, notes):
@@ -477,10 +537,10 @@ def _check_deviation(samples, printer, toolpath, quantised, col):
 
     work = samples.tool > 0
     if quantised and printer.tool.takes_filament:  # a stream's extruder state is derived from rising counts
-        work = _close_gaps(work, max(1, int(round(GAP_FILL * len(samples) / max(samples.t[-1] - samples.t[0], 1e-9)))))
+        work = _close_gaps(work, max(1, int(round(GAP_FILL * len(samples) / max(samples.t[-1] - samples.t[0], SHORTEST_TIME)))))
     idx = np.flatnonzero(work)
     starts, ends = toolpath.starts, toolpath.xyz
-    seg_ok = (toolpath.tool > 0) & (toolpath.lengths > 1e-9)
+    seg_ok = (toolpath.tool > 0) & (toolpath.lengths > SAME_LENGTH)
     a, b = starts[seg_ok], ends[seg_ok]
     blend = printer.planning.blend_tolerance
     if len(idx) == 0 or len(a) == 0:

@@ -79,7 +79,7 @@ DOCS = {
     ("tool", "z_hop"): ("mm", "Lift of the nozzle during retracted travels.", None),
     ("tool", "retract_min_travel"): ("mm", "Travels shorter than this do not retract.", None),
     ("tool", "counts_per_mm"): ("steps/mm", "Extruder steps per mm of filament.", None),
-    ("tool", "max_power"): ("W", "Laser optical power at full duty (reported only).", None),
+    ("tool", "max_power"): ("W", "Laser optical power at full duty: verify reports the peak power in W.", None),
     ("tool", "power_counts"): ("counts", "Counts of full laser power in the stream (e.g. 255 for 8-bit PWM).", None),
     ("tool", "travel_height"): ("mm", "Lift of the laser head during travels.", None),
     ("tool", "spot_size"): ("mm", "Focused laser spot diameter: the default raster line pitch.", None),

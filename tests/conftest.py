@@ -41,9 +41,9 @@ def any_printer(request):
 def small_windows(monkeypatch):
     """A long run's windows made a few hundred segments (the planner's are thousands) so tests of
     long runs stay fast."""
-    from deltaslice.planning import topp
+    from deltaslice.planning import windows
 
-    monkeypatch.setattr(topp, "LONG_RUN", 300)
-    monkeypatch.setattr(topp, "WINDOW", 200)
-    monkeypatch.setattr(topp, "LOOKAHEAD", 100)
-    monkeypatch.setattr(topp, "LOOKAHEAD_MM", 5.0)
+    monkeypatch.setattr(windows, "LONG_RUN", 300)
+    monkeypatch.setattr(windows, "WINDOW", 200)
+    monkeypatch.setattr(windows, "LOOKAHEAD", 100)
+    monkeypatch.setattr(windows, "LOOKAHEAD_MM", 5.0)

@@ -81,11 +81,11 @@ def test_an_output_beyond_a_limit_fails_the_compile_and_writes_nothing(tmp_path,
     assert MARGIN == TOLERANCE
     out = tmp_path / "cube.dsl"
     out.write_bytes(b"previous output")
-    import deltaslice.planning.topp as topp
+    import deltaslice.planning.solver as solver
 
     real = Printer.planned_limits
     monkeypatch.setattr(Printer, "planned_limits", lambda self: real(self).scaled(1.5))
-    monkeypatch.setattr(topp, "CHECK_TOLERANCE", float("inf"))  # past the planner's own stage-wise check too
+    monkeypatch.setattr(solver, "CHECK_TOLERANCE", float("inf"))  # past the planner's own stage-wise check too
     r = CliRunner().invoke(main, [str(CUBE), "--printer", str(ROOT / "printers" / "delta_etitc.toml"), "-o", str(out),
                                   "--scale", "0.3", "--quiet", "--workers", "1",
                                   # the joint accelerations, not the servos' torque, must be what binds

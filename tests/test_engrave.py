@@ -194,7 +194,7 @@ def test_raster_planned_laser_off_in_travels_and_overscan(tmp_path):
     im.save(tmp_path / "ramp.png")
     tp = engrave(tmp_path / "ramp.png", pr, {"width": 40.0, "mode": "raster", "line_pitch": 0.5})
     # overscan moves belong to the burning runs: one planned run per scan line
-    assert len(split_runs(tp)) == 16
+    assert len(split_runs(tp, pr.tool.takes_laser_power)) == 16
     traj = plan(tp, pr, workers=1)
     rate = pr.planning.output_rate
     s = traj.samples()
@@ -325,7 +325,9 @@ def test_run_speed_at_is_the_derivative_of_arc_length():
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from deltaslice.planning.topp import RunSpec, plan_run
+    from deltaslice.planning.context import PlanContext
+    from deltaslice.planning.runpath import RunSpec
+    from deltaslice.planning.topp import plan_run
 
     pr = shipped(ESPE)
     kin = pr.kinematics()
@@ -339,7 +341,7 @@ def test_run_speed_at_is_the_derivative_of_arc_length():
         m = len(pts) - 1
         power = np.linspace(0.2, 1.0, m)
         spec = RunSpec(pts, np.full(m, 20.0), np.zeros(m), 1.0, 0, power=power, dynamic_power=True)
-        piece = plan_run(kin, pr, spec, "feed")
+        piece = plan_run(PlanContext.of(pr, "feed"), spec)
         piece = piece[0] if isinstance(piece, list) else piece
         tau = np.linspace(0, piece.duration, 4001)
         h = 1e-6

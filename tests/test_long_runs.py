@@ -2,7 +2,7 @@
 rest), and a trajectory whose pieces are spooled to disk.
 
 The windows are made small here (a few hundred segments) so the tests stay fast; the planner's
-defaults are thousands (``deltaslice.planning.topp.LONG_RUN``, ``WINDOW``, ``LOOKAHEAD``).
+defaults are thousands (``deltaslice.planning.windows_mod.LONG_RUN``, ``WINDOW``, ``LOOKAHEAD``).
 """
 
 from __future__ import annotations
@@ -16,8 +16,14 @@ import pytest
 
 from deltaslice import load_printer
 from deltaslice.planning import plan, topp
+from deltaslice.planning import runpath
+from deltaslice.planning import solver as solver_mod
+from deltaslice.planning import windows as windows_mod
+from deltaslice.planning.context import PlanContext
 from deltaslice.planning.spool import PieceSpool
-from deltaslice.planning.topp import RunSpec, plan_run, run_stage_maxima
+from deltaslice.planning.runpath import RunSpec
+from deltaslice.planning.stages import run_stage_maxima
+from deltaslice.planning.topp import plan_run
 from deltaslice.samples import Samples
 from deltaslice.toolpath import Role, ToolpathBuilder
 
@@ -33,8 +39,8 @@ def spiral(n: int, z0: float = 0.3, r: float = 20.0, per_rev: int = 400, pitch: 
 
 def _whole(kin, printer, spec, mode, monkeypatch):
     with monkeypatch.context() as m:
-        m.setattr(topp, "LONG_RUN", 10**9)
-        return plan_run(kin, printer, spec, mode)
+        m.setattr(windows_mod, "LONG_RUN", 10**9)
+        return plan_run(PlanContext.of(printer, mode), spec)
 
 
 @pytest.mark.parametrize("name,mode", [("linear_kossel", "feed"), ("delta_etitc", "machine"), ("fivebar_atlas", "machine")])
@@ -43,7 +49,7 @@ def test_a_long_run_in_windows_joins_at_speed_and_matches_the_whole_run(name, mo
     kin = printer.kinematics()
     pts, e = spiral(1100)
     spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
-    windows = plan_run(kin, printer, spec, mode)
+    windows = plan_run(PlanContext.of(printer, mode), spec)
     (whole,) = _whole(kin, printer, spec, mode, monkeypatch)
     assert len(windows) >= 5
     # Durations within the planner's optimality budget of the whole run planned at once.
@@ -75,7 +81,7 @@ def test_a_window_that_cannot_start_that_fast_makes_the_previous_one_slow_down(s
     kin = printer.kinematics()
     pts, e = spiral(900)
     spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
-    real = topp._plan_polyline
+    real = windows_mod._plan_polyline
     calls, refused = [], []
 
     def strict_third_window(*args, v_start=0.0, cap=None, **kw):
@@ -83,11 +89,11 @@ def test_a_window_that_cannot_start_that_fast_makes_the_previous_one_slow_down(s
         calls.append(v_start)
         if len(calls) == 3:
             refused.append(v_start)
-            raise topp._StartTooFast(5.0)
+            raise solver_mod._StartTooFast(5.0)
         return real(*args, v_start=v_start, cap=cap, **kw)
 
-    monkeypatch.setattr(topp, "_plan_polyline", strict_third_window)
-    pieces = plan_run(kin, printer, spec, "feed")
+    monkeypatch.setattr(windows_mod, "_plan_polyline", strict_third_window)
+    pieces = plan_run(PlanContext.of(printer, "feed"), spec)
     assert refused and refused[0] > 5.0, "the refusal was never exercised"
     # The second window was planned again to end at 5 mm/s, and the third starts there.
     v = [p.xd[-1] * p.S for p in pieces]
@@ -105,7 +111,7 @@ def test_window_memory_does_not_grow_with_the_run(small_windows):
         spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
         tracemalloc.start()
         # iter_run hands out each window's piece as it is planned: keep only the last one
-        for _piece, _done in topp.iter_run(kin, printer, spec, "feed"):
+        for _piece, _done in topp.iter_run(PlanContext.of(printer, "feed"), spec):
             pass
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
@@ -116,10 +122,10 @@ def test_a_long_run_is_not_copied_while_its_windows_are_planned(monkeypatch):
     """What a long run holds besides the window being planned grows by the arc length at every
     vertex (8 bytes a segment), not by copies of its polyline (points, feed and filament: 40 bytes
     a segment each time): measured between the windows, on runs of 12,000 and 36,000 segments."""
-    monkeypatch.setattr(topp, "LONG_RUN", 3000)
-    monkeypatch.setattr(topp, "WINDOW", 2000)
-    monkeypatch.setattr(topp, "LOOKAHEAD", 300)
-    monkeypatch.setattr(topp, "LOOKAHEAD_MM", 5.0)
+    monkeypatch.setattr(windows_mod, "LONG_RUN", 3000)
+    monkeypatch.setattr(windows_mod, "WINDOW", 2000)
+    monkeypatch.setattr(windows_mod, "LOOKAHEAD", 300)
+    monkeypatch.setattr(windows_mod, "LOOKAHEAD_MM", 5.0)
     printer = load_printer("linear_kossel")
     kin = printer.kinematics()
     held = []
@@ -128,7 +134,7 @@ def test_a_long_run_is_not_copied_while_its_windows_are_planned(monkeypatch):
         spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
         tracemalloc.start()
         between = []
-        for piece, _done in topp.iter_run(kin, printer, spec, "feed"):
+        for piece, _done in topp.iter_run(PlanContext.of(printer, "feed"), spec):
             del piece
             between.append(tracemalloc.get_traced_memory()[0])
         tracemalloc.stop()
@@ -147,20 +153,20 @@ def test_a_long_runs_windows_are_the_same_however_its_stretches_come(size, small
     kin = printer.kinematics()
     pts, e = spiral(1000)
     rng = np.random.default_rng(4)
-    poly = topp._Polyline(pts, rng.uniform(20, 50, 1000), e, rng.uniform(0, 1, 1000))
+    poly = runpath._Polyline(pts, rng.uniform(20, 50, 1000), e, rng.uniform(0, 1, 1000))
     spec = RunSpec(pts, poly.feed, e, 1.0, 0)
-    real = topp._plan_polyline
+    real = windows_mod._plan_polyline
 
     def windows(stretch):
         calls = []
 
-        def record(kin_, printer_, spec_, p, speed_limit, tol, kind, solver, v_start=0.0, cap=None):
+        def record(ctx, spec_, p, tol, kind, v_start=0.0, cap=None):
             calls.append((p, tol, v_start, cap))
-            return real(kin_, printer_, spec_, p, speed_limit, tol, kind, solver, v_start=v_start, cap=cap)
+            return real(ctx, spec_, p, tol, kind, v_start=v_start, cap=cap)
 
-        monkeypatch.setattr(topp, "_plan_polyline", record)
+        monkeypatch.setattr(windows_mod, "_plan_polyline", record)
         parts = ((poly.part(a, min(a + stretch, 1000)), 0.05) for a in range(0, 1000, stretch))
-        pieces = [p for p, _done in topp._iter_windows(kin, printer, spec, parts, "feed", "run", "fast")]
+        pieces = [p for p, _done in windows_mod._iter_windows(PlanContext.of(printer, "feed"), spec, parts, "run")]
         return calls, pieces
 
     want, want_pieces = windows(1000)
@@ -398,6 +404,6 @@ def test_a_true_spiral_vase_from_gcode_plans_in_windows(tmp_path, monkeypatch):
     assert len(runs) >= 3  # planned in windows, joined without stopping
     for a, b in zip(runs, runs[1:]):
         assert a.xd[-1] * a.S == pytest.approx(b.xd[0] * b.S, rel=1e-9) and a.xd[-1] > 0
-    monkeypatch.setattr(topp, "LONG_RUN", 10**9)
+    monkeypatch.setattr(windows_mod, "LONG_RUN", 10**9)
     whole = plan(tp, printer, workers=1)
     assert windowed.duration == pytest.approx(whole.duration, rel=5e-4)

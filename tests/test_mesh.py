@@ -171,7 +171,7 @@ def test_cli_reports_mesh_error_without_traceback(tmp_path):
 
 def _repaired_by_trimesh(monkeypatch, vertices, faces, stl):
     """What _repair gives when the numpy path for a sound surface is switched off."""
-    import deltaslice.mesh as m
+    import deltaslice.mesh.repair as m
 
     with monkeypatch.context() as mp:
         mp.setattr(m, "_sound_surface", lambda *_: None)
@@ -197,7 +197,7 @@ def _sound_variants():
 
 @pytest.mark.parametrize("stl", [False, True])
 def test_sound_surface_repaired_without_trimesh_as_trimesh_repairs_it(monkeypatch, stl):
-    import deltaslice.mesh as m
+    import deltaslice.mesh.repair as m
 
     for name, v, f in _sound_variants():
         assert m._sound_surface(v, f) is not None, name
@@ -209,7 +209,7 @@ def test_sound_surface_repaired_without_trimesh_as_trimesh_repairs_it(monkeypatc
 
 
 def test_surfaces_needing_repair_are_not_taken_as_sound():
-    import deltaslice.mesh as m
+    import deltaslice.mesh.repair as m
 
     v, f = np.array(meshes.cube_trimesh(10).vertices), np.array(meshes.cube_trimesh(10).faces)
     flipped = f.copy()

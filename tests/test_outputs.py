@@ -337,7 +337,7 @@ import os, signal, sys
 def profiler(frame, event, arg):
     # the output is in place: the pipeline's rename, not one of numba's cache files (a kernel
     # compiled first in this process renames its cache index into place before the output)
-    if event == "c_return" and arg is os.replace and frame.f_code.co_filename.endswith(os.path.join("deltaslice", "pipeline.py")):
+    if event == "c_return" and arg is os.replace and frame.f_code.co_filename.endswith(os.path.join("deltaslice", "pipeline", "outputs.py")):
         sys.setprofile(None)
         os.kill(os.getpid(), signal.SIGINT)
 

@@ -15,6 +15,10 @@ from hypothesis import strategies as st
 
 from deltaslice.errors import UnreachableError
 from deltaslice.planning import topp, travel
+from deltaslice.planning import batch as batch_mod
+from deltaslice.planning import constraints, runpath, stages
+from deltaslice.planning import solver as solver_mod
+from deltaslice.planning.context import PlanContext
 from deltaslice.planning.blend import BlendedPath, blend_polyline, blend_runs
 from deltaslice.planning.pieces import JointMovePiece, RunPiece
 from deltaslice.planning.ruckig_profile import RuckigProfile
@@ -34,16 +38,16 @@ def _run_path(name="delta_etitc", seed=0, extruder=True):
     pts = _zigzag(np.random.default_rng(seed), z=min(5.0, p.bed.max_height / 2))
     path = blend_polyline(pts, p.planning.blend_tolerance)
     e_ratio = np.full(len(path.kind), 0.03) if extruder else None
-    return p, path, topp.RunPath(p.kinematics(), path, e_ratio, 0)
+    return p, path, runpath.RunPath(p.kinematics(), path, e_ratio, 0)
 
 
 @pytest.mark.parametrize("name", ["delta_etitc", "fivebar_atlas", "linear_kossel", "delta_uady"])
 def test_path_velocity_constraint_against_brute_force(name):
     p, path, rp = _run_path(name)
-    x = topp.grid(path) / path.length
+    x = stages.grid(path) / path.length
     vmax = p.planned_limits().velocity[: rp.dof]
     feed = np.random.default_rng(1).uniform(5, 80, len(x))
-    c = topp.PathVelocityConstraint(vmax, feed, path.length)
+    c = constraints.PathVelocityConstraint(vmax, feed, path.length)
     xbound = c.compute_constraint_params(rp, x)[-1]
     # Brute force: per grid point, the largest x_dot that keeps every channel and the feed in bounds.
     dq = rp(x, 1)
@@ -59,24 +63,24 @@ def test_path_velocity_constraint_against_brute_force(name):
 
 def test_grid_has_both_sides_of_every_join_and_bounded_steps():
     p, path, _ = _run_path()
-    g = topp.grid(path)
+    g = stages.grid(path)
     assert g[0] == 0.0 and g[-1] == path.length and np.all(np.diff(g) > 0)
     # Steps grow to MAX_STEP from each end of a piece; the two sequences stop 0.1 % short of
     # the middle, so the gap where they meet is at most 2 MAX_STEP + 0.1 % of the piece.
     joins = np.concatenate([[0.0], path.joins(), [path.length]])
     owner = np.clip(np.searchsorted(joins, g[:-1], side="right") - 1, 0, len(joins) - 2)
-    assert np.all(np.diff(g) <= 2 * topp.MAX_STEP + 1e-3 * np.diff(joins)[owner] + 1e-12)
+    assert np.all(np.diff(g) <= 2 * stages.MAX_STEP + 1e-3 * np.diff(joins)[owner] + 1e-12)
     for s in path.joins():
         i = np.searchsorted(g, s)
         assert abs(g[i] - s) < 1e-9, "every join is a grid point"
         if 0 < i < len(g) - 1:
-            assert g[i] - g[i - 1] <= topp.MIN_STEP * 1.001 + 1e-9 or g[i] - g[i - 1] == pytest.approx(s - g[i - 1])
-            assert g[i + 1] - g[i] <= topp.MIN_STEP * 1.001 or i + 1 == len(g) - 1
+            assert g[i] - g[i - 1] <= stages.MIN_STEP * 1.001 + 1e-9 or g[i] - g[i - 1] == pytest.approx(s - g[i - 1])
+            assert g[i + 1] - g[i] <= stages.MIN_STEP * 1.001 or i + 1 == len(g) - 1
     arcs = np.flatnonzero(path.kind == 1)
     for k in arcs:
         a, b = path.piece_start[k], path.piece_start[k + 1]
         inside = g[(g >= a - 1e-12) & (g <= b + 1e-12)]
-        assert np.diff(inside).max(initial=0) <= topp.ARC_STEP * path.radius[k] * (1 + 1e-9) + 1e-12
+        assert np.diff(inside).max(initial=0) <= stages.ARC_STEP * path.radius[k] * (1 + 1e-9) + 1e-12
 
 
 def _interior(g, path, k):
@@ -96,14 +100,14 @@ def test_grid_gives_a_short_piece_interior_points_only_between_rests():
                        np.tile([1.0, 0.0, 0.0], (k, 1)), np.zeros((k, 3)), np.full(k, np.inf), np.arange(k))
     for rest, want in [(None, [3, 3]), (start[[1, 2]], [3, 0]), (start[[1, 4]], [0, 0]), (np.zeros(0), [0, 0]),
                        (start[[3, 4]], [0, 3])]:
-        g = topp.grid(path, rest)
+        g = stages.grid(path, rest)
         assert [_interior(g, path, 1), _interior(g, path, 3)] == want, rest
         assert all(_interior(g, path, i) > 0 for i in (0, 2, 4))  # long pieces keep their geometric steps
     # the path's ends are at rest: a short first or last piece between a stop and an end
     first = BlendedPath(start[1:4] - start[1], *(v[1:3] for v in (path.kind, path.p0, path.d0, path.normal,
                                                                    path.radius, path.segment)))
-    assert _interior(topp.grid(first, first.piece_start[1:2]), first, 0) == 3
-    assert _interior(topp.grid(first, np.zeros(0)), first, 0) == 0
+    assert _interior(stages.grid(first, first.piece_start[1:2]), first, 0) == 3
+    assert _interior(stages.grid(first, np.zeros(0)), first, 0) == 0
 
 
 def test_a_short_move_between_stops_is_planned_with_the_others(monkeypatch):
@@ -119,8 +123,8 @@ def test_a_short_move_between_stops_is_planned_with_the_others(monkeypatch):
     def alone(*args, **kwargs):
         raise AssertionError("a move was planned alone")
 
-    monkeypatch.setattr(topp, "plan_run", alone)
-    out = topp.plan_lines(kin, p, a, b, np.full(3, 100.0), np.zeros(3, dtype=int), "feed")
+    monkeypatch.setattr(batch_mod, "plan_run", alone)
+    out = batch_mod.plan_lines(PlanContext.of(p, "feed"), a, b, np.full(3, 100.0), np.zeros(3, dtype=int))
     assert [len(o) for o in out] == [1, 1, 1]
     assert len(out[1][0].x) == 5  # its ends and its quarters
     assert all(o[0].duration > 0 and np.isfinite(o[0].duration) for o in out)
@@ -169,8 +173,8 @@ def test_travel_planner_pieces_clear_the_part_and_join():
     kin = p.kinematics()
     a, b = np.array([-30.0, -20.0, 2.0]), np.array([35.0, 25.0, 2.0])
     for speed_limit in ("feed", "machine"):
-        pieces = travel.plan_travel(kin, p, a, b, layer=5, printed_top=2.0, retract=-1.0, unretract=1.0,
-                                    speed_limit=speed_limit, feed=2.0)
+        pieces = travel.plan_travel(PlanContext.of(p, speed_limit), a, b, layer=5, printed_top=2.0, retract=-1.0, unretract=1.0,
+                                    feed=2.0)
         kinds = [type(x).__name__ for x in pieces]
         assert kinds[0] == "FilamentPiece" and kinds[-1] == "FilamentPiece", kinds
         for x, y in zip(pieces[:-1], pieces[1:]):
@@ -190,8 +194,8 @@ def test_travel_planner_pieces_clear_the_part_and_join():
             speed = np.linalg.norm(np.diff(kin.forward(q), axis=0), axis=1) / (pieces[1].duration / 3999)
             assert speed.max() <= 2.0 * 1.001
     # Straight candidates are toppra runs of kind "travel", never relabelled copies.
-    straight = travel.plan_travel(kin, p, a, b, layer=5, printed_top=2.0, retract=0.0, unretract=0.0,
-                                  speed_limit="feed", feed=500.0)
+    straight = travel.plan_travel(PlanContext.of(p, "feed"), a, b, layer=5, printed_top=2.0, retract=0.0, unretract=0.0,
+                                  feed=500.0)
     assert straight and all(x.kind == "travel" for x in straight)
     assert all(isinstance(x, (RunPiece, JointMovePiece)) for x in straight)
 
@@ -258,36 +262,36 @@ def test_frame_equals_evaluate_and_check_derivatives_hold_the_constraint_ones(se
     constraint every other one; the path's frame gives evaluate's three orders. Both must be the
     very values of the separate calls, bit for bit, on both sides of every join."""
     p, path, rp = _run_path("delta_etitc", seed)
-    assert np.array_equal(topp.CHECK[topp.EVAL_IN_CHECK], topp.EVAL)
+    assert np.array_equal(constraints.CHECK[constraints.EVAL_IN_CHECK], constraints.EVAL)
     s = np.concatenate([np.linspace(0, path.length, 997), path.joins()])
     for piece in (path.locate(s), np.maximum(path.locate(s) - 1, 0)):
         frame = path.frame(s, piece)
         for order in range(3):
             assert np.array_equal(frame[order], path.evaluate(s, order, piece))
-    x = topp.grid(path) / path.length
-    dq_c, ddq_c = rp.stage_derivatives(x, topp.CHECK)
-    dq_e, ddq_e = rp.stage_derivatives(x, topp.EVAL)
-    assert np.array_equal(dq_c[:, topp.EVAL_IN_CHECK], dq_e) and np.array_equal(ddq_c[:, topp.EVAL_IN_CHECK], ddq_e)
+    x = stages.grid(path) / path.length
+    dq_c, ddq_c = rp.stage_derivatives(x, constraints.CHECK)
+    dq_e, ddq_e = rp.stage_derivatives(x, constraints.EVAL)
+    assert np.array_equal(dq_c[:, constraints.EVAL_IN_CHECK], dq_e) and np.array_equal(ddq_c[:, constraints.EVAL_IN_CHECK], ddq_e)
 
 
-@pytest.mark.parametrize("block", [topp.DERIVATIVE_BLOCK, 50, 7])
+@pytest.mark.parametrize("block", [runpath.DERIVATIVE_BLOCK, 50, 7])
 def test_stage_frames_and_derivatives_are_those_at_each_stages_arc_lengths(block, monkeypatch):
     """The per-stage frames (and so the stage derivatives) are frame and derivatives at the arc
     lengths s_i + ds_i f in each stage's own piece, bit for bit, whatever the blocks of stages
     they are computed in (a block of 7 points holds no whole stage of 9)."""
-    monkeypatch.setattr(topp, "DERIVATIVE_BLOCK", block)
+    monkeypatch.setattr(runpath, "DERIVATIVE_BLOCK", block)
     p, path, rp = _run_path("delta_etitc", 0)
     # a filament rate of its own on every piece: the tool channel is filled block by block too
-    rp = topp.RunPath(rp.kin, path, np.random.default_rng(4).uniform(0.01, 0.05, len(path.kind)), 0)
-    x = topp.grid(path) / path.length
+    rp = runpath.RunPath(rp.kin, path, np.random.default_rng(4).uniform(0.01, 0.05, len(path.kind)), 0)
+    x = stages.grid(path) / path.length
     s = x * path.length
     ds = np.diff(s)
     owner = path.locate(0.5 * (s[:-1] + s[1:]))
-    at = (s[:-1, None] + ds[:, None] * topp.CHECK[None]).ravel()
-    piece = np.repeat(owner, len(topp.CHECK))
-    for got, want in zip(path.stage_frame(s[:-1], ds, topp.CHECK, owner), path.frame(at, piece)):
+    at = (s[:-1, None] + ds[:, None] * constraints.CHECK[None]).ravel()
+    piece = np.repeat(owner, len(constraints.CHECK))
+    for got, want in zip(path.stage_frame(s[:-1], ds, constraints.CHECK, owner), path.frame(at, piece)):
         assert np.array_equal(got, want)
-    dq, ddq = rp.stage_derivatives(x, topp.CHECK)
+    dq, ddq = rp.stage_derivatives(x, constraints.CHECK)
     wq, wqq = rp.derivatives(at, piece)
     assert np.array_equal(dq.reshape(wq.shape), wq) and np.array_equal(ddq.reshape(wqq.shape), wqq)
     assert rp.stage_derivatives(x, np.zeros(0))[0].shape == (len(x) - 1, 0, rp.dof)  # no fractions: nothing
@@ -301,7 +305,7 @@ def test_a_run_pieces_samples_are_its_profile_path_and_filament_bit_for_bit(name
     p = printer(name)
     kin = p.kinematics()
     rng = np.random.default_rng(11)
-    pieces = [x for spec in _runs(p, rng, 8) for x in topp.plan_run(kin, p, spec, "feed") if isinstance(x, RunPiece)]
+    pieces = [x for spec in _runs(p, rng, 8) for x in topp.plan_run(PlanContext.of(p, "feed"), spec) if isinstance(x, RunPiece)]
     assert len(pieces) >= 6 and any((x.path.kind == 1).any() for x in pieces)
     for piece, shuffle in itertools.product(pieces, (True, False)):
         tau = np.concatenate([[-1.0, 0.0, piece.duration, piece.duration + 1.0], piece.t,
@@ -377,10 +381,10 @@ def test_lines_planned_as_one_path_are_each_planned_alone(name):
     b[5] = a[5] + [0.0, 0.0, 0.3]  # a lift
     feed = rng.uniform(20.0, 300.0, 20)
     layers = np.arange(20)
-    batch = topp.plan_lines(kin, p, a, b, feed, layers, "feed")
+    batch = batch_mod.plan_lines(PlanContext.of(p, "feed"), a, b, feed, layers)
     for i in range(20):
-        spec = topp.RunSpec(np.array([a[i], b[i]]), feed[i : i + 1], np.zeros(1), 0.0, int(layers[i]))
-        alone = topp.plan_run(kin, p, spec, "feed", kind="travel")
+        spec = runpath.RunSpec(np.array([a[i], b[i]]), feed[i : i + 1], np.zeros(1), 0.0, int(layers[i]))
+        alone = topp.plan_run(PlanContext.of(p, "feed"), spec, kind="travel")
         assert len(batch[i]) == len(alone) == (0 if i == 3 else 1), i
         for got, want in zip(batch[i], alone):
             assert got.kind == "travel" and got.layer == i
@@ -391,10 +395,10 @@ def test_lines_planned_as_one_path_are_each_planned_alone(name):
             assert np.allclose(got.xd, want.xd, rtol=1e-9, atol=1e-12)
             assert np.allclose(got.q_start, want.q_start, atol=1e-12) and np.allclose(got.q_end, want.q_end, atol=1e-12)
     # Trapezoid-style speed limit off: the joints alone bound the speed, still move by move.
-    fast = topp.plan_lines(kin, p, a[:6], b[:6], feed[:6], layers[:6], "joints")
+    fast = batch_mod.plan_lines(PlanContext.of(p, "joints"), a[:6], b[:6], feed[:6], layers[:6])
     for i in (0, 4, 5):
-        spec = topp.RunSpec(np.array([a[i], b[i]]), feed[i : i + 1], np.zeros(1), 0.0, i)
-        assert fast[i][0].duration == pytest.approx(topp.plan_run(kin, p, spec, "joints", kind="travel")[0].duration,
+        spec = runpath.RunSpec(np.array([a[i], b[i]]), feed[i : i + 1], np.zeros(1), 0.0, i)
+        assert fast[i][0].duration == pytest.approx(topp.plan_run(PlanContext.of(p, "joints"), spec, kind="travel")[0].duration,
                                                     rel=1e-9)
 
 
@@ -407,7 +411,7 @@ def test_a_batch_of_lines_with_one_out_of_reach_raises_that_lines_error():
     a, b = pts[:3], pts[3:].copy()
     b[1, 2] = 10 * p.bed.max_height
     with pytest.raises(UnreachableError, match="layer 11: point"):
-        topp.plan_lines(kin, p, a, b, np.full(3, 100.0), np.array([10, 11, 12]), "feed")
+        batch_mod.plan_lines(PlanContext.of(p, "feed"), a, b, np.full(3, 100.0), np.array([10, 11, 12]))
 
 
 def _runs(p, rng, n):
@@ -430,9 +434,9 @@ def _runs(p, rng, n):
         if k == 5:
             e[:] = 0.0  # a working move that pushes no filament
         feed = rng.choice([5.0, 40.0, 150.0], m)
-        specs.append(topp.RunSpec(pts, feed, e, 200.0, k))
+        specs.append(runpath.RunSpec(pts, feed, e, 200.0, k))
     if n > 7:
-        specs[7] = topp.RunSpec(specs[7].points[:2].copy(), specs[7].feed[:1], np.array([0.4]), 200.0, 7)
+        specs[7] = runpath.RunSpec(specs[7].points[:2].copy(), specs[7].feed[:1], np.array([0.4]), 200.0, 7)
         specs[7].points[1] = specs[7].points[0] + [0.0002, 0.0, 0.0]  # filament pushed at rest
     return specs
 
@@ -446,9 +450,9 @@ def test_runs_planned_as_one_path_are_each_planned_alone(name):
     kin = p.kinematics()
     specs = _runs(p, np.random.default_rng(5), 16)
     for speed_limit in ("feed", "machine"):
-        batch = topp.plan_runs(kin, p, specs, speed_limit)
+        batch = batch_mod.plan_runs(PlanContext.of(p, speed_limit), specs)
         for i, spec in enumerate(specs):
-            alone = topp.plan_run(kin, p, spec, speed_limit)
+            alone = topp.plan_run(PlanContext.of(p, speed_limit), spec)
             assert [type(x).__name__ for x in batch[i]] == [type(x).__name__ for x in alone], i
             for got, want in zip(batch[i], alone):
                 assert got.kind == want.kind and got.layer == i
@@ -476,21 +480,21 @@ def test_a_refined_run_in_a_batch_refines_only_itself(monkeypatch):
     kin = p.kinematics()
     specs = _runs(p, np.random.default_rng(5), 3)
     start = specs[1].points[0]
-    real = topp.stage_maxima
+    real = stages.stage_maxima
 
     def failing_at_start(rp, x, *args, **kwargs):
         out = real(rp, x, *args, **kwargs)
         s = np.asarray(x) * rp.S
         first = np.linalg.norm(rp.path.evaluate(s[:-1]) - start, axis=1) < 1e-9
-        first &= np.diff(s) > 0.75 * topp.MIN_STEP  # the grid's first stage (MIN_STEP), not its refined quarters
+        first &= np.diff(s) > 0.75 * stages.MIN_STEP  # the grid's first stage (MIN_STEP), not its refined quarters
         per_stage = np.where(first, 2.0, out.per_stage)
-        return topp.StageMaxima(out.velocity, out.acceleration, out.stage_v, out.stage_a, per_stage)
+        return stages.StageMaxima(out.velocity, out.acceleration, out.stage_v, out.stage_a, per_stage)
 
-    monkeypatch.setattr(topp, "stage_maxima", failing_at_start)
-    alone = [topp.plan_run(kin, p, s, "feed") for s in specs]
-    batch = topp.plan_runs(kin, p, specs, "feed")
-    inputs = [topp._path_inputs(*topp._prepare(p, s, None), "feed") for s in specs]
-    unrefined = [len(topp.grid(inp.path, inp.stop_at)) for inp in inputs]
+    monkeypatch.setattr(solver_mod, "stage_maxima", failing_at_start)
+    alone = [topp.plan_run(PlanContext.of(p, "feed"), s) for s in specs]
+    batch = batch_mod.plan_runs(PlanContext.of(p, "feed"), specs)
+    inputs = [runpath._path_inputs(*topp._prepare(PlanContext.of(p), s, None), "feed") for s in specs]
+    unrefined = [len(stages.grid(inp.path, inp.stop_at)) for inp in inputs]
     assert len(alone[1][0].x) == unrefined[1] + 6  # the first stage and the one after it, split in four
     assert [len(x[0].x) for x in alone] == [unrefined[0], unrefined[1] + 6, unrefined[2]]
     for got, want in zip(batch, alone):
@@ -517,15 +521,15 @@ def test_a_width_change_on_a_finely_segmented_arc_is_taken_at_rest(speed_limit):
     assert np.all(np.diff(path.piece_start) > 1e-12)
     e = 0.03 * np.linalg.norm(np.diff(pts, axis=0), axis=1)
     e[10:] *= 1.5
-    spec = topp.RunSpec(pts, np.full(20, 40.0), e, 200.0, 0)
-    other = topp.RunSpec(_segmented_arc([-10.0, 5.0, 1.0], m=13), np.full(13, 40.0), np.full(13, 0.004), 200.0, 0)
-    alone = topp.plan_run(kin, p, spec, speed_limit)[0]
+    spec = runpath.RunSpec(pts, np.full(20, 40.0), e, 200.0, 0)
+    other = runpath.RunSpec(_segmented_arc([-10.0, 5.0, 1.0], m=13), np.full(13, 40.0), np.full(13, 0.004), 200.0, 0)
+    alone = topp.plan_run(PlanContext.of(p, speed_limit), spec)[0]
     jump = np.flatnonzero(np.abs(np.diff(alone.e_ratio)) > 0.01 * alone.e_ratio[1:])
     assert len(jump) == 1
     s_stop = alone.path.piece_start[jump[0] + 1]
     at = np.flatnonzero(np.abs(alone.x * alone.S - s_stop) < 1e-9)
     assert len(at) == 1 and alone.xd[at[0]] == 0.0
-    batch = topp.plan_runs(kin, p, [other, spec], speed_limit)[1][0]
+    batch = batch_mod.plan_runs(PlanContext.of(p, speed_limit), [other, spec])[1][0]
     assert batch.duration == pytest.approx(alone.duration, rel=1e-9)
 
 
@@ -538,18 +542,18 @@ def test_a_batch_of_runs_with_one_out_of_reach_raises_that_runs_error():
     bad = specs[4]
     pts = bad.points.copy()
     pts[2, 2] = 10 * p.bed.max_height
-    specs[4] = topp.RunSpec(pts, bad.feed, bad.e, bad.tool, 44)
+    specs[4] = runpath.RunSpec(pts, bad.feed, bad.e, bad.tool, 44)
     with pytest.raises(UnreachableError, match="layer 44: point"):
-        topp.plan_runs(kin, p, specs, "feed")
+        batch_mod.plan_runs(PlanContext.of(p, "feed"), specs)
     # Two runs out of reach in different batches (one pushes no filament, so it is batched apart
     # and after the others): the first in print order is named, as planning each alone would.
     first = specs[1]
     pts = first.points.copy()
     pts[1, 2] = 10 * p.bed.max_height
-    specs[1] = topp.RunSpec(pts, first.feed, np.zeros(len(first.e)), first.tool, 41)
-    specs.append(topp.RunSpec(specs[0].points.copy(), specs[0].feed, np.zeros(len(specs[0].e)), 200.0, 50))
+    specs[1] = runpath.RunSpec(pts, first.feed, np.zeros(len(first.e)), first.tool, 41)
+    specs.append(runpath.RunSpec(specs[0].points.copy(), specs[0].feed, np.zeros(len(specs[0].e)), 200.0, 50))
     with pytest.raises(UnreachableError, match="layer 41: point"):
-        topp.plan_runs(kin, p, specs, "feed")
+        batch_mod.plan_runs(PlanContext.of(p, "feed"), specs)
 
 
 def test_travels_planned_together_are_each_planned_alone():
@@ -573,10 +577,10 @@ def test_travels_planned_together_are_each_planned_alone():
         jobs.append(dict(a=a, b=b, layer=k, printed_top=float(a[2]), retract=-0.8 * (k % 2), unretract=0.8 * (k % 2),
                          via=via, feed=float(rng.choice([5.0, 150.0]))))
     for speed_limit in ("feed", "machine"):
-        together = travel.plan_travels(kin, p, jobs, speed_limit=speed_limit)
+        together = travel.plan_travels(PlanContext.of(p, speed_limit), jobs)
         kinds = set()
         for job, got in zip(jobs, together):
-            alone = travel.plan_travel(kin, p, speed_limit=speed_limit, **job)
+            alone = travel.plan_travel(PlanContext.of(p, speed_limit), **job)
             assert [type(x).__name__ for x in got] == [type(x).__name__ for x in alone]
             kinds.update(type(x).__name__ for x in got)
             for x, y in zip(got, alone):
@@ -595,7 +599,7 @@ def test_joint_moves_checked_together_are_each_checked_alone():
     p = printer("delta_etitc")
     kin = p.kinematics()
     pts = _bed_points(p, np.random.default_rng(5), 16)
-    moves = [travel._ruckig_move(p, *kin.inverse(np.array([pts[k], pts[8 + k]])), layer=0) for k in range(8)]
+    moves = [travel._ruckig_move(PlanContext.of(p), *kin.inverse(np.array([pts[k], pts[8 + k]])), layer=0) for k in range(8)]
     z_min = np.array([0.0, 1e3, 0.0, 1e3, 0.0, 0.0, 1e3, 0.0]) + np.minimum(pts[:8, 2], pts[8:, 2]) - 0.1
     together = travel.joint_moves_clear(kin, moves, z_min)
     alone = [travel.joint_move_clear(kin, m, z) for m, z in zip(moves, z_min)]
@@ -608,7 +612,7 @@ def _ruckig_alone(p, q0, q1):
     printer's torque limits, the move's own joint bounds and its joints in phase, as travel does)."""
     from deltaslice.planning.torque import travel_limits
 
-    vel, acc, jerk = travel._ruckig_limits(p, 3)
+    vel, acc, jerk = travel._ruckig_limits(PlanContext.of(p), 3)
     otg, inp, traj = ruckig.Ruckig(3), ruckig.InputParameter(3), ruckig.Trajectory(3)
     bounds = travel_limits(p, q0, q1)
     if bounds is not None:
@@ -630,7 +634,7 @@ def test_joint_moves_made_one_after_another_are_each_made_alone(monkeypatch):
     kin = p.kinematics()
     pts = _bed_points(p, np.random.default_rng(7), 16)
     ends = [kin.inverse(np.array([pts[k], pts[8 + k]])) for k in range(8)]
-    batch = travel._JointMoves(p, 3)
+    batch = travel._JointMoves(PlanContext.of(p), 3)
     together = [batch.move(a, b, layer=k) for k, (a, b) in enumerate(ends)]
     alone = [_ruckig_alone(p, a, b) for a, b in ends]
     assert len({traj.duration for traj in alone}) == 8
@@ -651,7 +655,7 @@ def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():
     numpy and reduced by numpy (max, argmax: first of ties, first NaN; per stage max over the
     channels), bit for bit, with NaN derivatives and ties among them."""
     rng = np.random.default_rng(1)
-    f = len(topp.CHECK)
+    f = len(constraints.CHECK)
     for trial in range(200):
         n, dof = int(rng.integers(1, 50)), int(rng.integers(1, 5))
         dq, ddq = rng.normal(size=(n, f, dof)), rng.normal(size=(n, f, dof))
@@ -665,14 +669,14 @@ def test_stage_maxima_are_numpys_bounds_maxima_and_argmaxima():
         if trial % 11 == 0 and n > 2:
             dq[1], ddq[1], xd[1:3], xdd[1] = dq[0], ddq[0], xd[0:2], xdd[0]  # a stage the same as the first
         vmax, amax = rng.uniform(0.5, 2, dof), rng.uniform(0.5, 2, dof)
-        w = np.maximum((xd[:-1] ** 2)[:, None] + ((xd[1:] ** 2) - (xd[:-1] ** 2))[:, None] * topp.CHECK[None], 0.0)
+        w = np.maximum((xd[:-1] ** 2)[:, None] + ((xd[1:] ** 2) - (xd[:-1] ** 2))[:, None] * constraints.CHECK[None], 0.0)
         with np.errstate(invalid="ignore"):
             bounds = []
             for g in (np.abs(dq) * np.sqrt(w)[:, :, None] / vmax, np.abs(dq * xdd[:, None, None] + ddq * w[:, :, None]) / amax):
                 bounds.append(g.max(axis=1) + 0.3125 * np.abs(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]).max(axis=1))
             bv, ba = bounds
             want = (bv.max(axis=0), ba.max(axis=0), bv.argmax(axis=0), ba.argmax(axis=0), np.maximum(bv, ba).max(axis=1))
-        got = topp.stage_maxima(None, None, xd, xdd, vmax, amax, stage=(dq, ddq))
+        got = stages.stage_maxima(None, None, xd, xdd, vmax, amax, stage=(dq, ddq))
         for a, b in zip((got.velocity, got.acceleration, got.stage_v, got.stage_a, got.per_stage), want):
             assert np.array_equal(a, b, equal_nan=True), trial
 
@@ -691,7 +695,7 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
         want = np.zeros((n + 1, dof))
         want[:-1] = np.maximum(start, mid)
         want[1:] = np.maximum(want[1:], np.maximum(end, mid))
-        assert np.array_equal(topp.gridpoint_speed_factor(dq), want, equal_nan=True), trial
+        assert np.array_equal(constraints.gridpoint_speed_factor(dq), want, equal_nan=True), trial
         # the velocity cap from it: zero factors (inf), NaN ones, feeds of zero, inf and NaN
         factor = want.copy()
         factor[rng.random(factor.shape) < 0.1] = 0.0
@@ -699,24 +703,24 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
         feed = rng.choice([0.0, np.inf, np.nan, 7.0, 30.0], n + 1, p=[0.1, 0.3, 0.05, 0.3, 0.25])
         with np.errstate(divide="ignore", invalid="ignore"):
             want_cap2 = np.minimum(np.min(vmax[None] / factor, axis=1), feed / S) ** 2
-        got_cap2 = topp.PathVelocityConstraint(vmax, feed, S, factor).cap2(None, None)
+        got_cap2 = constraints.PathVelocityConstraint(vmax, feed, S, factor).cap2(None, None)
         assert np.array_equal(got_cap2, want_cap2, equal_nan=True), trial
         with np.errstate(divide="ignore", invalid="ignore"):  # numpy's broadcasting: one feed for all
             want_cap2 = np.minimum(np.min(vmax[None] / factor, axis=1), 7.0 / S) ** 2
-        assert np.array_equal(topp.PathVelocityConstraint(vmax, 7.0, S, factor).cap2(None, None), want_cap2, equal_nan=True)
+        assert np.array_equal(constraints.PathVelocityConstraint(vmax, 7.0, S, factor).cap2(None, None), want_cap2, equal_nan=True)
         with pytest.raises(ValueError):  # and its refusals: a feed for another grid
-            topp.PathVelocityConstraint(vmax, feed[:-1] if n else np.ones(3), S, factor).cap2(None, None)
+            constraints.PathVelocityConstraint(vmax, feed[:-1] if n else np.ones(3), S, factor).cap2(None, None)
         if n == 0:
             continue
         sd, xdd = rng.uniform(0, 2, n + 1), rng.normal(size=n)
         cap2, amax = rng.uniform(0.5, 4, n + 1) * (1e6 if trial % 2 else 1.0), rng.uniform(0.5, 2, dof)  # 1e6: no speed cap active
         acc = np.abs(dq[:, 0] * xdd[:, None] + ddq[:, 0] * (sd[:-1] ** 2)[:, None]) / amax[None]
-        want = (sd[:-1] ** 2 >= topp.ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= topp.ACTIVE * cap2[1:]) | (acc.max(axis=1) >= topp.ACTIVE)
+        want = (sd[:-1] ** 2 >= solver_mod.ACTIVE * cap2[:-1]) | (sd[1:] ** 2 >= solver_mod.ACTIVE * cap2[1:]) | (acc.max(axis=1) >= solver_mod.ACTIVE)
         got = np.empty(n, dtype=bool)
-        topp._active_kernel(dq, ddq, xdd, sd, cap2, amax, got)
+        solver_mod._active_kernel(dq, ddq, xdd, sd, cap2, amax, got)
         assert np.array_equal(got, want), trial
         x = np.concatenate([[0.0], np.sort(rng.uniform(0, 1, n - 1)), [1.0]]) if n > 1 else np.array([0.0, 1.0])
-        con = topp.StageAccelerationConstraint(amax, topp.CHECK, (dq, ddq))
+        con = constraints.StageAccelerationConstraint(amax, constraints.CHECK, (dq, ddq))
         unit = rng.uniform(0.5, 30, n + 1)
         a, b = con.rows(None, x)
         sa, sb = con.rows(None, x, unit)
@@ -726,7 +730,7 @@ def test_compiled_grid_quantities_are_their_numpy_forms():
     dq, ddq = np.ones((1, 9, 2)), np.zeros((1, 9, 2))
     dq[0, 0, 0] = np.nan
     got = np.ones(1, dtype=bool)
-    topp._active_kernel(dq, ddq, np.array([1.0]), np.array([0.0, 0.0]), np.array([1.0, 1.0]), np.array([1.0, 1.0]), got)
+    solver_mod._active_kernel(dq, ddq, np.array([1.0]), np.array([0.0, 0.0]), np.array([1.0, 1.0]), np.array([1.0, 1.0]), got)
     assert not got[0]
 
 
@@ -738,7 +742,7 @@ def test_travel_jobs_are_their_moves_definition(seed):
     positive filament summed apart, and the largest feed of a move that moves (None where none
     moves or that feed is not positive). Travels of one and of several moves, moves of zero
     length, retracts and unretracts."""
-    from deltaslice.planning import _jobs, split_runs
+    from deltaslice.planning.jobs import split_runs, toolpath_jobs
     from deltaslice.toolpath import Role, ToolpathBuilder
 
     rng = np.random.default_rng(seed)
@@ -754,7 +758,7 @@ def test_travel_jobs_are_their_moves_definition(seed):
         b.add(pts, 30.0, 0.1, 1, Role.PERIMETER)
         here = pts[-1]
     tp = b.build()
-    travels = [(i, j, job) for i, j, kind, job in _jobs(tp, split_runs(tp), False) if kind == "travel"]
+    travels = [(job.i, job.j, job.made) for job in toolpath_jobs(tp, split_runs(tp), False, made=True) if job.kind == "travel"]
     assert travels
     for i, j, job in travels:
         pos = tp.start if i == 0 else tp.xyz[i - 1]
@@ -776,7 +780,7 @@ def test_stepped_grid_points_are_numpys_in_order(seed, n):
     every join plus and minus the steps below 0.999 of half its interval, the same values, and
     come in order (zero-length and long intervals included)."""
     rng = np.random.default_rng(seed)
-    offsets = np.cumsum([topp.MIN_STEP * topp.GROWTH**k for k in range(8)])
+    offsets = np.cumsum([stages.MIN_STEP * stages.GROWTH**k for k in range(8)])
     # lengths drawn at random, and ones whose half is a step or just past it (within the 0.999)
     edge = 2 * offsets[rng.integers(0, 8, n)] * rng.choice([1.0, 1.0005, 1.002], n)
     length = np.where(rng.random(n) < 0.5, rng.choice([0.0, 0.01, 0.05, 0.3, 2.0, 40.0], n) * rng.uniform(0.5, 1.5, n), edge)
@@ -785,7 +789,7 @@ def test_stepped_grid_points_are_numpys_in_order(seed, n):
     inside = offsets[None, :] < half[:, None] * 0.999
     want = np.concatenate([joins, (joins[:-1, None] + offsets[None, :])[inside], (joins[1:, None] - offsets[None, :])[inside]])
     out = np.full(len(joins) + 2 * n * len(offsets), np.nan)
-    got = out[: topp._stepped_points(joins, offsets, out)]
+    got = out[: stages._stepped_points(joins, offsets, out)]
     assert np.all(np.diff(got) >= 0)
     np.testing.assert_array_equal(got, np.sort(want))
 
@@ -809,7 +813,7 @@ def test_unit_profiles_are_each_units_numpy_profile(seed, units):
     L = float(rng.uniform(1, 500))
     x, xd, t = (np.full(n + units, np.nan) for _ in range(3))
     acc, busy = np.full(n, np.nan), np.full(units, np.nan)
-    topp._unit_profiles(s, sd, xdd, dt, active, at, lengths, L, x, xd, acc, t, busy)
+    batch_mod._unit_profiles(s, sd, xdd, dt, active, at, lengths, L, x, xd, acc, t, busy)
     for r in range(units):
         g0, g1, o = int(at[r]), int(at[r + 1]), int(at[r]) + r
         want_x = (s[g0 : g1 + 1] - s[g0]) / lengths[r]
@@ -830,10 +834,10 @@ def test_the_filaments_rows_once_give_the_same_solution(name):
     ``channels``, the repeated ones equal, and the solver's speeds, accelerations and controllable
     sets are the same bit for bit, with and without per-move units."""
     p, path, rp = _run_path(name)
-    x = topp.grid(path) / path.length
+    x = stages.grid(path) / path.length
     amax = p.planned_limits().acceleration[: rp.dof]
-    con = topp.StageAccelerationConstraint(amax, topp.EVAL, rp.stage_derivatives(x, topp.EVAL))
-    f, dof = len(topp.EVAL), rp.dof
+    con = constraints.StageAccelerationConstraint(amax, constraints.EVAL, rp.stage_derivatives(x, constraints.EVAL))
+    f, dof = len(constraints.EVAL), rp.dof
     cap2 = np.full(len(x), 50.0)
     for unit in (None, np.random.default_rng(2).uniform(0.5, 3.0, len(x))):
         a, b = con.rows(rp, x, unit)
@@ -845,8 +849,8 @@ def test_the_filaments_rows_once_give_the_same_solution(name):
         for k in range(1, f):
             assert np.array_equal(a[:, k * dof + dof - 1], a[:, dof - 1]) and np.array_equal(b[:, k * dof + dof - 1], b[:, dof - 1])
         ds = np.diff(x) if unit is None else np.diff(x) * unit[:-1]
-        full = topp.fast_solve(a, b, -np.tile(amax, f), np.tile(amax, f), cap2, ds, interpolation=False)
-        once = topp.fast_solve(a1, b1, -amax[ch], amax[ch], cap2, ds, interpolation=False)
+        full = solver_mod.fast_solve(a, b, -np.tile(amax, f), np.tile(amax, f), cap2, ds, interpolation=False)
+        once = solver_mod.fast_solve(a1, b1, -amax[ch], amax[ch], cap2, ds, interpolation=False)
         assert all(np.array_equal(u, v, equal_nan=True) for u, v in zip(full, once))
 
 
@@ -1013,16 +1017,16 @@ def test_path_inputs_of_many_runs_are_each_runs_own(speed_limit):
         m = len(pts) - 1
         e = 0.03 * np.linalg.norm(np.diff(pts, axis=0), axis=1) * (kind != 1)
         e[m // 2 :] *= 1.5 if kind == 0 else 1.0
-        polys.append(topp._Polyline(pts, rng.uniform(20, 80, m), e, None))
-    polys.append(topp._Polyline(np.array([[0.0, 0.0, 1.0], [-10.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), np.full(2, 40.0),
+        polys.append(runpath._Polyline(pts, rng.uniform(20, 80, m), e, None))
+    polys.append(runpath._Polyline(np.array([[0.0, 0.0, 1.0], [-10.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), np.full(2, 40.0),
                                 np.full(2, 0.3), None))
-    polys.append(topp._Polyline(np.array([[1.0, 2.0, 1.0], [3.0, 2.0, 1.0]]), np.full(1, 40.0), np.zeros(1), None))
+    polys.append(runpath._Polyline(np.array([[1.0, 2.0, 1.0], [3.0, 2.0, 1.0]]), np.full(1, 40.0), np.zeros(1), None))
     tols = rng.uniform(0.01, 0.2, len(polys))
-    many = topp._path_inputs_many(polys, tols, speed_limit)
+    many = runpath._path_inputs_many(polys, tols, speed_limit)
     assert sum(len(x.stop_at) > 0 for x in many) >= 2
     assert any(np.any(x.path.kind == 1) for x in many)
     for poly, tol, got in zip(polys, tols, many):
-        for want in (topp._path_inputs(poly, tol, speed_limit), None):
+        for want in (runpath._path_inputs(poly, tol, speed_limit), None):
             if want is None:  # the numpy arithmetic of one run at a time, as before the batch
                 path, e_ratio, cum_e, extruder, piece_feed, stop_at = _reference_path_inputs(poly, tol, speed_limit)
             else:

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from deltaslice import UnreachableError, load_printer
 from deltaslice import planning
-from deltaslice.planning import plan, split_runs, topp
+from deltaslice.planning import plan, split_runs, stages
 from deltaslice.planning.blend import blend_polyline
 from deltaslice.planning.pieces import JointMovePiece
 from deltaslice.planning.trapezoid import corner_violations, plan_firmware, plan_safe
@@ -237,7 +237,7 @@ def test_grid_refinement_changes_duration_under_one_percent(monkeypatch):
     printer = load_printer("printers/delta_etitc.toml")
     toolpath = layered_part(0.5, 0.4, 1, 40)
     coarse = plan(toolpath, printer, speed_limit="machine", workers=1)
-    monkeypatch.setattr(topp, "REFINE", 10)
+    monkeypatch.setattr(stages, "REFINE", 10)
     fine = plan(toolpath, printer, speed_limit="machine", workers=1)
     runs = lambda t: sum(p.duration for p in t.pieces if p.kind == "run")  # noqa: E731
     assert sum(len(p.x) for p in fine.pieces if p.kind == "run") > 9 * sum(len(p.x) for p in coarse.pieces if p.kind == "run")
@@ -260,8 +260,8 @@ def test_parallel_equals_serial():
 
 @pytest.mark.parametrize("name", ["delta_ucb", "delta_espe_laser"])
 def test_jobs_named_by_their_moves_are_the_jobs_themselves(name):
-    """The planning workers get each job as the moves it is made from (a run's (i, j), a travel's
-    (i, j, printed top)) and make its arguments from the toolpath they inherit: the same RunSpec
+    """The planning workers get each job as the moves it is made from (its i, j and the printed
+    top before it) and make its arguments from the toolpath they inherit: the same RunSpec
     (a laser's too, with its power) and the same travel keywords as the parent makes: the first
     travel from the toolpath's start, those between runs from the run before, the last after the
     last run, the printed top before each."""
@@ -275,28 +275,25 @@ def test_jobs_named_by_their_moves_are_the_jobs_themselves(name):
         b.add(toolpath.xyz, toolpath.feed, toolpath.e, toolpath.tool, toolpath.role)
         b.add([[5.0, 5.0, 2.0], [8.0, 5.0, 2.0], [8.0, 5.0, 0.85]], 100, [-1.0, 0, 0], 0, Role.TRAVEL)
         toolpath = b.build()
-    laser = printer.tool.channel_kind == "laser"
+    laser = printer.tool.takes_laser_power
     ranges = split_runs(toolpath, laser)
-    full = list(planning._jobs(toolpath, ranges, laser))
-    named = list(planning._jobs(toolpath, ranges, laser, by_index=True))
-    kinds = [kind for _s, _e, kind, _j in full]
+    full = list(planning.jobs.toolpath_jobs(toolpath, ranges, laser, made=True))
+    named = list(planning.jobs.toolpath_jobs(toolpath, ranges, laser))
+    kinds = [job.kind for job in full]
     assert kinds.count("run") == len(ranges) and kinds[0] == "travel" and "travel" in kinds[1:-1]
     assert (kinds[-1] == "travel") == (name == "delta_ucb")
-    planning._init_worker(printer, toolpath)
-    try:
-        for (s0, e0, k0, job), (s1, e1, k1, ref) in zip(full, named, strict=True):
-            assert (s0, e0, k0) == (s1, e1, k1) and type(ref) is tuple
-            made = planning._job_args(k1, ref)
-            assert type(made) is type(job)
-            if k0 == "run":
-                for f in fields(job):
-                    np.testing.assert_array_equal(getattr(made, f.name), getattr(job, f.name), err_msg=f.name)
-            else:
-                assert made.keys() == job.keys()
-                for key in job:
-                    np.testing.assert_array_equal(made[key], job[key], err_msg=key)
-    finally:
-        planning._init_worker(printer)
+    for whole, ref in zip(full, named, strict=True):
+        assert (whole.kind, whole.start, whole.end, whole.i, whole.j) == (ref.kind, ref.start, ref.end, ref.i, ref.j)
+        assert ref.made is None
+        made, job = ref.arguments(toolpath, laser), whole.arguments(None, laser)
+        assert type(made) is type(job)
+        if whole.kind == "run":
+            for f in fields(job):
+                np.testing.assert_array_equal(getattr(made, f.name), getattr(job, f.name), err_msg=f.name)
+        else:
+            assert made.keys() == job.keys()
+            for key in job:
+                np.testing.assert_array_equal(made[key], job[key], err_msg=key)
 
 
 def test_a_long_run_first_is_planned_here_from_its_moves(monkeypatch):
@@ -315,9 +312,9 @@ def test_a_long_run_first_is_planned_here_from_its_moves(monkeypatch):
         b.add([[15.0 + k, 10.0, 0.25], [16.0 + k, 10.0, 0.25]], 30, [0.02, 0.01], 1, Role.PERIMETER)
     toolpath = b.build()
     assert split_runs(toolpath)[0][0] == 0
-    monkeypatch.setattr(planning, "is_long", lambda moves: moves > 50)  # the first run, not the short ones
+    monkeypatch.setattr(planning.scheduler, "is_long", lambda moves: moves > 50)  # the first run, not the short ones
     pools = plan(toolpath, printer, workers=2)
-    assert planning._WORKER["toolpath"] is None
+    assert planning.scheduler._WORKER.toolpath is None
     alone = plan(toolpath, printer, workers=1)
     assert pools.duration == alone.duration and len(pools.pieces) == len(alone.pieces)
     np.testing.assert_array_equal(pools.samples().q, alone.samples().q)
@@ -351,9 +348,9 @@ def test_the_reach_check_speaks_first_while_workers_plan(workers, runs_before):
     b.add(good.xyz[cut:], good.feed[cut:], good.e[cut:], good.tool[cut:], good.role[cut:])  # all within reach
     bad = b.build()
     n_jobs = 2 * len(split_runs(bad)) + 1
-    chunk = min(planning.CHUNK_MAX, n_jobs // planning.CHUNKS_PER_PRINT)
+    chunk = planning.scheduler.chunk_size(n_jobs)
     # the bad run's job (a travel before each run) among the first jobs, or past them in the first chunk
-    assert (2 * runs_before + 1 < planning.WARM_UP_JOBS) == (runs_before == 0) and 2 * runs_before + 1 < chunk
+    assert (2 * runs_before + 1 < planning.scheduler.WARM_UP_JOBS) == (runs_before == 0) and 2 * runs_before + 1 < chunk
     with pytest.raises(UnreachableError, match=r"x = 200.00, y = 0.00, z = 0.25 mm is out of reach of delta_ucb"):
         plan(bad, printer, workers=workers)
 
@@ -363,9 +360,9 @@ def test_the_chunks_in_flight_are_four_a_worker_and_the_next(monkeypatch):
     (one more once the next is handed out, before the oldest is), the first chunk among them."""
     import deltaslice.planning as planning
 
-    monkeypatch.setattr(planning, "CHUNK_MAX", 2)  # many chunks from a small part
+    monkeypatch.setattr(planning.scheduler, "CHUNK_MAX", 2)  # many chunks from a small part
     pool_futures, state = set(), {"out": 0, "peak": 0}
-    real_start, real_drain = planning.start_pool, planning._drain_one
+    real_start, real_drain = planning.scheduler.start_pool, planning.scheduler._drain_one
 
     def counting_pool(*args, **kwargs):
         pool = real_start(*args, **kwargs)
@@ -387,8 +384,8 @@ def test_the_chunks_in_flight_are_four_a_worker_and_the_next(monkeypatch):
         state["out"] -= from_pool
         return done
 
-    monkeypatch.setattr(planning, "start_pool", counting_pool)
-    monkeypatch.setattr(planning, "_drain_one", counting_drain)
+    monkeypatch.setattr(planning.scheduler, "start_pool", counting_pool)
+    monkeypatch.setattr(planning.scheduler, "_drain_one", counting_drain)
     printer = load_printer("printers/delta_etitc.toml")
     part = layered_part(0.5, 0.4, 16, 20)
     assert len(split_runs(part)) >= 30  # 2 jobs a chunk: 30 chunks and more, against 8 in flight

@@ -20,7 +20,10 @@ import pytest
 
 from deltaslice import load_printer
 from deltaslice.planning import plan
-from deltaslice.planning.topp import RunSpec, plan_run, run_stage_maxima
+from deltaslice.planning.context import PlanContext
+from deltaslice.planning.runpath import RunSpec
+from deltaslice.planning.stages import run_stage_maxima
+from deltaslice.planning.topp import plan_run
 from deltaslice.machine import printer_from_dict
 from deltaslice.toolpath import Role, ToolpathBuilder
 from trajectories import finite_differences
@@ -70,7 +73,7 @@ def peak_ratios(printer, samples, rate):
 def test_with_no_margin_the_planners_own_check_holds_the_limits(name):
     """With ``limit_margin = 0`` the solver plans to the limits themselves, so between grid points
     the motion goes a few thousandths over them (1.002-1.004 on the star part) unless the
-    stage-wise check (``topp.CHECK_TOLERANCE``, 1e-6) refines those stages: every run ends within
+    stage-wise check (``solver.CHECK_TOLERANCE``, 1e-6) refines those stages: every run ends within
     1e-6 of every limit. A check loosened to 5e-2 fails here."""
     # torque limits off: with them the ETITC's servos bind before its joint accelerations do
     printer = load_printer(name, {"planning.limit_margin": 0.0, "planning.torque_limit": "off"})
@@ -102,7 +105,8 @@ def stages_below_dense(printer, traj, fractions: int = 257) -> tuple[int, int]:
     them, against the joints' velocity and acceleration ratios at ``fractions`` points of the
     stage with the same derivatives (the brute-force evaluation the check stands for)."""
     from deltaslice.planning.pieces import RunPiece
-    from deltaslice.planning.topp import RunPath, stage_maxima
+    from deltaslice.planning.runpath import RunPath
+    from deltaslice.planning.stages import stage_maxima
 
     kin, J = printer.kinematics(), printer.n_joints
     vmax, amax = printer.limits.velocity[:J], printer.limits.acceleration[:J]
@@ -168,7 +172,7 @@ def test_line_arc_joins_are_checked_on_both_sides(kind, name):
     pts[:, 2] = Z0[name] or 0.5
     m = len(pts) - 1
     spec = RunSpec(pts, np.full(m, 500.0), np.zeros(m), 0.0, 3)
-    (piece,) = _as_list(plan_run(kin, printer, spec, "machine"))
+    (piece,) = _as_list(plan_run(PlanContext.of(printer, "machine"), spec))
     assert np.any(piece.path.kind == 1)
     vmax, amax = printer.limits.velocity[:printer.n_joints], printer.limits.acceleration[:printer.n_joints]
     bound = run_stage_maxima(piece, kin, vmax, amax)

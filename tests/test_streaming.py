@@ -21,7 +21,10 @@ from deltaslice import planning
 from deltaslice.errors import DeltasliceError, UnreachableError
 from deltaslice.gcode import open_gcode, read_gcode
 from deltaslice.planning import plan, plan_stream, topp
-from deltaslice.planning.topp import RunSpec, iter_run_parts, plan_run, run_stage_maxima
+from deltaslice.planning.context import PlanContext
+from deltaslice.planning.runpath import RunSpec
+from deltaslice.planning.stages import run_stage_maxima
+from deltaslice.planning.topp import iter_run_parts, plan_run
 from deltaslice.toolpath import Toolpath
 
 COLUMNS = ("start", "xyz", "feed", "e", "tool", "role", "layer", "layer_z")
@@ -145,8 +148,8 @@ def full_batches(monkeypatch):
     8 * CHUNK_MAX jobs do; a smaller print planned whole is made to do the same (its travels are
     solved a batch at a time, and other batches would change their last bits), in chunks of 8 so
     that these small prints make several (a stream chunked otherwise than a print fails)."""
-    monkeypatch.setattr(planning, "CHUNKS_PER_PRINT", 1e-9)
-    monkeypatch.setattr(planning, "CHUNK_MAX", 8)  # several chunks even in these small prints
+    monkeypatch.setattr(planning.scheduler, "CHUNKS_PER_PRINT", 1e-9)
+    monkeypatch.setattr(planning.scheduler, "CHUNK_MAX", 8)  # several chunks even in these small prints
 
 
 def test_a_stream_is_planned_as_the_whole_toolpath(tmp_path, kossel, full_batches):
@@ -204,7 +207,7 @@ def test_a_run_longer_than_a_stream_run_is_planned_in_parts(tmp_path, kossel, sm
     """A run going on past STREAM_RUN moves is planned window by window as its parts come: it
     starts and ends at rest, joins at speed, keeps every limit, pushes the whole run's filament
     (the ratio per mm along the path driven, blends included) and takes its time within 0.1 %."""
-    monkeypatch.setattr(planning, "STREAM_RUN", 250)
+    monkeypatch.setattr(planning.jobs, "STREAM_RUN", 250)
     path = tmp_path / "s.gcode"
     path.write_text(spiral_text(6))
     tp = read_gcode(path, printer=kossel)
@@ -235,10 +238,10 @@ def test_a_run_in_parts_keeps_the_filament_of_moves_shorter_than_a_micron(kossel
     spec = RunSpec(pts, np.full(len(e), 40.0), e, 1.0, 0)
     bounds = [0, 50, 99, 100, 101, 102, 103, 251, 404, 405, len(e)]
     parts = [spec.part(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
-    pieces = [p for p, _taken in iter_run_parts(kossel.kinematics(), kossel, iter(parts), "feed")]
+    pieces = [p for p, _taken in iter_run_parts(PlanContext.of(kossel, "feed"), iter(parts))]
     assert len(pieces) >= 3
     assert sum(p.filament_total for p in pieces) == pytest.approx(e.sum(), rel=1e-9)
-    whole = plan_run(kossel.kinematics(), kossel, spec, "feed")
+    whole = plan_run(PlanContext.of(kossel, "feed"), spec)
     assert sum(p.duration for p in pieces) == pytest.approx(sum(p.duration for p in whole), rel=1e-3)
 
 
@@ -262,7 +265,7 @@ def test_planning_a_stream_holds_a_few_chunks_whatever_its_length(kossel, small_
     """What plan_stream holds at its peak (tracemalloc) does not grow with the print: a spiral of
     3,000 moves and one of 12,000, handed over 500 at a time, its one run planned in parts. Held
     whole (a run gathered until it ends) it grows by about 80 bytes a move; here by none."""
-    monkeypatch.setattr(planning, "STREAM_RUN", 600)
+    monkeypatch.setattr(planning.jobs, "STREAM_RUN", 600)
     peaks = []
     for n in (3000, 3000, 12000):  # the first warms the caches up
         tracemalloc.start()
@@ -328,7 +331,7 @@ def test_a_lasers_runs_are_its_tool_channels_not_its_moves_roles(tmp_path, monke
     as the whole file is (it was cut at every power change, and a run in parts that crossed the
     comment failed to join its parts)."""
     laser = load_printer("delta_espe_laser")
-    monkeypatch.setattr(planning, "STREAM_RUN", stream_run)
+    monkeypatch.setattr(planning.jobs, "STREAM_RUN", stream_run)
     path = tmp_path / "l.gcode"
     path.write_text(_laser_text(typed_from=30))
     tp = read_gcode(path, printer=laser)

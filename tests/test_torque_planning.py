@@ -13,7 +13,10 @@ from deltaslice import load_printer
 from deltaslice.machine.dynamics import sampled_torques
 from deltaslice.planning import plan
 from deltaslice.planning.pieces import RunPiece
-from deltaslice.planning.topp import CHECK, EVAL, EVAL_IN_CHECK, RunPath, RunSpec, plan_run
+from deltaslice.planning.constraints import CHECK, EVAL, EVAL_IN_CHECK
+from deltaslice.planning.context import PlanContext
+from deltaslice.planning.runpath import RunPath, RunSpec
+from deltaslice.planning.topp import plan_run
 from deltaslice.planning.torque import stage_check, stage_torque, torque_limits, torque_rows, travel_limits
 from test_planning_limits import ROOT, Z0, printer_at, star_part
 
@@ -35,7 +38,7 @@ def _planned_run(name="delta_etitc"):
     r = np.where(k % 2 == 0, 20.0, 8.0)
     pts = np.c_[r * np.cos(k * np.pi / 5), r * np.sin(k * np.pi / 5), np.full(11, Z0[name])]
     spec = RunSpec(pts, np.full(10, 200.0), np.zeros(10), 1.0, 0)
-    (piece,) = plan_run(printer.kinematics(), printer, spec, "machine")
+    (piece,) = plan_run(PlanContext.of(printer, "machine"), spec)
     return printer, piece
 
 

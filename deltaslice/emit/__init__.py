@@ -16,6 +16,7 @@ import math
 import numbers
 
 from ..errors import DeltasliceError
+from ..tolerances import COUNT_ROUNDOFF
 from . import csv as csvfmt
 from . import stream
 
@@ -115,7 +116,7 @@ def write_trajectory(trajectory, f, fmt: str, watch=None, workers: int = 1) -> i
 def event_samples(events, duration: float, rate: float) -> list[tuple[int, int, float]]:
     """Trajectory events ``(time_s, kind, value)`` -> ``(sample_index, kind, value)``: the first
     sample at or after the event's time (``iter_samples`` gives ``ceil(duration * rate) + 1`` samples)."""
-    n_total = int(math.ceil(duration * rate - 1e-9)) + 1
+    n_total = int(math.ceil(duration * rate - COUNT_ROUNDOFF)) + 1
     return [(min(max(int(math.ceil(t * rate - 1e-6)), 0), n_total), int(k), float(v)) for t, k, v in events]
 
 

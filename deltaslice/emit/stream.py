@@ -1,4 +1,5 @@
-"""The deltaslice binary setpoint stream (``.dsl``): encoder, decoder, text dump.
+"""The deltaslice binary setpoint stream (``.dsl``): the encoder and writer; the format's names
+(:mod:`.stream_format`) and the decoder's (:mod:`.stream_read`) are read through here too.
 
 The format is specified in ``docs/stream-format.md``; this module is its
 reference implementation and ``examples/firmware/dsl_player.h`` the C one.
@@ -15,215 +16,30 @@ Encoding and decoding are vectorised per block with numpy.
 
 from __future__ import annotations
 
-import math
 import struct
 import zlib
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import StreamError
 from ..jit import njit
 from ..samples import Samples, to_counts
-from ..toolpath import EVENT_NAMES, EventKind
 from . import csv as csvfmt
+from .stream_format import (BLOCK_SAMPLES, COUNT_LIMIT, END_LEN, EVENT_LEN, KIND_CODES, KIND_EXTRUDER, KIND_LASER,
+                            KIND_NAMES, KIND_PRISMATIC, KIND_REVOLUTE, KIND_UNITS, MAGIC, MAX_BLOCK_SAMPLES,
+                            MAX_CHANNELS, MAX_RECORD, REC_BLOCK, REC_END, REC_EVENT, VERSION, VERSION_EVENTS, _EVENT,
+                            _TENTHS, Channel, StreamHeader, _zz1, event_value, parse_header, unzigzag, zigzag)
+from .stream_read import (StreamReader, UnitConverter, decode_block, decode_to_text, format_count_lines, read_counts,
+                          read_stream, stream_metadata)
 
-MAGIC = b"\x89DSL\r\n\x1a\n"
-VERSION = 1  # a stream without events
-VERSION_EVENTS = 2  # a stream with event records (a version-2 reader plays version 1 too)
-MAX_RECORD = 512  # bytes: the player's block buffer (DSL_MAX_RECORD in dsl_player.h)
-MAX_CHANNELS = 8
-BLOCK_SAMPLES = 512  # nominal samples per block; halved until the record fits MAX_RECORD
-# A reader refuses a block declaring more samples than a writer makes: a 17-byte block of width 0
-# may declare 65,535 samples, so 17 KB of valid CRCs would otherwise decode to 65 million samples
-# (gigabytes). With it a stream holds at most BLOCK_SAMPLES / (5 + 2C + 4) samples per byte.
-MAX_BLOCK_SAMPLES = BLOCK_SAMPLES
-COUNT_LIMIT = 1 << 29  # |counts| must stay below this (int32 arithmetic in the player)
+# the format's and the decoder's names, read through this module as before the split
+__all__ = ["BLOCK_SAMPLES", "COUNT_LIMIT", "END_LEN", "EVENT_LEN", "KIND_CODES", "KIND_EXTRUDER", "KIND_LASER",
+           "KIND_NAMES", "KIND_PRISMATIC", "KIND_REVOLUTE", "KIND_UNITS", "MAGIC", "MAX_BLOCK_SAMPLES", "MAX_CHANNELS",
+           "MAX_RECORD", "REC_BLOCK", "REC_END", "REC_EVENT", "VERSION", "VERSION_EVENTS", "Channel", "StreamHeader",
+           "StreamReader", "StreamWriter", "UnitConverter", "decode_block", "decode_to_text", "encode_block",
+           "encode_blocks", "encode_event", "event_value", "format_count_lines", "parse_header", "read_counts",
+           "read_stream", "stream_metadata", "unzigzag", "write_stream", "zigzag", "_zz1"]
 
-REC_BLOCK = 0x42  # 'B'
-REC_END = 0x45  # 'E'
-END_LEN = 15
-REC_EVENT = 0x56  # 'V'
-EVENT_LEN = 16
-_EVENT = struct.Struct("<BHIBi")  # type, length, sample index, kind, value; then CRC-32
-_TENTHS = (1, 2, 3, 4)  # temperature kinds: value in tenths of a degree C
-
-KIND_REVOLUTE, KIND_PRISMATIC, KIND_EXTRUDER, KIND_LASER = 1, 2, 3, 4
-KIND_NAMES = {KIND_REVOLUTE: "revolute", KIND_PRISMATIC: "prismatic", KIND_EXTRUDER: "extruder", KIND_LASER: "laser"}
-KIND_CODES = {name: code for code, name in KIND_NAMES.items()}
-KIND_UNITS = {KIND_REVOLUTE: "rad", KIND_PRISMATIC: "mm", KIND_EXTRUDER: "mm", KIND_LASER: "0..1"}
-
-_FIXED = struct.Struct("<8sHHIIBBH")  # magic, version, header_len, fingerprint, rate_mhz, channels, flags, max_record
-_CHANNEL = struct.Struct("<Bdd")  # kind, counts_per_unit, zero_count
-
-
-# --------------------------------------------------------------------------- header
-
-
-@dataclass(frozen=True)
-class Channel:
-    kind: int
-    counts_per_unit: float
-    zero_count: float
-
-    @property
-    def kind_name(self) -> str:
-        return KIND_NAMES[self.kind]
-
-
-@dataclass(frozen=True)
-class StreamHeader:
-    fingerprint: int
-    rate_mhz: int
-    channels: tuple[Channel, ...]
-    printer_name: str
-    metadata: dict = field(default_factory=dict)
-    max_record: int = MAX_RECORD
-    flags: int = 0
-    version: int = VERSION
-
-    @property
-    def rate(self) -> float:
-        """Samples per second."""
-        return self.rate_mhz / 1000.0
-
-    @property
-    def n_channels(self) -> int:
-        return len(self.channels)
-
-    @property
-    def n_joints(self) -> int:
-        return len(self.channels) - 1
-
-    @property
-    def tool_kind(self) -> str:
-        """The tool channel's kind name: "extruder" or "laser"."""
-        return self.channels[-1].kind_name
-
-    def encode(self) -> bytes:
-        name = self.printer_name.encode("utf-8")[:255]
-        meta = "".join(f"{k}={v}\n" for k, v in csvfmt.check_metadata(self.metadata).items()).encode("utf-8")
-        if len(meta) > 0xFFFF:
-            raise StreamError(f"stream metadata too long ({len(meta)} bytes, at most 65535)")
-        body = b"".join(_CHANNEL.pack(c.kind, c.counts_per_unit, c.zero_count) for c in self.channels)
-        body += bytes([len(name)]) + name + struct.pack("<H", len(meta)) + meta
-        total = _FIXED.size + len(body) + 4
-        if total > 0xFFFF:
-            raise StreamError(f"stream header too long ({total} bytes)")
-        fixed = _FIXED.pack(MAGIC, self.version, total, self.fingerprint & 0xFFFFFFFF, self.rate_mhz,
-                            len(self.channels), self.flags, self.max_record)
-        data = fixed + body
-        return data + struct.pack("<I", zlib.crc32(data))
-
-    @classmethod
-    def for_printer(cls, printer, rate: float, metadata: dict | None = None, version: int = VERSION) -> "StreamHeader":
-        rate_mhz = int(round(rate * 1000.0))
-        if not 1 <= rate_mhz <= 0xFFFFFFFF:
-            raise StreamError(f"sample rate {rate:g} Hz cannot be stored (0.001 Hz .. 4.29 MHz)")
-        lim = printer.limits
-        chans = [
-            Channel(KIND_CODES[kind], float(cpu), float(zero))
-            for kind, cpu, zero in zip(lim.kinds, lim.counts_per_unit, lim.zero_count)
-        ]
-        if len(chans) > MAX_CHANNELS:
-            raise StreamError(f"{len(chans)} channels: the stream holds at most {MAX_CHANNELS}")
-        return cls(printer.fingerprint(), rate_mhz, tuple(chans), printer.name, dict(metadata or {}), version=version)
-
-
-def parse_header(data: bytes, where: str = "stream") -> StreamHeader:
-    """Parse and check a complete header (``data`` holds at least header_len bytes).
-    Raises StreamError on any inconsistency, including a length field shorter than the
-    fields it must hold."""
-    try:
-        return _parse_header(data, where)
-    except (struct.error, IndexError, ValueError) as exc:
-        raise StreamError(f"{where}: header fields run past the header length: {exc}") from None
-
-
-def _parse_header(data: bytes, where: str) -> StreamHeader:
-    if len(data) < _FIXED.size:
-        raise StreamError(f"{where}: truncated header: {len(data)} bytes, expected at least {_FIXED.size}")
-    magic, version, hlen, fp, rate_mhz, nch, flags, max_record = _FIXED.unpack_from(data)
-    if magic != MAGIC:
-        raise StreamError(f"{where}: not a deltaslice stream (bad magic {magic!r} at byte offset 0)")
-    if version not in (VERSION, VERSION_EVENTS):
-        raise StreamError(f"{where}: stream format version {version} is not supported (this reader knows 1 and 2)")
-    if len(data) < hlen:
-        raise StreamError(f"{where}: truncated header: {len(data)} bytes, header length is {hlen}")
-    need = _FIXED.size + nch * _CHANNEL.size + 1 + 2 + 4
-    if hlen < need:
-        raise StreamError(f"{where}: header length {hlen} is smaller than its {nch} channels and fields ({need} bytes at least)")
-    stored = struct.unpack_from("<I", data, hlen - 4)[0]
-    if zlib.crc32(data[: hlen - 4]) != stored:
-        raise StreamError(f"{where}: header CRC mismatch (bytes 0..{hlen - 1}): the header is corrupt")
-    if not 2 <= nch <= MAX_CHANNELS or rate_mhz == 0 or max_record > MAX_RECORD:
-        raise StreamError(f"{where}: header holds invalid values (channels {nch}, rate {rate_mhz} mHz, max record {max_record})")
-    pos = _FIXED.size
-    chans = []
-    for _ in range(nch):
-        kind, cpu, zero = _CHANNEL.unpack_from(data, pos)
-        if kind not in KIND_NAMES or not (math.isfinite(cpu) and cpu != 0):
-            raise StreamError(f"{where}: header byte offset {pos}: invalid channel kind {kind} or scale {cpu}")
-        chans.append(Channel(kind, cpu, zero))
-        pos += _CHANNEL.size
-    nlen = data[pos]
-    name = data[pos + 1 : pos + 1 + nlen].decode("utf-8", "replace")
-    pos += 1 + nlen
-    if pos + 2 > hlen - 4:
-        raise StreamError(f"{where}: header length {hlen}: the printer name runs past it")
-    (mlen,) = struct.unpack_from("<H", data, pos)
-    if pos + 2 + mlen > hlen - 4:
-        raise StreamError(f"{where}: header length {hlen}: the metadata ({mlen} bytes) runs past it")
-    meta_text = data[pos + 2 : pos + 2 + mlen].decode("utf-8", "replace")
-    meta = dict(line.split("=", 1) for line in meta_text.splitlines() if "=" in line)
-    return StreamHeader(fp, rate_mhz, tuple(chans), name, meta, max_record, flags, version)
-
-
-# --------------------------------------------------------------------------- block codec
-
-
-def zigzag(v: np.ndarray) -> np.ndarray:
-    """int64 -> uint64: 0, -1, 1, -2, 2 ... -> 0, 1, 2, 3, 4 ..."""
-    v = np.asarray(v, dtype=np.int64)
-    return ((v << 1) ^ (v >> 63)).view(np.uint64)
-
-
-def unzigzag(u: np.ndarray) -> np.ndarray:
-    u = np.asarray(u, dtype=np.uint64)
-    return ((u >> np.uint64(1)).view(np.int64)) ^ (-(u & np.uint64(1)).view(np.int64))
-
-
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        b = value & 0x7F
-        value >>= 7
-        if value:
-            out.append(b | 0x80)
-        else:
-            out.append(b)
-            return bytes(out)
-
-
-def _read_varint(buf: bytes, pos: int, end: int) -> tuple[int, int]:
-    value, shift = 0, 0
-    while True:
-        if pos >= end or shift > 28:  # at most 5 bytes (32 bits)
-            raise ValueError("bad varint")
-        b = buf[pos]
-        pos += 1
-        value |= (b & 0x7F) << shift
-        shift += 7
-        if not b & 0x80:
-            return value, pos
-
-
-def _zz1(v: int) -> int:
-    return 2 * v if v >= 0 else -2 * v - 1
-
-
-def _unzz1(u: int) -> int:
-    return (u >> 1) ^ -(u & 1)
 
 
 @njit
@@ -500,51 +316,6 @@ def encode_blocks(counts: np.ndarray, block_samples: int = BLOCK_SAMPLES, max_re
     return _records(counts, block_samples, max_record, orders)
 
 
-def decode_block(rec: bytes, n_channels: int) -> np.ndarray:
-    """Counts (n, C) int64 of one block record whose CRC was checked. Raises ValueError
-    when its inner structure is inconsistent."""
-    length, n = struct.unpack_from("<HH", rec, 1)
-    end = length - 4
-    pos = 5
-    plans = []
-    for _c in range(n_channels):
-        if pos >= end:
-            raise ValueError("channel headers run past the record")
-        mode = rec[pos]
-        pos += 1
-        order, width = mode >> 6, mode & 0x3F
-        if order not in (1, 2) or width > 32:
-            raise ValueError(f"invalid channel mode byte 0x{mode:02x}")
-        x0, pos = _read_varint(rec, pos, end)
-        v0 = 0
-        if order == 2:
-            v0, pos = _read_varint(rec, pos, end)
-        plans.append((order, width, _unzz1(x0), _unzz1(v0)))
-    if n < 1:
-        raise ValueError("block holds no samples")
-    row_bits = sum(p[1] for p in plans)
-    need = ((n - 1) * row_bits + 7) // 8
-    if end - pos != need:
-        raise ValueError(f"payload is {end - pos} bytes, {need} expected for {n} samples of {row_bits} bits")
-    out = np.empty((n, n_channels), dtype=np.int64)
-    if row_bits and n > 1:
-        bits = np.unpackbits(np.frombuffer(rec, dtype=np.uint8, count=need, offset=pos), bitorder="little")
-        bits = bits[: (n - 1) * row_bits].reshape(n - 1, row_bits)
-    off = 0
-    for c, (order, width, x0, v0) in enumerate(plans):
-        if width and n > 1:
-            weights = np.uint64(1) << np.arange(width, dtype=np.uint64)
-            r = unzigzag((bits[:, off : off + width].astype(np.uint64) * weights).sum(axis=1, dtype=np.uint64))
-            off += width
-        else:
-            r = np.zeros(n - 1, dtype=np.int64)
-        if order == 2:
-            r = v0 + np.cumsum(r)
-        out[0, c] = x0
-        out[1:, c] = x0 + np.cumsum(r)
-    return out
-
-
 # --------------------------------------------------------------------------- events
 
 
@@ -560,9 +331,6 @@ def encode_event(index: int, kind: int, value: float) -> bytes:
     return rec + struct.pack("<I", zlib.crc32(rec))
 
 
-def event_value(kind: int, stored: int) -> float:
-    """The natural value (degrees C, fan 0..255, laser mode) of a stored event value."""
-    return stored / 10.0 if kind in _TENTHS else float(stored)
 
 
 # --------------------------------------------------------------------------- writer
@@ -674,221 +442,3 @@ def write_stream(blocks, printer, f, *, rate: float, metadata: dict | None = Non
     for samples in blocks:
         w.write(samples)
     return w.close()
-
-
-# --------------------------------------------------------------------------- reader
-
-
-class StreamReader:
-    """Reads a stream from a binary file object. ``header`` after construction;
-    :meth:`blocks` yields ``(block_index, first_sample_index, counts (n, C) int64)``
-    and raises :class:`StreamError` at the first bad record, before yielding any
-    sample of it. Event records met on the way are appended to :attr:`events` as
-    ``(sample_index, kind, value)`` (value in degrees C, fan 0..255, laser mode)."""
-
-    def __init__(self, f, name: str = "stream"):
-        self.f = f
-        self.name = name
-        fixed = f.read(_FIXED.size)
-        if len(fixed) < 8 or fixed[:8] != MAGIC:
-            raise StreamError(f"{name}: not a deltaslice stream (bad magic at byte offset 0)")
-        if len(fixed) < _FIXED.size:
-            raise StreamError(f"{name}: truncated header ({len(fixed)} bytes)")
-        hlen = _FIXED.unpack(fixed)[2]
-        rest = f.read(max(0, hlen - _FIXED.size))
-        data = fixed + rest
-        self.header = parse_header(data, name)
-        self.offset = len(data)
-        self.crc = zlib.crc32(data)
-        self.events: list[tuple[int, int, float]] = []
-
-    def _fail(self, block: int, offset: int, what: str):
-        raise StreamError(f"{self.name}: block {block} at byte offset {offset}: {what}")
-
-    def blocks(self):
-        nch = self.header.n_channels
-        index, sample = 0, 0
-        while True:
-            at = self.offset
-            head = self.f.read(3)
-            if len(head) == 0:
-                self._fail(index, at, f"stream truncated: ends after {index} blocks ({sample} samples) without an end record")
-            if head[0] == REC_END:
-                rest = self.f.read(END_LEN - len(head))
-                rec = head + rest
-                if len(rec) < END_LEN:
-                    self._fail(index, at, "stream truncated inside the end record")
-                _t, length, total, stream_crc, crc = struct.unpack("<BHIII", rec)
-                if zlib.crc32(rec[:-4]) != crc or length != END_LEN:
-                    self._fail(index, at, "end record corrupt (CRC mismatch)")
-                if total != sample:
-                    self._fail(index, at, f"end record counts {total} samples, the blocks hold {sample}")
-                if stream_crc != self.crc:
-                    self._fail(index, at, f"whole-stream CRC mismatch (stored 0x{stream_crc:08x}, computed 0x{self.crc:08x})")
-                if self.f.read(1):
-                    self._fail(index, at + END_LEN, "unexpected bytes after the end record")
-                return
-            if head[0] == REC_EVENT:
-                rec = head + self.f.read(EVENT_LEN - len(head))
-                if len(rec) < EVENT_LEN:
-                    self._fail(index, at, "stream truncated inside an event record")
-                _t, length, i, kind, stored = _EVENT.unpack_from(rec)
-                if length != EVENT_LEN or zlib.crc32(rec[:12]) != struct.unpack_from("<I", rec, 12)[0]:
-                    self._fail(index, at, "event record corrupt (CRC mismatch or length)")
-                if self.header.version < VERSION_EVENTS:
-                    self._fail(index, at, f"event record in a version {self.header.version} stream")
-                if kind not in (1, 2, 3, 4, 5, 6) or i != sample:
-                    self._fail(index, at, f"event kind {kind} at sample {i}: expected kind 1..6 before sample {sample}")
-                self.events.append((i, kind, event_value(kind, stored)))
-                self.crc = zlib.crc32(rec, self.crc)
-                self.offset += EVENT_LEN
-                continue
-            if head[0] != REC_BLOCK:
-                self._fail(index, at, f"unknown record type 0x{head[0]:02x} (corrupt or out of sync)")
-            if len(head) < 3:
-                self._fail(index, at, "stream truncated inside a block header")
-            length = struct.unpack_from("<H", head, 1)[0]
-            if not 5 + 2 * nch + 4 <= length <= self.header.max_record:
-                self._fail(index, at, f"block length {length} outside {5 + 2 * nch + 4}..{self.header.max_record} (corrupt)")
-            rest = self.f.read(length - 3)
-            rec = head + rest
-            if len(rec) < length:
-                self._fail(index, at, f"stream truncated inside the block ({len(rec)} of {length} bytes)")
-            stored = struct.unpack_from("<I", rec, length - 4)[0]
-            computed = zlib.crc32(memoryview(rec)[: length - 4])
-            if stored != computed:
-                self._fail(index, at, f"CRC mismatch (stored 0x{stored:08x}, computed 0x{computed:08x}): block is corrupt")
-            n = struct.unpack_from("<H", rec, 3)[0]
-            if n > MAX_BLOCK_SAMPLES:
-                self._fail(index, at, f"the block declares {n} samples, more than the {MAX_BLOCK_SAMPLES} a block "
-                                      "holds (not a stream deltaslice wrote)")
-            try:
-                counts = decode_block(rec, nch)
-            except ValueError as exc:
-                self._fail(index, at, f"inconsistent block: {exc}")
-            self.crc = zlib.crc32(rec, self.crc)
-            self.offset += length
-            yield index, sample, counts
-            index += 1
-            sample += len(counts)
-
-
-def read_counts(f, name: str = "stream") -> tuple[StreamHeader, np.ndarray]:
-    """Header and all counts (n, C) int64 of a stream read from the binary file ``f``."""
-    reader = StreamReader(f, name)
-    parts = [c for _i, _s, c in reader.blocks()]
-    counts = np.concatenate(parts) if parts else np.zeros((0, reader.header.n_channels), dtype=np.int64)
-    return reader.header, counts
-
-
-class UnitConverter:
-    """Counts -> Samples using only the stream header (carries the extruder's last
-    position across blocks so the derived tool column is continuous)."""
-
-    def __init__(self, header: StreamHeader):
-        self.h = header
-        ch = header.channels
-        self.cpu = np.array([c.counts_per_unit for c in ch[:-1]])
-        self.zero = np.array([c.zero_count for c in ch[:-1]])
-        self.last_e = None
-
-    def __call__(self, counts: np.ndarray, first: int) -> Samples:
-        h = self.h
-        n = len(counts)
-        t = (first + np.arange(n)) * 1000.0 / h.rate_mhz
-        q = (counts[:, :-1] - self.zero) / self.cpu
-        tool_ch = h.channels[-1]
-        if h.tool_kind == "laser":  # the power fraction; an extruder's state is its rising count
-            tool = counts[:, -1] / tool_ch.counts_per_unit
-            e = np.zeros(n)
-        else:
-            e = counts[:, -1] / tool_ch.counts_per_unit
-            prev = np.concatenate([[e[0] if self.last_e is None else self.last_e], e[:-1]])
-            tool = (e > prev).astype(float)
-            if n:
-                self.last_e = e[-1]
-        return Samples(t, q, e, tool)
-
-
-def read_stream(f, name: str = "stream") -> tuple[dict, Samples]:
-    """(metadata, Samples in joint units) of a stream read from the binary file ``f``. The
-    metadata's ``"events"`` entry (only when the stream has event records) is a tuple of
-    ``(sample_index, kind, value)``, value in degrees C, fan 0..255 or laser mode 0/3/4."""
-    reader = StreamReader(f, name)
-    parts = [c for _i, _s, c in reader.blocks()]
-    header = reader.header
-    counts = np.concatenate(parts) if parts else np.zeros((0, header.n_channels), dtype=np.int64)
-    meta = stream_metadata(header)
-    if reader.events:
-        meta["events"] = tuple(reader.events)
-    return meta, UnitConverter(header)(counts, 0)
-
-
-def stream_metadata(header: StreamHeader) -> dict[str, str]:
-    meta = {
-        "format": "stream",
-        "printer": header.printer_name,
-        "fingerprint": f"0x{header.fingerprint:08x}",
-        "rate_hz": f"{header.rate:.10g}",
-        "channels": ", ".join(c.kind_name for c in header.channels),
-        "version": str(header.version),
-    }
-    meta.update(header.metadata)
-    return meta
-
-
-def format_count_lines(first: int, counts: np.ndarray) -> str:
-    """The text of ``deltaslice decode``: ``index c1 ... cC`` per sample, single spaces, '\\n'."""
-    n, nch = counts.shape
-    if n == 0:
-        return ""
-    table = np.empty((n, nch + 1), dtype=np.int64)
-    table[:, 0] = first + np.arange(n)
-    table[:, 1:] = counts
-    return (("%d " * nch + "%d\n") * n) % tuple(table.ravel().tolist())
-
-
-def decode_to_text(f, out, units: bool = False, printer=None, name: str = "stream") -> int:
-    """Print the samples of the stream read from binary file ``f`` to the text file ``out``;
-    returns the sample count.
-
-    Without ``units``: one line per sample, ``index c1 ... cC`` (integer counts), and a line
-    ``# event i=... kind=... value=...`` before the sample an event applies to.
-    With ``units``: exactly the setpoints CSV format (see :mod:`deltaslice.emit.csv`).
-    printer: a loaded Printer the stream must have been compiled for (fingerprint), or None.
-    Samples of blocks before a bad one are printed before the StreamError is raised.
-    """
-    reader = StreamReader(f, name)
-    h = reader.header
-    if printer is not None and printer.fingerprint() != h.fingerprint:
-        raise StreamError(
-            f"{name}: stream compiled for printer {h.printer_name!r} (fingerprint 0x{h.fingerprint:08x}), "
-            f"not {printer.name!r} (0x{printer.fingerprint():08x})"
-        )
-    conv = UnitConverter(h)
-    if units:
-        joint_units = [KIND_UNITS[c.kind] for c in h.channels[:-1]]
-        out.write(csvfmt.comment_lines(h.printer_name, h.fingerprint, h.rate, joint_units, h.metadata))
-    total = 0
-    shown = 0
-
-    def events_before(limit):
-        nonlocal shown
-        for i, kind, value in reader.events[shown:]:
-            if i > limit:
-                break
-            out.write(csvfmt.event_line(i, kind, value, h.rate) if units else
-                      f"# event i={i} kind={EVENT_NAMES[EventKind(kind)]} value={value:.10g}\n")
-            shown += 1
-
-    for _i, first, counts in reader.blocks():
-        events_before(first)
-        if units:
-            s = conv(counts, first)
-            out.write(csvfmt.format_rows(s.t, s.q, s.e, s.tool))
-        else:
-            out.write(format_count_lines(first, counts))
-        total += len(counts)
-    events_before(total)
-    out.flush()
-    return total

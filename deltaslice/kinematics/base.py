@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..tolerances import JOINT_ROUNDOFF
+
 REACH_BLOCK = 65536  # points per evaluation in Kinematics.reachable
 FD_STEP = 1e-3  # mm: step of the default path_derivatives' difference of the inverse Jacobian
 
@@ -193,7 +195,7 @@ class Kinematics:
         """Family-specific limits beyond joint positions (default: none). (N,) bool."""
         return np.ones(len(points), dtype=bool)
 
-    def within_joint_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    def within_joint_limits(self, q: np.ndarray, tol: float = JOINT_ROUNDOFF) -> np.ndarray:
         """q: (N,J) -> (N,) bool; NaN rows are outside."""
         q = np.atleast_2d(q)
         with np.errstate(invalid="ignore"):

@@ -275,11 +275,15 @@ class RotaryDelta(Kinematics):
         return out
 
 
+#: The centres' plane is vertical where its unit normal's z is below this (the two roots nearly level).
+PLANE_VERTICAL_Z = 1e-9
+
+
 @njit
 def _lower_meeting(c, L2):
     """Where three spheres of radius L2 centred at the rows of c (3, 3) meet, the root below
     their plane, as :func:`.base.lower_sphere_intersection` (NaN where they do not meet). NaN too
-    where the centres' plane is within 1e-9 of vertical: the two roots are then nearly level, and
+    where the centres' plane is within PLANE_VERTICAL_Z of vertical: the two roots are then nearly level, and
     which one numpy's form takes is a matter of rounding (the caller's exact test decides)."""
     exx, exy, exz = c[1, 0] - c[0, 0], c[1, 1] - c[0, 1], c[1, 2] - c[0, 2]
     d = math.sqrt(exx * exx + exy * exy + exz * exz)
@@ -290,7 +294,7 @@ def _lower_meeting(c, L2):
     j = math.sqrt(eyx * eyx + eyy * eyy + eyz * eyz)
     eyx, eyy, eyz = eyx / j, eyy / j, eyz / j
     ezx, ezy, ezz = exy * eyz - exz * eyy, exz * eyx - exx * eyz, exx * eyy - exy * eyx
-    if not abs(ezz) > 1e-9:
+    if not abs(ezz) > PLANE_VERTICAL_Z:
         return np.nan, np.nan, np.nan
     if ezz > 0:
         ezx, ezy, ezz = -ezx, -ezy, -ezz

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..config import MISSING, Problems, Section, _shown, _Stop
 from ..errors import PrinterFileError
+from ..tolerances import RELATIVE_ROUNDOFF
 from ..kinematics import FAMILIES, family, make_kinematics
 from .dynamics import Dynamics, read_actuators
 from .limits import Limits
@@ -325,7 +326,7 @@ def _read_homing(sec: Section, joints: dict | None) -> HomingSettings | None:
     for i in range(n):
         if side[i] and not lo[i] <= pos[i] <= hi[i]:
             sec.fail("endstop_position", list(pos), f"within the joint limits (joint {i + 1}: {lo[i]:g}..{hi[i]:g})")
-        if speed[i] > vmax[i] * (1 + 1e-9):
+        if speed[i] > vmax[i] * (1 + RELATIVE_ROUNDOFF):
             sec.fail("speed", list(speed), f"at most [joints] velocity_max (joint {i + 1}: {vmax[i]:g})")
     return HomingSettings(endstop=tuple(int(v) for v in side), position=tuple(p * k for p, k in zip(pos, ks)),
                           speed=tuple(v * k for v, k in zip(speed, ks)))

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..tolerances import SAME_LENGTH
+
 #: How far outside the work envelope (below the bed, above max_height, off its edge) a commanded
 #: point may be, mm: coordinates written to a micron, offsets summed in floating point.
 ENVELOPE_TOLERANCE = 1e-6
@@ -25,8 +27,8 @@ class Bed:
         """xy: (n, 2) float, mm -> (n,) bool."""
         xy = np.asarray(xy, dtype=float)
         if self.shape == "circle":
-            return np.hypot(xy[:, 0], xy[:, 1]) <= self.radius + 1e-9
-        return (np.abs(xy[:, 0]) <= self.size_x / 2 + 1e-9) & (np.abs(xy[:, 1]) <= self.size_y / 2 + 1e-9)
+            return np.hypot(xy[:, 0], xy[:, 1]) <= self.radius + SAME_LENGTH
+        return (np.abs(xy[:, 0]) <= self.size_x / 2 + SAME_LENGTH) & (np.abs(xy[:, 1]) <= self.size_y / 2 + SAME_LENGTH)
 
     def z_limits(self) -> tuple[float, float]:
         """(lowest, highest) z a commanded tool point may have, mm: the bed surface and max_height,

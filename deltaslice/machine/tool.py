@@ -40,6 +40,10 @@ class Extruder:
     #: What an input may ask of the tool: filament (G-code E words) and laser power (M3/M4).
     takes_filament = True
     takes_laser_power = False
+    #: The channel's value is a position whose speed is limited, not a power level 0..1.
+    channel_is_power = False
+    #: Watts at full power (None: the tool burns nothing).
+    full_power_w = None
 
     @property
     def filament_area(self) -> float:
@@ -76,9 +80,14 @@ class Extruder:
         """The channel's value per sample, (n,) float: the filament position, mm."""
         return e
 
-    def from_channel(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(e, tool) per sample from the channel's values: extruding where the filament advances."""
-        return values, np.concatenate([[0.0], (np.diff(values) > 0).astype(float)])[: len(values)]
+    @staticmethod
+    def from_channel(values: np.ndarray, before: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(e, tool) per sample from the channel's values: extruding where the filament advances
+        (past ``before``, the value of the sample before these, at the first; None: not at the first)."""
+        if not len(values):
+            return values, np.zeros(0)
+        prev = np.concatenate([[values[0] if before is None else before], values[:-1]])
+        return values, (values > prev).astype(float)
 
 
 @dataclass(frozen=True)
@@ -99,6 +108,8 @@ class Laser:
     off_events = ("laser_mode", "fan")  # M5 and the air assist off when every job ends
     takes_filament = False
     takes_laser_power = True
+    #: The channel's value is the power, a fraction of full power (0..1, no rate limit).
+    channel_is_power = True
     retract_min_travel = 0.0  # a laser never retracts: every travel lifts
     max_retract_length = 0.0  # nor takes filament to pull back
 
@@ -117,8 +128,23 @@ class Laser:
     def channel_values(self, e: np.ndarray, tool: np.ndarray) -> np.ndarray:
         return tool
 
-    def from_channel(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    @staticmethod
+    def from_channel(values: np.ndarray, before: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(e, tool) per sample from the channel's values: no filament, the power as the tool state."""
         return np.zeros(len(values)), values
+
+    @property
+    def full_power_w(self) -> float:
+        """Optical power at full duty, W (``max_power``): what a power fraction of 1 burns."""
+        return self.max_power
 
 
 Tool = Extruder | Laser
+#: The tool classes by their channel's kind name (a stream's header names its tool so).
+TOOL_KINDS = {cls.channel_kind: cls for cls in (Extruder, Laser)}
+
+
+def tool_class(kind: str):
+    """The tool class (:data:`TOOL_KINDS`) of a channel kind name; a name of no tool's (a joint's,
+    in a stream header whose last channel is not a tool) gives Extruder: a count, working where it rises."""
+    return TOOL_KINDS.get(kind, Extruder)

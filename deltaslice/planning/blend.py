@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..jit import njit
+from .tolerances import DIVISION_FLOOR, SQUARED_FLOOR, STRAIGHT, ZERO_LENGTH
 
 _MIN_TURN = 1e-6  # rad: straighter corners are not blended
 # rad: a corner within this of a full reversal is taken at rest (its arc would be shorter
@@ -316,7 +317,7 @@ def blend_runs(points: np.ndarray, starts: np.ndarray, tolerance: np.ndarray) ->
         arc_len = np.where(blended, np.where(np.isfinite(radius), radius, 0.0) * turn, 0.0)
         perp = dout - cos_t[:, None] * din
         pn = np.linalg.norm(perp, axis=1)
-        normal = np.where(pn[:, None] > 1e-12, perp / pn[:, None], 0.0)
+        normal = np.where(pn[:, None] > DIVISION_FLOOR, perp / pn[:, None], 0.0)
     cap = max(2 * len(seg) - 1, 0)
     out = BlendedRuns(np.empty(n_runs + 1, dtype=np.int64), np.empty(cap + n_runs), np.empty(cap, dtype=np.int8),
                       np.empty((cap, 3)), np.empty((cap, 3)), np.empty((cap, 3)), np.empty(cap),
@@ -349,7 +350,7 @@ def _lay_out(points, d, seg_len, starts, setback, arc_len, radius, normal, offse
         m = starts[r + 1] - v0 - 1  # segments
         for j in range(m):
             g = v0 + j  # segment j: vertex g to g + 1; corners at vertices g (j > 0) and g + 1 (j < m - 1)
-            if j > 0 and arc_len[g - 1] > 1e-12:
+            if j > 0 and arc_len[g - 1] > ZERO_LENGTH:
                 kind[k] = 1
                 for c in range(3):
                     p0[k, c] = points[g, c] - setback[g - 1] * d[g - 1, c]
@@ -362,7 +363,7 @@ def _lay_out(points, d, seg_len, starts, setback, arc_len, radius, normal, offse
             sb_start = setback[g - 1] if j > 0 else 0.0
             sb_end = setback[g] if j < m - 1 else 0.0
             length = seg_len[g] - sb_start - sb_end
-            if length > 1e-12:
+            if length > ZERO_LENGTH:
                 kind[k] = 0
                 for c in range(3):
                     p0[k, c] = points[g, c] + sb_start * d[g, c]
@@ -393,7 +394,7 @@ def run_cumsum(values, offsets, out):
 def _breaks(offsets, piece_start, kind, d0, normal, radius, out):
     """Whether the tangent breaks where each piece starts (out (k,) bool): the tangents either
     side of each join as :func:`_frame_kernel` takes them, the piece found as
-    BlendedPath.locate finds it, their dot product below 1 - 1e-9."""
+    BlendedPath.locate finds it, their dot product below 1 - STRAIGHT."""
     for r in range(offsets.shape[0] - 1):
         a, n = offsets[r], offsets[r + 1] - offsets[r]
         ps = piece_start[a + r : a + r + n + 1]
@@ -404,7 +405,7 @@ def _breaks(offsets, piece_start, kind, d0, normal, radius, out):
             q = _last_at_or_below(ps, s, n)
             bx, by, bz = _tangent(s - ps[q - 1], a + q - 1, kind, d0, normal, radius)
             ax, ay, az = _tangent(s - ps[q], a + q, kind, d0, normal, radius)
-            out[a + i] = bx * ax + by * ay + bz * az < 1 - 1e-9
+            out[a + i] = bx * ax + by * ay + bz * az < 1 - STRAIGHT
 
 
 @njit
@@ -462,7 +463,7 @@ def merge_short(points: np.ndarray, feed: np.ndarray, e: np.ndarray, resolution:
             a, b, c = pts[v - 1], pts[v], pts[v + 1]
             ac = c - a
             ll = np.einsum("ij,ij->i", ac, ac)
-            t = np.clip(np.einsum("ij,ij->i", b - a, ac) / np.maximum(ll, 1e-300), 0.0, 1.0)
+            t = np.clip(np.einsum("ij,ij->i", b - a, ac) / np.maximum(ll, SQUARED_FLOOR), 0.0, 1.0)
             dev = np.linalg.norm(b - a - t[:, None] * ac, axis=1)
             cand &= (dev <= max_deviation) & (ll > 0)
         if not cand.any():

@@ -1,5 +1,5 @@
 """Pieces: what every planner returns, a list of them, end to end, each from rest to rest
-(except the windows of a long run, :func:`.topp.iter_run`, which join at the same point and speed).
+(except the windows of a long run, :func:`.windows._iter_windows`, which join at the same point and speed).
 
 The :class:`Piece` protocol is all the Trajectory, the emitters and the reports know of a
 planned motion: its kind ("run", "travel", "retract", "trapezoid"), layer, duration, the
@@ -27,6 +27,7 @@ import numpy as np
 
 from .blend import BlendedPath, sample_kernel
 from .ruckig_profile import RuckigProfile
+from .tolerances import DIVISION_FLOOR
 
 
 @runtime_checkable
@@ -285,7 +286,7 @@ class TrapezoidPiece(_Sampled):
         ta = (vt - vi) / a
         la = (vt**2 - vi**2) / (2 * a)
         ld = (vt**2 - vo**2) / (2 * a)
-        tc = np.maximum(L - la - ld, 0) / np.maximum(vt, 1e-12)
+        tc = np.maximum(L - la - ld, 0) / np.maximum(vt, DIVISION_FLOOR)
         s = np.where(
             dt < ta,
             vi * dt + 0.5 * a * dt * dt,

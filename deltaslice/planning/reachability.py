@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from ..jit import njit
+from .tolerances import BOUND_ROUNDING, PAIR_ROUNDING
 
 # toppra's constants: the seidel solver's box on both variables, its forward-pass shrink and
 # the tolerance on the start velocity's controllability.
@@ -131,7 +132,7 @@ def _pairs(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u):
                 xl = max(xl, e / c)
             else:
                 near = near or c != 0.0
-                if e < -1e-12 * (abs(up_p[j]) + abs(low_p[k]) + 1.0):
+                if e < -PAIR_ROUNDING * (abs(up_p[j]) + abs(low_p[k]) + 1.0):
                     return np.inf, -np.inf, near
     return xl, xh, near
 
@@ -196,7 +197,7 @@ def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
         xl = max(xl, 0.0)
         xh = min(xh, min(xmax[i], BOX))
         xl, xh = _x_range(nl + extra, nu + extra, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u)
-        if xl > xh and xl - xh <= 1e-9 * (1.0 + abs(xh)):
+        if xl > xh and xl - xh <= BOUND_ROUNDING * (1.0 + abs(xh)):
             xl = xh  # a single point, split by rounding
         if not (xl <= xh):
             for k in range(n + 1):
@@ -233,7 +234,7 @@ def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
         for k in range(nu):
             hi_u = min(hi_u, up_p[k] + up_r[k] * x)
         feasible = x >= xl - TINY and x <= min(xh, min(xmax[i], BOX)) + TINY
-        if not feasible or lo_u > hi_u + 1e-9 * max(1.0, abs(hi_u)):
+        if not feasible or lo_u > hi_u + BOUND_ROUNDING * max(1.0, abs(hi_u)):
             if tries < MAX_TRIES:
                 xs[i] = max(x - TINY, 0.999 * x)
                 tries += 1
@@ -247,8 +248,8 @@ def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
         us[i] = hi_u
         x_next = x + d2 * hi_u
         # toppra's shrink keeps the next point inside its set; it is a step in x whatever the
-        # stage's width, so on stages refined to 1e-5 mm it is a deceleration many times the
-        # limit (a spiral vase's window on linear_kossel: 141 times). Held to the stage's range
+        # stage's width, so on stages refined to a few microns it is a deceleration many times the
+        # limit. Held to the stage's range
         # of u, the stage's path acceleration stays within its rows.
         shrink = min(x_next - max(x_next - TINY, 0.9999 * x_next), d2 * (hi_u - lo_u))
         x_next = x_next - max(shrink, 0.0)

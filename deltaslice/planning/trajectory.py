@@ -16,7 +16,9 @@ import numpy as np
 
 from ..pool import can_fork, forked_map, inherited
 from ..samples import Samples
+from .context import PlanContext
 from .spool import PieceSpool
+from .tolerances import SAMPLE_TIME
 
 BLOCK = 8192  # samples per block handed to emitters
 # Sampling in worker processes pays for itself from this many blocks (about 2 minutes at 1 kHz):
@@ -106,7 +108,7 @@ class Trajectory:
         for (no copy of every sample), and a task's TASK_BLOCKS blocks come as one (an eighth of
         the writers' per-block work); the same samples in the same order."""
         rate = rate or self.printer.planning.output_rate
-        n_total = int(np.ceil(self.duration * rate - 1e-9)) + 1
+        n_total = int(np.ceil(self.duration * rate - SAMPLE_TIME)) + 1
         if workers > 1 and n_total > PARALLEL_BLOCKS * block and can_fork():
             yield from self._forked_blocks(rate, block, n_total, workers, transient)
             return
@@ -171,14 +173,15 @@ class Trajectory:
 
     def stage_maxima(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounds on the continuous motion of every toppra piece (runs and Cartesian travels),
-        from each piece's own derivatives stage by stage (:func:`.topp.stage_maxima`): per
+        from each piece's own derivatives stage by stage (:func:`.stages.stage_maxima`): per
         joint, the peak velocity and acceleration as fractions of the printer's limits.
         (J,), (J,)."""
         from .pieces import RunPiece
-        from .topp import run_stage_maxima
+        from .stages import run_stage_maxima
 
         J = self.printer.n_joints
-        vmax, amax = self.printer.limits.velocity[:J], self.printer.limits.acceleration[:J]
+        limits = PlanContext.of(self.printer).machine_limits
+        vmax, amax = limits.velocity[:J], limits.acceleration[:J]
         pv, pa = np.zeros(J), np.zeros(J)
         for p in self.pieces:
             if isinstance(p, RunPiece) and len(p.x) > 1:

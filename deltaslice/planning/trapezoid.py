@@ -23,7 +23,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..machine.limits import LimitMonitor
+from .context import PlanContext
 from .pieces import TrapezoidPiece
+from .tolerances import DIVISION_FLOOR, NO_MOTION, SMALLEST_SCALE, STRAIGHT
 from .trajectory import Trajectory
 
 FIRMWARE_ACCEL = 3000.0  # mm/s^2, Marlin's delta default
@@ -32,18 +34,21 @@ FIRMWARE_VMAX = 300.0  # mm/s
 SAFE_TOLERANCE = 1.0  # samples may reach 100 % of a limit, no more
 
 
-def _moves(toolpath, printer):
+def _moves(toolpath):
+    """The moves the trapezoid planner plans: (starts, deltas, lengths, filament-only, kept mask)."""
     starts = toolpath.starts
     delta = toolpath.xyz - starts
     length = np.linalg.norm(delta, axis=1)
-    filament_only = (length <= 1e-9) & (toolpath.e != 0)
-    keep = (length > 1e-9) | filament_only
+    filament_only = (length <= NO_MOTION) & (toolpath.e != 0)
+    keep = (length > NO_MOTION) | filament_only
     return starts[keep], delta[keep], length[keep], filament_only[keep], keep
 
 
-def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> TrapezoidPiece:
-    """Plan all moves with uniform Cartesian limits (A = accel, junction deviation jd, V = vmax)."""
-    p0, delta, length, fil, keep = _moves(toolpath, printer)
+def build(toolpath, ctx: PlanContext, *, accel, jd, vmax) -> TrapezoidPiece:
+    """Plan all moves with uniform Cartesian limits (A = accel, junction deviation jd, V = vmax), under
+    the context's speed limit; the tool channel keeps to its planned limits."""
+    speed_limit = ctx.speed_limit
+    p0, delta, length, fil, keep = _moves(toolpath)
     feed = toolpath.feed[keep]
     e = toolpath.e[keep]
     tool = toolpath.tool[keep]
@@ -54,12 +59,12 @@ def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> Trapezoi
     # Firmware caps every move so the extruder stays within its max feed rate (Marlin's
     # max_feedrate E); here that is the hot end's volumetric limit (a laser's e is zero).
     # the tool channel keeps the margin the planner keeps on every channel
-    tool_v, tool_a = printer.planned_limits().velocity[-1], printer.planned_limits().acceleration[-1]
+    tool_v, tool_a = ctx.planned_limits.velocity[-1], ctx.retract_acceleration
     with np.errstate(divide="ignore"):
         ratio = np.where(length > 0, np.abs(e) / np.where(length > 0, length, 1), 0.0)
         top = np.minimum(top, np.where(ratio > 0, tool_v / ratio, np.inf))
     if fil.any():  # retracts at rest: only extruders have them
-        top = np.where(fil, min(printer.tool.retract_speed, printer.planned_limits().tool_velocity_limits()[1]), top)
+        top = np.where(fil, ctx.retract_speed, top)
         a = np.where(fil, tool_a, a)
     L = np.where(fil, np.abs(e), length)
 
@@ -67,7 +72,7 @@ def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> Trapezoi
     cos_t = -np.einsum("ij,ij->i", d[:-1], d[1:])  # Marlin: -dot(prev, next)
     sin_half = np.sqrt(np.clip(0.5 * (1 - cos_t), 0, 1))
     with np.errstate(divide="ignore", invalid="ignore"):
-        vj2 = np.where(sin_half < 1 - 1e-9, accel * jd * sin_half / (1 - sin_half), np.inf)
+        vj2 = np.where(sin_half < 1 - STRAIGHT, accel * jd * sin_half / (1 - sin_half), np.inf)
     both_move = ~fil[:-1] & ~fil[1:]
     vj2 = np.where(both_move, vj2, 0.0)
     vj2 = np.minimum(vj2, np.minimum(top[:-1], top[1:]) ** 2)
@@ -86,11 +91,11 @@ def build(toolpath, printer, *, accel, jd, vmax, speed_limit="feed") -> Trapezoi
     v_top = np.maximum(np.minimum(top, v_peak), np.maximum(v_in, v_out))
     la = (v_top**2 - v_in**2) / (2 * a)
     ld = (v_top**2 - v_out**2) / (2 * a)
-    tc = np.maximum(L - la - ld, 0) / np.maximum(v_top, 1e-12)
+    tc = np.maximum(L - la - ld, 0) / np.maximum(v_top, DIVISION_FLOOR)
     t = (v_top - v_in) / a + (v_top - v_out) / a + tc
     t0 = np.concatenate([[0.0], np.cumsum(t)])
     e0 = np.concatenate([[0.0], np.cumsum(e)])[:-1]
-    q_ends = printer.kinematics().inverse(np.array([p0[0], p0[-1] + d[-1] * length[-1]]))
+    q_ends = ctx.kin.inverse(np.array([p0[0], p0[-1] + d[-1] * length[-1]]))
     return TrapezoidPiece(p0, d, L, v_in, v_top, v_out, a, t0, e0, e, tool, fil, q_ends[0], q_ends[1])
 
 
@@ -98,14 +103,14 @@ def plan_firmware(toolpath, printer, *, speed_limit="feed", accel=FIRMWARE_ACCEL
     """The conventional planner with typical delta firmware settings (Klipper-style
     square corner velocity converted to junction deviation)."""
     jd = scv**2 * (np.sqrt(2) - 1) / accel
-    piece = build(toolpath, printer, accel=accel, jd=jd, vmax=vmax, speed_limit=speed_limit)
+    piece = build(toolpath, PlanContext.of(printer, speed_limit), accel=accel, jd=jd, vmax=vmax)
     info = {"accel": accel, "junction_deviation": jd, "vmax": vmax, "setting": "firmware"}
     return Trajectory(printer, [piece], planner="trapezoid-firmware", speed_limit=speed_limit, info=info)
 
 
 def _monitor(traj: Trajectory, rate: float) -> LimitMonitor:
-    p = traj.printer
-    return LimitMonitor(p.limits, p.tool, rate).consume(traj.iter_samples(rate))
+    ctx = PlanContext.of(traj.printer)
+    return LimitMonitor(ctx.machine_limits, ctx.tool, rate).consume(traj.iter_samples(rate))
 
 
 def peak_ratio(traj: Trajectory, rate: float) -> float:
@@ -118,14 +123,13 @@ def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iteration
     within its limits at the output rate (bisection on one scale k). head, tail: pieces
     before and after the toolpath (the moves from and to rest); they are part of what is
     sampled, so the samples checked are the samples written."""
-    rate = printer.planning.output_rate
+    ctx = PlanContext.of(printer, speed_limit)
+    rate = ctx.output_rate
     lo, hi = 0.0, 1.0
     jd0 = FIRMWARE_SCV**2 * (np.sqrt(2) - 1) / FIRMWARE_ACCEL
 
     def make(k):
-        piece = build(
-            toolpath, printer, accel=FIRMWARE_ACCEL * k, jd=jd0 * k, vmax=FIRMWARE_VMAX * np.sqrt(k), speed_limit=speed_limit
-        )
+        piece = build(toolpath, ctx, accel=FIRMWARE_ACCEL * k, jd=jd0 * k, vmax=FIRMWARE_VMAX * np.sqrt(k))
         info = {"accel": FIRMWARE_ACCEL * k, "junction_deviation": jd0 * k, "vmax": FIRMWARE_VMAX * np.sqrt(k), "scale": k}
         return Trajectory(printer, [*head, piece, *tail], planner="trapezoid-safe", speed_limit=speed_limit, info=info)
 
@@ -141,7 +145,7 @@ def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iteration
             progress(it + 1, iterations)
     if lo == 0.0:
         lo = hi / 4
-        while peak_ratio(make(lo), rate) > SAFE_TOLERANCE and lo > 1e-8:
+        while peak_ratio(make(lo), rate) > SAFE_TOLERANCE and lo > SMALLEST_SCALE:
             lo /= 4
     return make(lo)
 

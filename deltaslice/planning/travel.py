@@ -12,6 +12,7 @@ two is used.
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import numpy as np
 import ruckig
@@ -19,18 +20,22 @@ import ruckig
 from ..errors import DeltasliceError, PlanningError
 from .pieces import FilamentPiece, JointMovePiece
 from .ruckig_profile import RuckigProfile, positions_many
-from .topp import RunSpec, plan_lines, plan_run
-from .torque import torque_limits, travel_limits
+from .batch import plan_lines
+from .runpath import RunSpec
+from .topp import plan_run
+from .context import PlanContext
+from .tolerances import CLEARANCE, DIVISION_FLOOR, FEED_MATCH, NO_MOTION, RETIME
+from .torque import travel_limits
 
 CHECK_SAMPLES = 48
 
 
-def _ruckig_limits(printer, n: int, slower: float = 1.0) -> tuple:
+def _ruckig_limits(ctx: PlanContext, n: int, slower: float = 1.0) -> tuple:
     """ruckig's velocity, acceleration and jerk limits of the first n joints (lists of floats):
     the planned limits; joints without a jerk limit in the printer file get a stiff default (50 x
     their acceleration per s). slower: the move's time stretched by this factor (>= 1): velocity,
     acceleration and jerk divided by it, its square and its cube, so the move keeps its path."""
-    lim = printer.planned_limits()
+    lim = ctx.planned_limits
     acc = lim.acceleration[:n]
     given = np.isfinite(lim.jerk[:n]) & (np.nan_to_num(lim.jerk[:n]) > 0)
     jerk = np.where(given, lim.jerk[:n], 50.0 * acc)
@@ -43,16 +48,16 @@ _RUCKIG_DURATION, _RUCKIG_ZERO_LIMITS = -101, -104
 RUCKIG_MAX_DURATION = 7.6e3  # s: ruckig plans no longer move (its ErrorTrajectoryDuration)
 
 
-def _ruckig_failure(printer, layer, code) -> str:
+def _ruckig_failure(ctx: PlanContext, layer, code) -> str:
     """The one line for a travel ruckig could not plan, naming the joint limits behind it."""
-    lim = printer.limits
-    n = printer.n_joints
+    lim = ctx.machine_limits
+    n = ctx.n_joints
     # the limits as the printer file gives them: degrees for a revolute joint, mm for a prismatic one
     per = np.array([np.degrees(1.0) if k == "revolute" else 1.0 for k in lim.kinds[:n]])
     unit = "deg" if lim.kinds[0] == "revolute" else "mm"
     vel, acc = lim.velocity[:n] * per, lim.acceleration[:n] * per
     limits = (f"[joints] velocity_max = {_g(vel)} {unit}/s, acceleration_max = {_g(acc)} {unit}/s^2"
-              f" (printer {printer.name})")
+              f" (printer {ctx.name})")
     if code == _RUCKIG_DURATION:
         return (f"layer {layer}: a travel would last longer than {RUCKIG_MAX_DURATION:g} s (ruckig's bound) at {limits}: "
                 "are the limits in the file's units?")
@@ -75,8 +80,8 @@ class _JointMoves:
     """ruckig's calculator, input and output made once for many rest-to-rest moves of one printer
     (a batch of travels): making and filling them took three times ruckig's calculation of a move."""
 
-    def __init__(self, printer, n: int, slower: float = 1.0):
-        vel, acc, jerk = _ruckig_limits(printer, n, slower)
+    def __init__(self, ctx: PlanContext, n: int, slower: float = 1.0):
+        vel, acc, jerk = _ruckig_limits(ctx, n, slower)
         self.slower = slower
         self.n = n
         self.otg, self.inp, self.traj = ruckig.Ruckig(n), ruckig.InputParameter(n), ruckig.Trajectory(n)
@@ -84,7 +89,7 @@ class _JointMoves:
         inp.current_velocity = inp.current_acceleration = [0.0] * n
         inp.target_velocity = inp.target_acceleration = [0.0] * n
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = vel, acc, jerk
-        self.printer, self.torque = printer, torque_limits(printer) is not None
+        self.ctx, self.torque = ctx, ctx.dynamics is not None
         if self.torque:
             # the joints in phase: the move stays on its straight joint line, the poses its torque
             # bounds were found at
@@ -96,7 +101,7 @@ class _JointMoves:
         limits (:func:`.torque.travel_limits`; found here for a printer with torque limits when not
         given)."""
         if bounds is None and self.torque:
-            vel, acc = travel_limits(self.printer, q0, q1)
+            vel, acc = travel_limits(self.ctx.dynamics, q0, q1)
             if not np.isfinite(acc).all():
                 raise NoTorqueBound(f"layer {layer}: no joint-space move from {np.round(q0, 4)} to {np.round(q1, 4)} "
                                     "within the actuators' torque (gravity takes it all at one of its poses)")
@@ -110,9 +115,9 @@ class _JointMoves:
             result = self.otg.calculate(self.inp, self.traj)
         except ValueError as exc:  # a code the binding's Result enum lacks ("-101 is not a valid Result")
             code = re.match(r"\s*(-?\d+)", str(exc))
-            raise PlanningError(_ruckig_failure(self.printer, layer, int(code.group(1)) if code else None)) from None
+            raise PlanningError(_ruckig_failure(self.ctx, layer, int(code.group(1)) if code else None)) from None
         if result not in (ruckig.Result.Working, ruckig.Result.Finished):
-            raise PlanningError(_ruckig_failure(self.printer, layer, int(result.value)))
+            raise PlanningError(_ruckig_failure(self.ctx, layer, int(result.value)))
         profile = RuckigProfile.from_trajectory(self.traj)
         traj = None
         if profile is None:  # the piece keeps ruckig's object, one of its own (this one is reused)
@@ -122,30 +127,31 @@ class _JointMoves:
         return JointMovePiece(profile, traj, np.asarray(q0, float), np.asarray(q1, float), layer)
 
 
-def _ruckig_move(printer, q0, q1, layer, slower: float = 1.0):
+def _ruckig_move(ctx: PlanContext, q0, q1, layer, slower: float = 1.0):
     """The jerk-limited joint-space move from rest at q0 to rest at q1 (a JointMovePiece), alone,
     within the torque limits' bounds for it where the printer has them; slower: see
     :func:`_ruckig_limits`."""
-    return _JointMoves(printer, len(q0), slower).move(q0, q1, layer)
+    return _JointMoves(ctx, len(q0), slower).move(q0, q1, layer)
 
 
 SPEED_SAMPLES = 4096  # a joint move's tool speed measured at this many instants
 SPEED_SLACK = 1.02  # and held 2 % under the feed: chords between those instants fall short of the peak
 
 
-def _within_feed(kin, printer, q0, q1, feed: float):
+def _within_feed(ctx: PlanContext, q0, q1, feed: float):
     """The jerk-limited joint-space move from q0 to q1 stretched in time so that its tool point
     (forward kinematics) goes no faster than ``feed`` mm/s (the path is the same)."""
-    joint, slower = _ruckig_move(printer, q0, q1, layer=0), 1.0
+    kin = ctx.kin
+    joint, slower = _ruckig_move(ctx, q0, q1, layer=0), 1.0
     for _ in range(8):
         t = np.linspace(0.0, joint.duration, SPEED_SAMPLES)
         p = kin.forward(joint.sample(kin, t)[0])
-        top = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1))) / max(t[1] - t[0], 1e-12)
-        if top * SPEED_SLACK <= feed * (1 + 1e-6):
+        top = float(np.max(np.linalg.norm(np.diff(p, axis=0), axis=1))) / max(t[1] - t[0], DIVISION_FLOOR)
+        if top * SPEED_SLACK <= feed * (1 + FEED_MATCH):
             return joint
-        slower *= top * SPEED_SLACK / feed * (1 + 1e-5)  # a hair more: the same path, its time rounded
-        joint = _ruckig_move(printer, q0, q1, layer=0, slower=slower)
-    raise PlanningError(f"{printer.name}: a move from or to the rest pose could not be slowed to {feed:g} mm/s")
+        slower *= top * SPEED_SLACK / feed * (1 + RETIME)  # a hair more: the same path, its time rounded
+        joint = _ruckig_move(ctx, q0, q1, layer=0, slower=slower)
+    raise PlanningError(f"{ctx.name}: a move from or to the rest pose could not be slowed to {feed:g} mm/s")
 
 
 def joint_move_clear(kin, piece: JointMovePiece, z_min: float) -> bool:
@@ -171,13 +177,12 @@ def joint_moves_clear(kin, pieces, z_min: np.ndarray) -> np.ndarray:
     q = q.reshape(-1, kin.n_joints)
     p = kin.forward(q)
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(p).all(axis=1) & (p[:, 2] >= np.repeat(np.asarray(z_min, float), CHECK_SAMPLES) - 1e-6)
+        ok = np.isfinite(p).all(axis=1) & (p[:, 2] >= np.repeat(np.asarray(z_min, float), CHECK_SAMPLES) - CLEARANCE)
     ok[ok] = kin.reachable(p[ok])
     return ok.reshape(len(pieces), CHECK_SAMPLES).all(axis=1)
 
 
-def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, speed_limit, via=None, feed=None,
-                solver="fast"):
+def plan_travel(ctx: PlanContext, a, b, *, layer, printed_top, retract, unretract, via=None, feed=None):
     """Pieces that take the tool from point a to point b (both (3,) mm, bed frame).
 
     via: (k,3) the toolpath's own travel points between a and b (the slicer's z-hop, if any);
@@ -186,23 +191,22 @@ def plan_travel(kin, printer, a, b, *, layer, printed_top, retract, unretract, s
     (retract <= 0 <= unretract) taken from the toolpath's travel moves.
     """
     job = dict(a=a, b=b, layer=layer, printed_top=printed_top, retract=retract, unretract=unretract, via=via, feed=feed)
-    return plan_travels(kin, printer, [job], speed_limit=speed_limit, solver=solver)[0]
+    return plan_travels(ctx, [job])[0]
 
 
-def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
+def plan_travels(ctx: PlanContext, jobs) -> list:
     """:func:`plan_travel`'s pieces for many travels (each a dict of its keywords), one list per
     travel, in order. The straight-line moves they are made of are planned a batch at a time
-    (:func:`.topp.plan_lines`): first every travel's own move, then the lift and lower moves of
+    (:func:`.batch.plan_lines`): first every travel's own move, then the lift and lower moves of
     those whose joint-space candidate is faster and clears the part."""
     if not jobs:
         return []
-    tool = printer.tool
-    lift = tool.travel_lift(printer.planning)
+    kin, tool, lift = ctx.kin, ctx.tool, ctx.travel_lift
     k = len(jobs)
     a = np.array([j["a"] for j in jobs], float).reshape(k, 3)
     b = np.array([j["b"] for j in jobs], float).reshape(k, 3)
     layers = [j["layer"] for j in jobs]
-    feeds = [j.get("feed") or printer.slicing.travel_speed for j in jobs]
+    feeds = [j.get("feed") or ctx.travel_speed for j in jobs]
     retract = np.array([j["retract"] for j in jobs], float)
     # The travel's own length, not the distance between its ends: a travel that leaves and comes
     # back to where it started (a job ending at its start point) still moves. Most travels have no
@@ -211,17 +215,17 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     vias = [j.get("via") for j in jobs]
     step = np.linalg.norm(b - a, axis=1)
     ends = np.stack([a, b], axis=1)
-    moving = step > 1e-9
+    moving = step > NO_MOTION
     owns = []
     for n, via in enumerate(vias):
         if via is None or len(via) == 0:
             owns.append(ends[n] if moving[n] else ends[n, :1])
             continue
         own = _own_polyline(a[n], b[n], via)
-        moving[n] = np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > 1e-9
+        moving[n] = np.linalg.norm(np.diff(own, axis=0), axis=1).sum() > NO_MOTION
         owns.append(_distinct(own) if moving[n] else own[:1])
     # Candidate 1: the toolpath's own travel (what firmware would run), time-optimal.
-    best = _straight(kin, printer, owns, feeds, layers, speed_limit, solver, distinct=True)
+    best = _straight(ctx, owns, feeds, layers, distinct=True)
     # Candidate 2: lift, a jerk-limited joint-space move, lower; kept only if it is faster and
     # clears the part (half the lift above the top printed so far).
     top = np.maximum(np.maximum(a[:, 2], b[:, 2]), [j["printed_top"] for j in jobs])
@@ -231,11 +235,11 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     q = kin.inverse(np.concatenate([a, b, a_up, b_up])).reshape(4, k, -1)
     short = (step < tool.retract_min_travel) & (retract == 0)  # the ends' distance, measured above
     cands = []  # (travel, joint move, its own travel's time)
-    joint_moves = _JointMoves(printer, q.shape[2])
+    joint_moves = _JointMoves(ctx, q.shape[2])
     # A joint-space move's tool speed follows the joints, not a feed: only the machine speed limit takes it.
-    tried = np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2)) & (speed_limit == "machine"))
+    tried = np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2)) & (ctx.speed_limit == "machine"))
     # with torque limits, each move's own joint bounds (travel_limits); none: no joint-space candidate
-    bounds = travel_limits(printer, q[2, tried], q[3, tried]) if len(tried) else None
+    bounds = travel_limits(ctx.dynamics, q[2, tried], q[3, tried]) if len(tried) and ctx.dynamics is not None else None
     for r, n in enumerate(tried):
         if bounds is not None and not np.isfinite(bounds[1][r]).all():
             continue
@@ -251,32 +255,25 @@ def plan_travels(kin, printer, jobs, *, speed_limit, solver="fast") -> list:
     idx = [n for n, _j, _t in cands]
     # A lift or lower of no height is one point once repeated points are dropped: no move.
     up_down = np.concatenate([np.stack([a[idx], a_up[idx]], axis=1), np.stack([b_up[idx], b[idx]], axis=1)])
-    rises = np.linalg.norm(up_down[:, 1] - up_down[:, 0], axis=1) > 1e-9
-    moves = _straight(kin, printer, [line if rise else line[:1] for line, rise in zip(up_down, rises)],
-                      [feeds[n] for n in idx] * 2, [layers[n] for n in idx] * 2, speed_limit, solver, distinct=True)
+    rises = np.linalg.norm(up_down[:, 1] - up_down[:, 0], axis=1) > NO_MOTION
+    moves = _straight(ctx, [line if rise else line[:1] for line, rise in zip(up_down, rises)],
+                      [feeds[n] for n in idx] * 2, [layers[n] for n in idx] * 2, distinct=True)
     for r, (n, joint, own_time) in enumerate(cands):
         cand = moves[r] + [joint] + moves[len(cands) + r]
         if sum(p.duration for p in cand) < own_time:
             best[n] = cand
     # retracts keep the margin the joints keep: the planned limits of the tool channel
-    planned = printer.planned_limits()
-    acc = float(planned.acceleration[-1])
+    acc = ctx.retract_acceleration
     out = []
     for n, job in enumerate(jobs):
         pieces = []
         if job["retract"] < 0:
-            pieces.append(FilamentPiece(q[0, n], job["retract"], _retract_speed(printer), acc, layers[n]))
+            pieces.append(FilamentPiece(q[0, n], job["retract"], ctx.retract_speed, acc, layers[n]))
         pieces.extend(best[n])
         if job["unretract"] > 0:
-            pieces.append(FilamentPiece(q[1, n], job["unretract"], _retract_speed(printer), acc, layers[n]))
+            pieces.append(FilamentPiece(q[1, n], job["unretract"], ctx.retract_speed, acc, layers[n]))
         out.append(pieces)
     return out
-
-
-def _retract_speed(printer) -> float:
-    """A retract's filament speed, mm/s: the tool's retract speed within the channel's planned idle limit
-    (only an extruder retracts)."""
-    return min(float(printer.tool.retract_speed), printer.planned_limits().tool_velocity_limits()[1])
 
 
 def _own_polyline(a, b, via) -> np.ndarray:
@@ -284,7 +281,7 @@ def _own_polyline(a, b, via) -> np.ndarray:
     return np.concatenate([a[None], np.empty((0, 3)) if via is None else np.asarray(via, float), b[None]])
 
 
-def _straight(kin, printer, polylines, feeds, layers, speed_limit, solver, distinct: bool = False) -> list:
+def _straight(ctx: PlanContext, polylines, feeds, layers, distinct: bool = False) -> list:
     """The pieces of straight tool-off travels along each polyline ((m+1, 3) mm; one point: no
     move), one list per polyline: the straight lines (two points once repeated points are
     dropped) as one batch, the rest (a slicer's z-hop) each alone. distinct: the polylines have
@@ -294,33 +291,33 @@ def _straight(kin, printer, polylines, feeds, layers, speed_limit, solver, disti
     out = [[] for _ in polylines]
     lines = [i for i, p in enumerate(polylines) if len(p) == 2]
     if lines:
-        planned = plan_lines(kin, printer, np.array([polylines[i][0] for i in lines]),
+        planned = plan_lines(ctx, np.array([polylines[i][0] for i in lines]),
                              np.array([polylines[i][1] for i in lines]), np.array([feeds[i] for i in lines], float),
-                             np.array([layers[i] for i in lines]), speed_limit, solver=solver)
+                             np.array([layers[i] for i in lines]))
         for i, pieces in zip(lines, planned):
             out[i] = pieces
     for i, p in enumerate(polylines):
         if len(p) > 2:
-            out[i] = _cartesian(kin, printer, p, layers[i], speed_limit, feed=feeds[i], solver=solver)
+            out[i] = _cartesian(ctx, p, layers[i], feed=feeds[i])
     return out
 
 
 def _distinct(pts) -> np.ndarray:
-    """pts without points repeated within 1e-9 mm of the one before."""
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
+    """pts without points repeated within NO_MOTION mm of the one before."""
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > NO_MOTION])
     return pts[keep]
 
 
-def _cartesian(kin, printer, pts, layer, speed_limit, tolerance=None, feed=None, solver="fast") -> list:
+def _cartesian(ctx: PlanContext, pts, layer, tolerance=None, feed=None) -> list:
     """A straight Cartesian travel (tool off) planned with toppra."""
     pts = _distinct(pts)
     m = len(pts) - 1
-    feed = np.full(m, feed or printer.slicing.travel_speed)
+    feed = np.full(m, feed or ctx.travel_speed)
     spec = RunSpec(pts, feed, np.zeros(m), 0.0, layer)
-    return plan_run(kin, printer, spec, speed_limit, tolerance, kind="travel", solver=solver)
+    return plan_run(ctx, spec, tolerance, kind="travel")
 
 
-def from_rest(kin, printer, point, speed_limit, *, feed=None) -> list:
+def from_rest(ctx: PlanContext, point, *, feed=None) -> list:
     """Pieces from the printer's rest pose onto ``point`` (3,) mm, the job's first working point:
     to the approach point ``[planning] approach_height`` above it (lower where the machine
     cannot reach so high), then vertically down onto it at ``approach_speed`` (whatever the
@@ -329,20 +326,20 @@ def from_rest(kin, printer, point, speed_limit, *, feed=None) -> list:
     so (under the feed speed limit stretched in time so that the tool goes no faster than
     ``feed`` mm/s, default: the printer's travel speed), else a straight line (or two: a
     vertical one at the rest pose, or at the approach point, and a level one) at ``feed``."""
-    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=False, top=-np.inf, feed=feed)
+    return _rest_link(ctx, np.asarray(point, float), to_rest=False, top=-np.inf, feed=feed)
 
 
-def to_rest(kin, printer, point, speed_limit, *, top=-np.inf, feed=None) -> list:
+def to_rest(ctx: PlanContext, point, *, top=-np.inf, feed=None) -> list:
     """Pieces from ``point`` (3,) mm, the job's last, back to the rest pose: vertically up at
     ``approach_speed`` to ``approach_height`` above the higher of the point and ``top`` (mm, the
     printed part's top), then to the rest pose (the mirror of :func:`from_rest`)."""
-    return _rest_link(kin, printer, np.asarray(point, float), speed_limit, to_rest=True, top=top, feed=feed)
+    return _rest_link(ctx, np.asarray(point, float), to_rest=True, top=top, feed=feed)
 
 
-def _approach_point(kin, planning, point, top) -> np.ndarray:
-    """(3,) mm: the point approach_height above the higher of ``point`` and ``top``, or the
+def _approach_point(kin, height: float, point, top) -> np.ndarray:
+    """(3,) mm: the point ``height`` (approach_height, mm) above the higher of ``point`` and ``top``, or the
     highest reachable one below it on the vertical through ``point`` (``point`` itself at worst)."""
-    clear = max(float(point[2]), float(top)) + planning.approach_height
+    clear = max(float(point[2]), float(top)) + height
     heights = np.linspace(clear, point[2], 33)
     cands = np.repeat(point[None], len(heights), axis=0)
     cands[:, 2] = heights
@@ -350,37 +347,39 @@ def _approach_point(kin, planning, point, top) -> np.ndarray:
     return cands[int(np.argmax(ok))] if ok.any() else point
 
 
-def _rest_link(kin, printer, point, speed_limit, *, to_rest, top, feed):
-    planning = printer.planning
-    q_rest = np.asarray(printer.rest_pose, float)
+def _rest_link(ctx: PlanContext, point, *, to_rest, top, feed):
+    """:func:`from_rest` or (to_rest) :func:`to_rest`."""
+    kin = ctx.kin
+    # the straight links are solved by the compiled solver whatever the plan's
+    fast = ctx if ctx.solver == "fast" else replace(ctx, solver="fast")
+    q_rest = np.asarray(ctx.rest_pose, float)
     p_rest = kin.forward(q_rest[None])[0]
-    above = _approach_point(kin, planning, point, top)
+    above = _approach_point(kin, ctx.approach_height, point, top)
     z_min = min(float(above[2]), float(p_rest[2]))
     link = None
     q_above = kin.inverse(above[None])[0]
     ends = (q_above, q_rest) if to_rest else (q_rest, q_above)
     try:
-        joint = _ruckig_move(printer, *ends, layer=0)
+        joint = _ruckig_move(ctx, *ends, layer=0)
         if joint_move_clear(kin, joint, z_min):
             # the feed speed limit keeps the path and stretches the move in time
-            link = [joint if speed_limit == "machine" else
-                    _within_feed(kin, printer, *ends, feed or printer.slicing.travel_speed)]
+            link = [joint if ctx.speed_limit == "machine" else _within_feed(ctx, *ends, feed or ctx.travel_speed)]
     except NoTorqueBound:  # no joint bound holds the torque along its joint line: a straight line instead
         link = None
     if link is None:
         for via in ([], [[p_rest[0], p_rest[1], above[2]]], [[above[0], above[1], p_rest[2]]]):
             pts = np.array([p_rest, *via, above])
             try:
-                link = _cartesian(kin, printer, pts[::-1] if to_rest else pts, 0, speed_limit, feed=feed)
+                link = _cartesian(fast, pts[::-1] if to_rest else pts, 0, feed=feed)
                 break
             except DeltasliceError:
                 continue
         else:
-            raise PlanningError(f"{printer.name}: no straight way from the rest pose to x = {above[0]:.2f}, "
+            raise PlanningError(f"{ctx.name}: no straight way from the rest pose to x = {above[0]:.2f}, "
                                 f"y = {above[1]:.2f}, z = {above[2]:.2f} mm above the job's "
                                 f"{'last' if to_rest else 'first'} point stays within reach")
     if np.array_equal(above, point):
         return link
     pts = np.array([point, above] if to_rest else [above, point])
-    vertical = _cartesian(kin, printer, pts, 0, "feed", feed=planning.approach_speed)
+    vertical = _cartesian(fast.with_speed_limit("feed"), pts, 0, feed=ctx.approach_speed)
     return vertical + link if to_rest else link + vertical

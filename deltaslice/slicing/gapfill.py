@@ -7,8 +7,8 @@ the Voronoi diagram of the densified outline (the dual of GEOS's Delaunay
 triangulation): edges of the diagram that lie inside the region and stay away
 from the outline at both ends are the skeleton (edges between neighbouring points
 of one side run out to the outline and are dropped). manifold3d has offsets and
-booleans but no Voronoi, hence shapely here (GEOS, which shapely loads anyway: importing
-scipy.spatial for qhull cost every compile 0.3-0.5 s of start-up; qhull is used only where GEOS's
+booleans but no Voronoi, hence shapely here (GEOS, which shapely loads anyway: scipy.spatial's
+qhull would add its import to every compile's start; it is used only where GEOS's
 triangulation gives up, see _delaunay).
 """
 

@@ -250,7 +250,7 @@ def link_along_boundary(lines: list[np.ndarray], region: CrossSection, max_link:
     which = np.argmin(dist, axis=1)
     which[dist[np.arange(len(pts)), which] > 1e-3] = -1
     u = np.zeros(len(pts))
-    # the contours met, in order (np.unique's plain path imports numpy.ma: 20 ms a slicing worker)
+    # the contours met, in order (np.unique's plain path imports numpy.ma in every slicing worker)
     for c in np.flatnonzero(np.bincount(which[which >= 0])).tolist():
         sel = which == c
         u[sel] = shapely.line_locate_point(geoms[c], pts[sel])

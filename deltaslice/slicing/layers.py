@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from ..tolerances import SAME_LENGTH
+
 
 def layer_heights(height: float, layer_height: float, first_layer_height: float):
     """Layer tops, mid-heights and thicknesses for a part ``height`` mm tall.
@@ -21,5 +23,5 @@ def layer_heights(height: float, layer_height: float, first_layer_height: float)
     thickness = np.full(len(top), layer_height)
     thickness[0] = first_layer_height
     mid = top - thickness / 2
-    keep = mid < height - 1e-9
+    keep = mid < height - SAME_LENGTH
     return top[keep], mid[keep], thickness[keep]

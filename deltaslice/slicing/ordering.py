@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from ..tolerances import SAME_LENGTH
 from ..toolpath import Role
 from .extrusion import feed_table, filament_per_mm
 
@@ -166,7 +167,7 @@ class MoveWriter:
         s, t = self.s, self.tool
         target = np.array([xy[0], xy[1], self.z])
         dist = math.dist(target, self.pos)
-        if dist < 1e-9:
+        if dist < SAME_LENGTH:
             return
         long = dist > t.retract_min_travel and not self._stays_inside(self.pos, target)
         if long and t.retract_length > 0 and not self.retracted and self.extruded:

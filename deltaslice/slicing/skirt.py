@@ -12,6 +12,8 @@ import math
 import numpy as np
 from manifold3d import CrossSection, FillRule, JoinType
 
+from ..tolerances import COUNT_ROUNDOFF
+
 
 def skirt_loops(first_section: CrossSection, loops: int, distance: float, width: float) -> list[np.ndarray]:
     """Closed polygons (k, 2), innermost first, around the convex hull of the first layer
@@ -39,7 +41,7 @@ def outer_outline(section: CrossSection) -> CrossSection:
 
 def brim_count(brim_width: float, spacing: float) -> int:
     """Brim loops that fit in ``brim_width`` mm at bead ``spacing`` (PrusaSlicer: floor)."""
-    return int(math.floor(brim_width / spacing + 1e-9)) if brim_width > 0 and spacing > 0 else 0
+    return int(math.floor(brim_width / spacing + COUNT_ROUNDOFF)) if brim_width > 0 and spacing > 0 else 0
 
 
 def brim_loops(first_section: CrossSection, brim_width: float, width: float, spacing: float) -> list[np.ndarray]:

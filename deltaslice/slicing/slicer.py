@@ -192,26 +192,10 @@ class _LayerGeometry:
 
 
 def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_LayerPlan, CrossSection]:
-    s, sections = layers.s, layers.sections
+    sections = layers.sections
     g = _LayerGeometry(layers, li)
-    here, first, h, w_p, w_i, sp_p, sp_i = g.here, g.first, g.h, g.w_p, g.w_i, g.sp_p, g.sp_i
-    nozzle = layers.tool.nozzle_diameter
-    angle = s.fill_angle + (math.pi / 2 if li % 2 else 0.0)
-    res = float(s.gcode_resolution)
-
-    skirt, brim = [], []
-    if first and s.brim_width > 0:
-        brim = [Path(p, Role.SKIRT, w_p, closed=True) for p in brim_loops(here, s.brim_width, w_p, sp_p)]
-    if first and s.skirt_loops > 0:
-        # the skirt keeps its distance from the brim's outer edge and from the support's first layer
-        extent = brim_extent(s.brim_width, w_p, sp_p)
-        around = here.offset(extent, JoinType.Round, 2.0, 72) if extent > 0 else here
-        sup = layers.support[0]
-        for region in (sup.body, sup.interface):
-            if not region.is_empty():
-                around = around + region.offset(w_p / 2, JoinType.Miter, 3.0)
-        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(around, s.skirt_loops, s.skirt_distance, w_p)]
-
+    here, first, w_p, sp_p = g.here, g.first, g.w_p, g.sp_p
+    skirt, brim = _skirt_and_brim(layers, here, w_p, sp_p) if first else ([], [])
     exposed = here - sections[li + 1] if li + 1 < len(sections) else here
     below = sections[li - 1] if li > 0 else CrossSection()
     # what holds up a solid layer: the layer below, except where that layer is sparse infill
@@ -222,8 +206,7 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         below_grown = below.offset(w_p / 2, JoinType.Miter, 3.0)
         overhang_test = to_shapely(below_grown)
         shapely.prepare(overhang_test)
-    bridge_fpm = bridge_flow(nozzle, layers.tool.filament_area, s.bridge_flow)
-    support_sh = None
+    fills = _Fills(layers, g, li, exposed, below, support)
     sparse_all = []
     islands = []
     for island in here.decompose():
@@ -236,98 +219,157 @@ def _layer_plan(layers: _Layers, li: int, prev_sparse: CrossSection) -> tuple[_L
         # perimeters: innermost depth first, the external loop last; segments of any loop over
         # air are overhang perimeters (an inner loop of a cantilever has nothing under it either)
         loops = perimeter_loops(island, w_p, layers.P, sp_p)
-        owner = _loop_groups(loops)
         # an island wholly over the grown layer below has no loop over air: no loop to test
         test = overhang_test if overhang_test is not None and not (island - below_grown).is_empty() else None
-        perimeters = []
-        for group in range(int(owner.max()) + 1 if len(owner) else 0):
-            by_depth = []
-            for depth in sorted({d for (d, _), o in zip(loops, owner) if o == group}, reverse=True):
-                paths = []
-                for (d, p), o in zip(loops, owner):
-                    if d != depth or o != group:
-                        continue
-                    role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
-                    if test is not None:
-                        dense, over = overhang_segments(p, test, w_p / 4)
-                        if over.any():
-                            p = dense
-                            role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
-                    paths.append(Path(p, role, w_p, closed=True))
-                by_depth.append(paths)
-            perimeters.append(by_depth)
-
-        # gap fill: what neither the perimeter beads nor the infill reach (narrow walls, thin
-        # features, tiny islands), one variable-width line down its middle
-        # (printed right after the perimeters, as PrusaSlicer does)
+        perimeters = _perimeter_paths(loops, test, w_p)
         fill, solid, sparse, scraps = g.fill_regions(island)
-        covered = _coverage(loops, sp_p)
-        # what the infill must fill: the island less the perimeter beads (before the infill's own band)
-        to_fill = island - covered if not covered.is_empty() else island
-        if not fill.is_empty():
-            covered = covered + fill.offset(sp_i / 2, JoinType.Miter, 3.0)
-        gap = island - covered if not covered.is_empty() else island
-        min_w = GAP_MIN_WIDTH * w_p
-        gap = clean(gap, min_w / 2)
-        gaps = []
-        if not gap.is_empty():
-            # a whole island too small for a loop is always printed; inside an island, a blob
-            # smaller than a bead is not worth a travel
-            blob = 0.0 if not loops else w_p**2
-            for pts, widths in medial_lines(to_shapely(gap), min_w, 2.0 * w_p, min_w / 2, max(res, 1e-4), w_p, blob):
-                # the gap is measured between bead spacings: fill its rectangle, width x height
-                flow = widths * h / layers.tool.filament_area * s.extrusion_multiplier
-                gaps.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
-
-        groups: list[list[Path]] = []  # printed group after group: bridges, then solid and sparse
-        if not fill.is_empty():
-            bridge = CrossSection()
-            if li > 0 and not solid.is_empty():
-                bridge, air = bridge_region(solid, support, BRIDGE_ANCHOR, w_i)
-                over_nothing = air - below if not below.is_empty() else air
-                if not over_nothing.is_empty():
-                    # a bridge over air is anchored in whatever infill surrounds it, sparse too (PrusaSlicer
-                    # expands bridges into internal surfaces); one over sparse infill stays in the solid
-                    bridge = bridge + (over_nothing.offset(BRIDGE_ANCHOR, JoinType.Miter, 3.0) ^ fill)
-                if not bridge.is_empty() and support_sh is None and not support.is_empty():
-                    support_sh = to_shapely(support)
-                    shapely.prepare(support_sh)
-                if not bridge.is_empty():
-                    air_sh = to_shapely(air)
-                    shapely.prepare(air_sh)
-                    b_angle = bridge_angle(bridge, support_sh, nozzle, angle, air_sh)
-                    groups.append([Path(p, Role.BRIDGE_INFILL, nozzle, flow=bridge_fpm)
-                                   for p in rectilinear(bridge, b_angle, nozzle, nozzle)])
-                    solid = solid - bridge
-                    if not sparse.is_empty():
-                        sparse = sparse - bridge
-                    if not scraps.is_empty():
-                        scraps = scraps - bridge
-            top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
-            internal = solid - top_region if not top_region.is_empty() else solid
-            if not scraps.is_empty():
-                internal = internal + scraps
-            dens = min(float(s.fill_density), 1.0)
-            dense = [(top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL)]
-            if dens >= 0.999 and not sparse.is_empty():
-                dense.append((sparse, Role.SOLID_INFILL))  # 100 % sparse infill is solid lines too
-            lines = [(rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX), role) for region, role in dense]
-            # dense lines overlap the perimeters (infill_overlap) and run along the outline: their
-            # flow is scaled so they lay what the region between the perimeters holds, no more
-            fpm = filament_per_mm(w_i, h, layers.tool.filament_area, s.extrusion_multiplier) * dense_flow_scale(
-                _union([r for r, _ in dense]), to_fill - bridge if not bridge.is_empty() else to_fill,
-                [p for ps, _ in lines for p in ps], sp_i)
-            # solid and sparse lines in one group, ordered together from where the perimeters end
-            # (PrusaSlicer chains a region's fills together): a solid strip across the island
-            # need not cost a travel there and back
-            fills = [Path(p, role, w_i, flow=fpm) for ps, role in lines for p in ps]
-            if len(lines) == 2 and s.fill_density > 0 and not sparse.is_empty():
-                fills += [Path(p, Role.INFILL, w_i) for p in _sparse_lines(sparse, angle, sp_i / dens, w_i, s.fill_pattern)]
-            groups.append(fills)
-            if layers.sparse_infill and not sparse.is_empty():
-                sparse_all.append(sparse)
+        to_fill, gaps = _gap_fill(layers, g, island, loops, fill)
+        groups, sparse = fills.groups(fill, solid, sparse, scraps, to_fill)
+        if layers.sparse_infill and not fill.is_empty() and not sparse.is_empty():
+            sparse_all.append(sparse)
         islands.append(_Island(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2]), inside, perimeters, gaps, groups))
     return _LayerPlan(skirt, islands, brim, _support_paths(layers, li)), _union(sparse_all)
+
+
+def _skirt_and_brim(layers: _Layers, here: CrossSection, w_p: float, sp_p: float) -> tuple[list, list]:
+    """(skirt, brim) paths of the first layer."""
+    s = layers.s
+    skirt, brim = [], []
+    if s.brim_width > 0:
+        brim = [Path(p, Role.SKIRT, w_p, closed=True) for p in brim_loops(here, s.brim_width, w_p, sp_p)]
+    if s.skirt_loops > 0:
+        # the skirt keeps its distance from the brim's outer edge and from the support's first layer
+        extent = brim_extent(s.brim_width, w_p, sp_p)
+        around = here.offset(extent, JoinType.Round, 2.0, 72) if extent > 0 else here
+        sup = layers.support[0]
+        for region in (sup.body, sup.interface):
+            if not region.is_empty():
+                around = around + region.offset(w_p / 2, JoinType.Miter, 3.0)
+        skirt = [Path(p, Role.SKIRT, w_p, closed=True) for p in skirt_loops(around, s.skirt_loops, s.skirt_distance, w_p)]
+    return skirt, brim
+
+
+def _perimeter_paths(loops, test, w_p: float) -> list:
+    """An island's perimeters per loop group, per depth (innermost first): paths whose segments
+    over air (outside ``test``, the grown layer below, when given) are overhang perimeters."""
+    owner = _loop_groups(loops)
+    perimeters = []
+    for group in range(int(owner.max()) + 1 if len(owner) else 0):
+        by_depth = []
+        for depth in sorted({d for (d, _), o in zip(loops, owner) if o == group}, reverse=True):
+            paths = []
+            for (d, p), o in zip(loops, owner):
+                if d != depth or o != group:
+                    continue
+                role = Role.EXTERNAL_PERIMETER if depth == 0 else Role.PERIMETER
+                if test is not None:
+                    dense, over = overhang_segments(p, test, w_p / 4)
+                    if over.any():
+                        p = dense
+                        role = np.where(over, int(Role.OVERHANG_PERIMETER), int(role)).astype(np.uint8)
+                paths.append(Path(p, role, w_p, closed=True))
+            by_depth.append(paths)
+        perimeters.append(by_depth)
+    return perimeters
+
+
+def _gap_fill(layers: _Layers, g: _LayerGeometry, island: CrossSection, loops, fill: CrossSection):
+    """(what the infill must fill: the island less the perimeter beads, the gap fill paths). Gap
+    fill: what neither the perimeter beads nor the infill reach (narrow walls, thin features, tiny
+    islands), one variable-width line down its middle (printed right after the perimeters, as
+    PrusaSlicer does)."""
+    s, w_p, h = layers.s, g.w_p, g.h
+    covered = _coverage(loops, g.sp_p)
+    to_fill = island - covered if not covered.is_empty() else island
+    if not fill.is_empty():
+        covered = covered + fill.offset(g.sp_i / 2, JoinType.Miter, 3.0)
+    gap = island - covered if not covered.is_empty() else island
+    min_w = GAP_MIN_WIDTH * w_p
+    gap = clean(gap, min_w / 2)
+    gaps = []
+    if not gap.is_empty():
+        # a whole island too small for a loop is always printed; inside an island, a blob
+        # smaller than a bead is not worth a travel
+        blob = 0.0 if not loops else w_p**2
+        res = float(s.gcode_resolution)
+        for pts, widths in medial_lines(to_shapely(gap), min_w, 2.0 * w_p, min_w / 2, max(res, 1e-4), w_p, blob):
+            # the gap is measured between bead spacings: fill its rectangle, width x height
+            flow = widths * h / layers.tool.filament_area * s.extrusion_multiplier
+            gaps.append(Path(pts, Role.GAP_FILL, widths, flow=flow))
+    return to_fill, gaps
+
+
+class _Fills:
+    """A layer's infill, island by island: bridges, then solid and sparse lines (:meth:`groups`)."""
+
+    def __init__(self, layers: _Layers, g: _LayerGeometry, li: int, exposed, below, support):
+        self.layers, self.g, self.li = layers, g, li
+        self.exposed, self.below, self.support = exposed, below, support
+        self.nozzle = layers.tool.nozzle_diameter
+        self.angle = layers.s.fill_angle + (math.pi / 2 if li % 2 else 0.0)
+        self.bridge_fpm = bridge_flow(self.nozzle, layers.tool.filament_area, layers.s.bridge_flow)
+        self.support_sh = None  # the support region as a prepared shapely geometry, made at the first bridge
+
+    def _bridges(self, fill, solid):
+        """(the bridge region, its paths or None) of an island's solid infill over air."""
+        g, support, below, nozzle = self.g, self.support, self.below, self.nozzle
+        bridge, air = bridge_region(solid, support, BRIDGE_ANCHOR, g.w_i)
+        over_nothing = air - below if not below.is_empty() else air
+        if not over_nothing.is_empty():
+            # a bridge over air is anchored in whatever infill surrounds it, sparse too (PrusaSlicer
+            # expands bridges into internal surfaces); one over sparse infill stays in the solid
+            bridge = bridge + (over_nothing.offset(BRIDGE_ANCHOR, JoinType.Miter, 3.0) ^ fill)
+        if bridge.is_empty():
+            return bridge, None
+        if self.support_sh is None and not support.is_empty():
+            self.support_sh = to_shapely(support)
+            shapely.prepare(self.support_sh)
+        air_sh = to_shapely(air)
+        shapely.prepare(air_sh)
+        b_angle = bridge_angle(bridge, self.support_sh, nozzle, self.angle, air_sh)
+        return bridge, [Path(p, Role.BRIDGE_INFILL, nozzle, flow=self.bridge_fpm)
+                        for p in rectilinear(bridge, b_angle, nozzle, nozzle)]
+
+    def groups(self, fill, solid, sparse, scraps, to_fill) -> tuple[list, CrossSection]:
+        """(the island's fill groups, printed group after group; its sparse region less its bridges)."""
+        s, g, angle = self.layers.s, self.g, self.angle
+        w_i, sp_i, h = g.w_i, g.sp_i, g.h
+        groups: list[list[Path]] = []
+        if fill.is_empty():
+            return groups, sparse
+        bridge = CrossSection()
+        if self.li > 0 and not solid.is_empty():
+            bridge, paths = self._bridges(fill, solid)
+            if paths is not None:
+                groups.append(paths)
+                solid = solid - bridge
+                if not sparse.is_empty():
+                    sparse = sparse - bridge
+                if not scraps.is_empty():
+                    scraps = scraps - bridge
+        exposed = self.exposed
+        top_region = clean(solid ^ exposed, w_i / 4) if not solid.is_empty() and not exposed.is_empty() else CrossSection()
+        internal = solid - top_region if not top_region.is_empty() else solid
+        if not scraps.is_empty():
+            internal = internal + scraps
+        dens = min(float(s.fill_density), 1.0)
+        dense = [(top_region, Role.TOP_SOLID_INFILL), (internal, Role.SOLID_INFILL)]
+        if dens >= 0.999 and not sparse.is_empty():
+            dense.append((sparse, Role.SOLID_INFILL))  # 100 % sparse infill is solid lines too
+        lines = [(rectilinear(region, angle, sp_i, w_i, INFILL_ANCHOR_MAX), role) for region, role in dense]
+        # dense lines overlap the perimeters (infill_overlap) and run along the outline: their
+        # flow is scaled so they lay what the region between the perimeters holds, no more
+        fpm = filament_per_mm(w_i, h, self.layers.tool.filament_area, s.extrusion_multiplier) * dense_flow_scale(
+            _union([r for r, _ in dense]), to_fill - bridge if not bridge.is_empty() else to_fill,
+            [p for ps, _ in lines for p in ps], sp_i)
+        # solid and sparse lines in one group, ordered together from where the perimeters end
+        # (PrusaSlicer chains a region's fills together): a solid strip across the island
+        # need not cost a travel there and back
+        fills = [Path(p, role, w_i, flow=fpm) for ps, role in lines for p in ps]
+        if len(lines) == 2 and s.fill_density > 0 and not sparse.is_empty():
+            fills += [Path(p, Role.INFILL, w_i) for p in _sparse_lines(sparse, angle, sp_i / dens, w_i, s.fill_pattern)]
+        groups.append(fills)
+        return groups, sparse
 
 
 def _sparse_lines(region: CrossSection, angle: float, spacing: float, width: float, pattern: str) -> list:

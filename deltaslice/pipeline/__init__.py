@@ -1,8 +1,8 @@
 """The stages chained: what the CLI commands call, and what other programs can call too.
 
-This is the one module that opens paths: it reads the printer file, the part and the
-outputs, hands each stage the previous stage's object, and writes every output
-atomically (printer -> mesh or G-code -> Toolpath -> Trajectory -> samples -> bytes).
+This package is the one layer that opens paths: it reads the printer file, the part and the
+outputs, hands each stage the previous stage's object, and writes every output atomically
+(:mod:`.outputs`): printer -> mesh or G-code -> Toolpath -> Trajectory -> samples -> bytes.
 Functions return objects (:class:`~deltaslice.report.CompileResult`,
 :class:`~deltaslice.verify.VerifyReport`); :mod:`deltaslice.report` turns them into text.
 """
@@ -10,25 +10,22 @@ Functions return objects (:class:`~deltaslice.report.CompileResult`,
 from __future__ import annotations
 
 import contextlib
-import math
 import os
-import re
-import stat
-import tempfile
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from . import interrupt
-from .errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError, ToolpathWarning
-from .formats import format_for, holds_samples, is_stdout, part_kind
-from .machine import LimitMonitor, Printer, check_reach, load_printer
-from .machine.limits import TOLERANCE
-from .pool import check_workers, resolve_workers
-from .progress import stderr_progress
-from .report import CompileResult, slice_summary
+from .. import interrupt
+from ..errors import DeltasliceError, MeshWarning, OutputError, PlanningError, StreamError, ToolpathWarning
+from ..formats import format_for, holds_samples, is_stdout, part_kind
+from ..machine import LimitMonitor, Printer, check_reach, load_printer
+from ..machine.limits import TOLERANCE
+from ..pool import check_workers, resolve_workers
+from ..progress import stderr_progress
+from ..report import CompileResult, slice_summary
+from .outputs import _check_path, _printer_file, atomic_output, check_bounds, check_job, check_output
 
 
 def _printer(printer, reach_checks: bool = True) -> Printer:
@@ -47,186 +44,6 @@ STREAM_BYTES = 8 * 1024**2
 # CLI --max-time/--max-size 0). A G-code with F0.0001 plans to days of samples; these stop it first.
 MAX_DURATION_S = 48 * 3600.0
 MAX_BYTES = 4 * 1024**3
-
-
-def _same_file(a, b) -> bool:
-    try:
-        return os.path.samefile(a, b)
-    except (OSError, ValueError, TypeError):
-        return False
-
-
-def _own_fd(path) -> int | None:
-    """The number of this process's file descriptor that ``path`` names (``/dev/stdout``,
-    ``/dev/fd/3``, ``/proc/self/fd/1``, or a link to one), else None. Followed link by link,
-    not with realpath: realpath turns ``/proc/self/fd/1`` into ``pipe:[N]`` or the file behind."""
-    p = os.path.abspath(os.fspath(path))
-    for _ in range(40):
-        directory, name = os.path.split(p)
-        m = re.fullmatch(r"/proc/(self|\d+)/fd", os.path.realpath(directory))
-        if m and name.isdigit() and m.group(1) in ("self", str(os.getpid())):
-            return int(name)
-        if not os.path.islink(p):
-            return None
-        p = os.path.normpath(os.path.join(directory, os.readlink(p)))
-    return None
-
-
-def _resolve_output(output, inputs=()) -> tuple[Path, bool]:
-    """(the path to write, whether it is written directly). Directly: a character or block
-    device, a FIFO, a socket, or one of this process's descriptors (``/dev/stdout`` even when
-    the shell redirected it to a regular file: replacing that file by rename would detach it
-    from the shell's descriptor). The type is read with os.stat (following links) before any
-    realpath, which would turn ``/dev/stdout`` into ``/proc/.../fd/pipe:[N]``."""
-    if output is None or not isinstance(output, (str, os.PathLike)) or not str(output):
-        raise OutputError(f"output: expected a file path, got {output!r}")
-    if is_stdout(output):
-        return Path("/dev/stdout"), True  # this process's descriptor 1 (_own_fd), whatever it is
-    path = Path(output)
-    for src in inputs:
-        if src is not None and isinstance(src, (str, os.PathLike)) and _same_file(path, src):
-            raise OutputError(f"{output}: is the input file {src}: refusing to overwrite it (choose another -o)")
-    try:
-        st = os.stat(path)
-    except (OSError, ValueError):
-        st = None  # missing (or a dangling link): created below, through the link
-    if st is not None and stat.S_ISDIR(st.st_mode):
-        raise OutputError(f"{output}: is a directory: expected a file path")
-    if st is not None and (not stat.S_ISREG(st.st_mode) or _own_fd(path) is not None):
-        return path, True  # a device, a pipe, a socket, or our own descriptor: written directly
-    target = Path(os.path.realpath(path))
-    directory = target.parent
-    if not directory.is_dir():
-        raise OutputError(f"{output}: directory {directory} does not exist")
-    if not os.access(directory, os.W_OK | os.X_OK):
-        raise OutputError(f"{output}: directory {directory} is not writable")
-    if target.exists() and not os.access(target, os.W_OK):
-        raise OutputError(f"{output}: file is read-only")
-    return target, False
-
-
-def check_output(output, inputs=()) -> Path:
-    """Refuse an output before any work: the same file as an input, a missing or read-only
-    directory, a directory. Returns the path written (a symlink's target; a device, a pipe or
-    ``/dev/stdout`` as given; ``-`` is standard output). Raises OutputError."""
-    return _resolve_output(output, inputs)[0]
-
-
-def _printer_file(printer):
-    """The printer file a command reads (a Printer's path, or the path or name given), which no
-    output may replace."""
-    return getattr(printer, "path", printer)
-
-
-class _BoundedFile:
-    """A file object that refuses to grow past ``limit`` bytes (None: no bound)."""
-
-    def __init__(self, f, limit, name):
-        self.f, self.limit, self.name, self.written = f, limit, name, 0
-
-    def write(self, data):
-        self.written += len(data)
-        if self.limit is not None and self.written > self.limit:
-            raise OutputError(
-                f"{self.name}: output would exceed {self.limit / 1024**2:.0f} MiB; nothing written "
-                "(raise the bound with --max-size MiB, 0 for none)"
-            )
-        return self.f.write(data)
-
-    def __getattr__(self, name):
-        return getattr(self.f, name)
-
-
-@contextlib.contextmanager
-def atomic_output(path, mode: str = "wb", *, max_bytes=None, **open_kwargs):
-    """Open ``path`` for writing so that a failure or Ctrl-C leaves any previous file untouched.
-
-    A regular file (or a new one) is written to a temporary file beside it and renamed over
-    it at the end, keeping an existing file's permission bits (a new file gets the umask's).
-    A symlink is followed: its target is replaced, the link stays. A character device or a
-    pipe (``/dev/null``, ``/dev/stdout``) is written directly, never replaced. ``max_bytes``
-    bounds the bytes written (OutputError beyond). OSError (full disk, permissions) becomes
-    OutputError naming the path."""
-    with interrupt.writing():
-        yield from _atomic_output(path, mode, max_bytes=max_bytes, **open_kwargs)
-
-
-def _atomic_output(path, mode: str, *, max_bytes=None, **open_kwargs):
-    target, direct = _resolve_output(path)
-    if direct:
-        fd = _own_fd(target)
-        try:
-            # our own descriptor is duplicated, not reopened: a socket cannot be reopened by
-            # path, and a file the shell opened for appending keeps its offset
-            with (os.fdopen(os.dup(fd), mode, **open_kwargs) if fd is not None
-                  else open(target, mode, **open_kwargs)) as f:
-                yield _BoundedFile(f, max_bytes, str(path))
-        except OSError as exc:
-            raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
-        interrupt.wrote(path)
-        return
-    if target.exists():
-        file_mode = target.stat().st_mode & 0o7777
-    else:
-        umask = os.umask(0)
-        os.umask(umask)
-        file_mode = 0o666 & ~umask
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-        os.fchmod(fd, file_mode)
-        with os.fdopen(fd, mode, **open_kwargs) as f:
-            yield _BoundedFile(f, max_bytes, str(path))
-            f.flush()
-            os.fsync(f.fileno())
-        interrupt.check()  # a Ctrl-C swallowed by a library still keeps the previous file
-        with interrupt.held():
-            os.replace(tmp, target)
-            tmp = None
-            interrupt.wrote(path)
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
-    finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-
-
-def check_job(duration_s: float, n_samples_per_s: float, bytes_per_sample: float, *, max_duration_s, max_bytes,
-              output="output") -> None:
-    """Refuse a job whose print time or estimated output size is beyond the bounds (None: no bound)."""
-    check_bounds(max_duration_s, max_bytes)
-    if max_duration_s is not None and not duration_s <= max_duration_s:
-        raise OutputError(
-            f"{output}: print time {_hours(duration_s)} exceeds the bound {max_duration_s / 3600:g} h "
-            "(a feed rate near zero in the part?); raise it with --max-time HOURS, 0 for none"
-        )
-    size = duration_s * n_samples_per_s * bytes_per_sample
-    if max_bytes is not None and not size <= max_bytes:
-        raise OutputError(
-            f"{output}: the output would be about {_mib(size)} MiB, over the bound {_mib(max_bytes)} MiB; "
-            "raise it with --max-size MiB (0 for none), or write the compact .dsl stream"
-        )
-
-
-def check_bounds(max_duration_s, max_bytes) -> None:
-    """The job bounds a library caller gives: None, or a finite number > 0 (nan compares false
-    with everything, so it would refuse every job)."""
-    for key, value, unit in (("max_duration_s", max_duration_s, "seconds"), ("max_bytes", max_bytes, "bytes")):
-        if value is None:
-            continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-            raise OutputError(f"{key} = {value!r}: expected a finite number of {unit} > 0, or None for no bound")
-
-
-def _hours(seconds: float) -> str:
-    """A print time for a message: hours, with the digits a small bound needs ("0.00111 h", not "0.0 h")."""
-    return f"{seconds / 3600:.3g} h" if seconds < 360 else f"{seconds / 3600:.1f} h"
-
-
-def _mib(size: float) -> str:
-    """A size in MiB with the digits a small bound needs ("0.001", not "0")."""
-    return f"{size / 1024**2:.3g}" if size < 100 * 1024**2 else f"{size / 1024**2:.0f}"
 
 
 def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, progress=None, echo=None, engrave=None,
@@ -250,15 +67,15 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
     if kind != "mesh" and while_slicing is not None:
         while_slicing()
     if kind == "gcode":
-        from .gcode import read_gcode
+        from ..gcode import read_gcode
 
         return read_gcode(part, printer=printer, echo=echo, center=center, progress=progress)
     if kind == "image":
-        from .engrave import engrave as engrave_image
+        from ..engrave import engrave as engrave_image
 
         return engrave_image(part, printer, engrave)
-    from .mesh import check_fits, load_mesh
-    from .slicing import slice_mesh
+    from ..mesh import check_fits, load_mesh
+    from ..slicing import slice_mesh
 
     mesh = load_mesh(part, scale=scale, rotate_z=rotate, keep_position=keep_position)
     if echo is not None:
@@ -288,7 +105,7 @@ def load_toolpath(part, printer, *, scale=1.0, rotate=0.0, keep_position=False, 
 def _check_on_bed(toolpath, printer, part) -> None:
     """Every working move (skirt included) on the bed: a part kept near the edge
     (--keep-position) can fit while its skirt does not."""
-    from .errors import UnreachableError
+    from ..errors import UnreachableError
 
     work = toolpath.tool > 0
     if not work.any():
@@ -308,7 +125,7 @@ def _check_on_bed(toolpath, printer, part) -> None:
 
 def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> int:
     """Write a Toolpath as G-code to ``output``, atomically. Returns bytes written."""
-    from .gcode import gcode_text
+    from ..gcode import gcode_text
 
     _check_toolpath(toolpath)
     text = gcode_text(toolpath, printer)
@@ -320,7 +137,7 @@ def write_gcode(toolpath, output, printer=None, *, max_bytes=MAX_BYTES) -> int:
 def write_firmware_config(printer, output=None) -> str:
     """The firmware players' configuration header of ``printer`` (path, name or Printer); written
     atomically to ``output`` when given. Returns the header text."""
-    from .emit.firmware_config import firmware_config
+    from ..emit.firmware_config import firmware_config
 
     if output is not None:
         check_output(output, inputs=[_printer_file(printer)])
@@ -346,13 +163,10 @@ def slice_to_gcode(part, printer, output, *, progress=False, echo=None, workers=
     return slice_summary(str(output), toolpath.summary(), time.perf_counter() - t0)
 
 
-def _check_path(value, what):
-    if not isinstance(value, (str, os.PathLike)) or not str(value):
-        raise DeltasliceError(f"{what}: expected a file path, got {value!r}")
 
 
 def _check_toolpath(toolpath):
-    from .toolpath import Toolpath
+    from ..toolpath import Toolpath
 
     if not isinstance(toolpath, Toolpath):
         raise DeltasliceError(f"toolpath: expected a Toolpath, got {type(toolpath).__name__}")
@@ -370,7 +184,7 @@ def write_output(trajectory, output, fmt: str | None = None, watch=None, *, max_
     before writing. check: called after the last byte and before the file replaces
     ``output``; an exception from it leaves any previous output untouched. workers: processes
     sampling ahead of the writer (the bytes are the same for any number). Returns bytes written."""
-    from .emit import write_trajectory
+    from ..emit import write_trajectory
 
     if not all(hasattr(trajectory, a) for a in ("printer", "duration", "iter_samples", "metadata")) or not isinstance(
             getattr(trajectory, "printer", None), Printer):
@@ -396,7 +210,7 @@ def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: d
     as ``fmt``, atomically. Returns bytes written. Blocks with another joint count, or a trajectory
     planned for another printer, are refused (see ``emit.write_samples``).
     events: ``(sample_index, kind, value)`` (see ``emit.write_samples``)."""
-    from .emit import write_samples as encode
+    from ..emit import write_samples as encode
 
     printer = _printer(printer)
     with atomic_output(output, "wb", max_bytes=max_bytes) as f:
@@ -405,7 +219,7 @@ def write_samples(blocks, printer, output, *, fmt: str, rate: float, metadata: d
 
 def read_counts(path):
     """(StreamHeader, counts (n, C) int64) of a stream file."""
-    from .emit.stream import read_counts as decode
+    from ..emit.stream import read_counts as decode
 
     try:
         f = open(path, "rb")
@@ -417,7 +231,7 @@ def read_counts(path):
 
 def read_output(path):
     """(metadata, Samples) of a written setpoints CSV or binary stream."""
-    from .emit import read_output as decode
+    from ..emit import read_output as decode
 
     _check_path(path, "read_output: path")
     try:
@@ -468,7 +282,7 @@ def compile_part(
     def while_slicing():
         checked[0] = check_reach(printer)
         # the planner's modules load here, while the workers slice, not before they fork
-        from . import planning as _planner  # noqa: F401
+        from .. import planning as _planner  # noqa: F401
 
     t0 = time.perf_counter()
     stage = ("reading G-code", "lines") if kind == "gcode" else ("slicing layers", "it")
@@ -476,7 +290,7 @@ def compile_part(
     planning = stderr_progress(progress, "planning", unit="moves")
     stream = _gcode_stream(part, printer, fmt, planner, mesh_options, reading, echo)
     if stream is not None and stream.streamed:
-        from .planning import plan_stream
+        from ..planning import plan_stream
 
         t_slice = time.perf_counter() - t0
         s = {"layers": stream.layers, "moves": stream.moves}
@@ -498,7 +312,7 @@ def compile_part(
             size = write_gcode(toolpath, output, printer, max_bytes=max_bytes)  # a pipe (-o -) has no size to stat
             return CompileResult(printer.name, str(output), fmt, size, s["layers"], s["moves"], {},
                                  "", speed_limit, None, times={"slice": t_slice, "total": time.perf_counter() - t0})
-        from .planning import plan
+        from ..planning import plan
 
         with warnings.catch_warnings(record=True) as caught:  # the unit notes, said as notes
             warnings.simplefilter("always", ToolpathWarning)
@@ -541,7 +355,7 @@ def _gcode_stream(part, printer, fmt, planner, options, progress, echo):
     stream (see gcode.GcodeStream)."""
     if part_kind(part) != "gcode" or fmt == "gcode" or planner != "toppra":
         return None
-    from . import gcode  # here: a mesh's compile imports no G-code reader before its slicing forks
+    from .. import gcode  # here: a mesh's compile imports no G-code reader before its slicing forks
 
     try:
         if os.path.getsize(part) <= STREAM_BYTES:
@@ -577,7 +391,7 @@ def verify_output(output, printer, toolpath=None, *, assume_printer=False, **mes
     that does not say which printer it was made for (a CSV without its ``#`` header) as made for
     ``printer`` (refused otherwise); the report says the printer was assumed.
     Returns a :class:`~deltaslice.verify.VerifyReport`."""
-    from .verify import verify_samples
+    from ..verify import verify_samples
 
     _check_path(output, "output")
     printer = _printer(printer)
@@ -602,7 +416,7 @@ VERIFY_BYTES_PER_VALUE = 20
 def _check_verify_memory(output, printer) -> None:
     """Refuse, before reading it, an output whose samples would not fit the memory this process
     may use: a 1 MB stream of resting blocks holds 33 million samples (4.6 GB to verify)."""
-    from .emit import stream as dsl
+    from ..emit import stream as dsl
 
     channels = printer.n_joints + 1
     try:
@@ -659,7 +473,7 @@ def _memory_budget() -> int | None:
 def decode_stream(path, out, *, units=False, printer=None) -> int:
     """Print a stream file's samples to the text file ``out`` (see ``emit.stream.decode_to_text``);
     printer: a path, name or Printer the stream must match, or None."""
-    from .emit.stream import decode_to_text
+    from ..emit.stream import decode_to_text
 
     _check_path(path, "stream")
     if not callable(getattr(out, "write", None)):
@@ -685,9 +499,9 @@ def send_file(stream_path, port_name, *, baud=115200, timeout=10.0, progress=Fal
     Returns a :class:`~deltaslice.send.SendResult`."""
     import io
 
-    from .emit.stream import decode_to_text
-    from .errors import SendError
-    from .send import WAIT_LIMIT, send_stream
+    from ..emit.stream import decode_to_text
+    from ..errors import SendError
+    from ..send import WAIT_LIMIT, send_stream
 
     _check_path(stream_path, "stream")
     try:
@@ -724,9 +538,10 @@ def play_file(stream_path, bus_port, *, baud=1_000_000, ids=None, protocol=1, la
     in joint order (default 1, 2, 3, ...). printer: a path, name or Printer the stream must match,
     or None. keyboard: pause/resume/abort from the terminal's keys. Returns a
     :class:`~deltaslice.play.PlayResult`."""
-    from .emit.stream import StreamReader
-    from .errors import PlayError
-    from .play import Keys, open_bus, open_laser, play
+    from ..emit.stream import StreamReader
+    from ..errors import PlayError
+    from ..machine.tool import tool_class
+    from ..play import Keys, open_bus, open_laser, play
 
     _check_path(stream_path, "stream")
     try:
@@ -742,7 +557,7 @@ def play_file(stream_path, bus_port, *, baud=1_000_000, ids=None, protocol=1, la
         loaded = _printer(printer)
         if loaded.fingerprint() != h.fingerprint:
             raise StreamError(f"{stream_path}: stream compiled for printer {h.printer_name!r}, not {loaded.name!r}")
-    if laser_port is not None and h.tool_kind != "laser":
+    if laser_port is not None and not tool_class(h.tool_kind).takes_laser_power:
         raise PlayError(f"{stream_path}: --laser given, but the stream's tool is {h.tool_kind!r}, not a laser")
     counts = np.concatenate(parts) if parts else np.zeros((0, h.n_channels), dtype=np.int64)
     ids = list(range(1, h.n_joints + 1)) if ids is None else list(ids)
@@ -763,7 +578,7 @@ def play_file(stream_path, bus_port, *, baud=1_000_000, ids=None, protocol=1, la
 
 def shipped_printers() -> list[dict]:
     """The printers packaged with deltaslice: [{name, family, tool, description, path}]."""
-    from .printers import shipped_names, shipped_path
+    from ..printers import shipped_names, shipped_path
 
     rows = []
     for name in shipped_names():
@@ -784,7 +599,7 @@ def preview(part, printer, output, *, layer=None, **mesh_options) -> str:
     """Draw ``part`` to the PNG ``output``: a mesh or G-code as one layer coloured by role with
     its travels, plus a side view; a compiled .csv/.dsl as joint position, speed and
     acceleration against the printer's limits over time, and the tool speed. Returns a line."""
-    from . import preview as draw
+    from .. import preview as draw
 
     _check_path(part, "part")
     _check_png(output, inputs=[part, _printer_file(printer)])
@@ -814,8 +629,8 @@ def workspace_analysis(printer, plot_path=None, *, draw=True):
     plot_path (the result's ``plot`` is then None)."""
     import numpy as np
 
-    from .kinematics.workspace import analyse, plot
-    from .report import WorkspaceResult
+    from ..kinematics.workspace import analyse, plot
+    from ..report import WorkspaceResult
 
     printer = _printer(printer)
     draw = draw or plot_path is not None
@@ -857,6 +672,6 @@ def workspace_analysis(printer, plot_path=None, *, draw=True):
 
 def workspace_report(printer, plot_path=None) -> str:
     """Workspace figures of a printer as text; writes a PNG plot."""
-    from .report import workspace_summary
+    from ..report import workspace_summary
 
     return workspace_summary(workspace_analysis(printer, plot_path))
