@@ -31,7 +31,13 @@ pipeline.compile_part(sys.argv[1], sys.argv[2], output=sys.argv[3], workers=1)
 found = []
 for (module, name) in sorted(jit._KERNELS):
     kernel = getattr(sys.modules[module], name.split('.')[0], None)
-    sigs = [repr(s) for s in getattr(kernel, 'signatures', [])]
+    sigs = []
+    for s in getattr(kernel, 'signatures', []):
+        try:  # a signature numba's types cannot write back (a literal value) compiles at its call
+            if jit._signatures([repr(s)]) == [s]:
+                sigs.append(repr(s))
+        except (NameError, SyntaxError, TypeError):
+            pass
     if sigs:
         found.append({"module": module, "name": name, "signatures": sigs})
 print(json.dumps(found))
