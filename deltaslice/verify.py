@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import StreamError
-from .machine.limits import NOISE_FRACTION, TOLERANCE, windowed_differences
+from .machine.limits import JERK_SPACING, NOISE_FRACTION, TOLERANCE, third_differences, windowed_differences
 
 MARGIN = TOLERANCE  # shown in the report; the thresholds are Limits.sampled_check's
 CSV_RESOLUTION = 1e-10  # the CSV's 10 decimals (rounding error 5e-11)
@@ -336,6 +336,7 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
     def channel(name, unit, x, lo, hi, i, resolution, vkind="velocity", akind="acceleration", vmax=None,
                 vlimit_arr=None):
         check = lim.sampled_check(i, resolution, rate, NOISE_FRACTION, velocity=vmax)
+        jmax = float(lim.jerk[i])
         vmax, amax = check.velocity_limit, check.acceleration_limit
         wv, wa = check.velocity_window, check.acceleration_window
         half = 0.5 * resolution if quantised else CSV_RESOLUTION
@@ -374,6 +375,14 @@ def verify_samples(samples, printer, *, rate: float, fmt: str, meta: dict | None
                              pct(stat.peak_acceleration, stat.acceleration_limit),
                              float(t[stat.acceleration_index]) if ia >= 0 else 0.0, stat.acceleration_index, None,
                              not col.failed(akind, name)))
+        if math.isfinite(jmax) and n:
+            # reported, not failed: jerk_max is the planner's target (planning.jerk_limit), not a hard limit
+            jk = np.abs(third_differences(x, rate))
+            k = _nan_argmax(jk) if len(jk) else -1
+            w = max(1, int(round(JERK_SPACING * rate)))
+            rows.append(CheckRow("jerk (5 ms third difference)", name, f"{unit}/s^3", float(jk[k]) if k >= 0 else 0.0,
+                                 jmax, pct(float(jk[k]) if k >= 0 else 0.0, jmax),
+                                 float(t[min(k + 3 * w // 2, n - 1)]) if k >= 0 else 0.0, k, None, True))
 
     if n:
         for j, joint in enumerate(lim.joints):

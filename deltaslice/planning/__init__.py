@@ -24,6 +24,7 @@ from .pieces import Piece, PieceBatch
 from .spool import SPOOL_MOVES, PieceSpool
 from .topp import SOLVERS, RunSpec, is_long, iter_run, iter_run_parts, plan_runs
 from .trajectory import Trajectory
+from .jerk import jerk_limited
 from .travel import from_rest, plan_travels, to_rest
 
 __all__ = ["plan", "plan_stream", "Piece", "Trajectory", "split_runs", "check_reachable"]
@@ -269,7 +270,7 @@ def _plan_chunk(args):
     runs = [i for i, (kind, _job) in enumerate(jobs) if kind != "travel"]
     for i, pieces in zip(runs, plan_runs(kin, printer, [jobs[i][1] for i in runs], speed_limit, solver=solver)):
         out[i] = pieces
-    return PieceBatch(out)
+    return PieceBatch([jerk_limited(kin, printer, pieces) for pieces in out])
 
 
 def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", workers=None, progress=None,

@@ -20,6 +20,7 @@ from ..errors import DeltasliceError, PlanningError
 from .pieces import FilamentPiece, JointMovePiece
 from .ruckig_profile import RuckigProfile, positions_many
 from .topp import RunSpec, plan_lines, plan_run
+from .jerk import jerk_limited
 from .torque import torque_limits, travel_limits
 
 CHECK_SAMPLES = 48
@@ -379,8 +380,8 @@ def _rest_link(kin, printer, point, speed_limit, *, to_rest, top, feed):
             raise PlanningError(f"{printer.name}: no straight way from the rest pose to x = {above[0]:.2f}, "
                                 f"y = {above[1]:.2f}, z = {above[2]:.2f} mm above the job's "
                                 f"{'last' if to_rest else 'first'} point stays within reach")
-    if np.array_equal(above, point):
-        return link
-    pts = np.array([point, above] if to_rest else [above, point])
-    vertical = _cartesian(kin, printer, pts, 0, "feed", feed=planning.approach_speed)
-    return vertical + link if to_rest else link + vertical
+    if not np.array_equal(above, point):
+        pts = np.array([point, above] if to_rest else [above, point])
+        vertical = _cartesian(kin, printer, pts, 0, "feed", feed=planning.approach_speed)
+        link = vertical + link if to_rest else link + vertical
+    return jerk_limited(kin, printer, link)
