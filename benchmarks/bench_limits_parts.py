@@ -8,10 +8,10 @@ the tool channel's acceleration ratio (the filament's; a laser's power has no su
 with ``--dense``, also how many stages' stage-wise bound is below their evaluation at 257 points
 (tests/test_planning_limits.py's ``stages_below_dense``: it should be none; slower). The jerk column:
 every joint's largest third difference over 5 ms (``Limits`` ``third_differences``) over its jerk_max;
-``--jerk-off`` plans with ``[planning] jerk_limit = "off"`` (the print times to compare).
+``--jerk-on`` plans with ``[planning] jerk_limit = "on"`` (off by default; the print times to compare).
 A part too large for a printer is tried at half and a quarter of its size.
 
-    python benchmarks/bench_limits_parts.py [--dense] [--jerk-off] [PRINTER ...]
+    python benchmarks/bench_limits_parts.py [--dense] [--jerk-on] [--parts A,B] [PRINTER ...]
 """
 
 from __future__ import annotations
@@ -41,12 +41,12 @@ PRINTERS = ("delta_etitc", "delta_uady", "delta_ucb", "fivebar_atlas", "linear_k
 RATE = 10000
 
 
-def toolpaths(printer, name):
+def toolpaths(printer, name, parts=PARTS):
     """(part, scale, toolpath) for each part that fits the printer at full, half or quarter size."""
     if printer.tool.channel_kind != "extruder":
         yield "star", 1.0, star_part(name, 4)
         return
-    for part in PARTS:
+    for part in parts:
         if not (PARTS_DIR / part).exists():
             continue
         for scale in (1.0, 0.5, 0.25):
@@ -60,14 +60,19 @@ def toolpaths(printer, name):
 def main():
     args = sys.argv[1:]
     dense = "--dense" in args
-    jerk_off = "--jerk-off" in args
+    jerk_on = "--jerk-on" in args
+    parts = PARTS
+    if "--parts" in args:
+        at = args.index("--parts")
+        parts = tuple(args[at + 1].split(","))
+        del args[at : at + 2]
     names = [a for a in args if not a.startswith("--")] or PRINTERS
     worst, below_all = 0.0, 0
     for name in names:
         printer = printer_at(name, RATE)
-        if jerk_off:
-            printer = dataclasses.replace(printer, planning=dataclasses.replace(printer.planning, jerk_limit="off"))
-        for part, scale, tp in toolpaths(printer, name):
+        if jerk_on:
+            printer = dataclasses.replace(printer, planning=dataclasses.replace(printer.planning, jerk_limit="on"))
+        for part, scale, tp in toolpaths(printer, name, parts):
             for mode in ("feed", "machine"):
                 t0 = time.perf_counter()
                 traj = plan(tp, printer, speed_limit=mode, workers=2)

@@ -130,7 +130,7 @@ class PlanningSettings:
     joints' limits (where the file has ``[dynamics]``), "off" to the joints' limits alone;
     ``jerk_limit``: "on" re-times runs and straight travels within each channel's ``jerk_max``
     (:mod:`deltaslice.planning.jerk`), "off" (the default: the re-timing's linear programs cost
-    about a thousand times the planning they follow) leaves them bang-bang in path acceleration."""
+    50-500 times the planning they follow) leaves them bang-bang in path acceleration."""
 
     output_rate: float
     blend_tolerance: float

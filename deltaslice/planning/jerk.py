@@ -20,15 +20,14 @@ x = x_dot^2 at the grid points (:func:`solve_grid`, scipy's HiGHS):
 Stages the solution makes longer than LONG * STAGE are cut again (:func:`split_long`) and the
 programs run again from it (REGRIDS).
 
-Guarantee (checked on the result, :func:`jerk_check`, at the ``CHECK`` fractions of every stage):
-each channel's acceleration has a total variation of at most ``J_p (|I| + dt)`` over any interval
-I (dt the longest stage at its ends), so it stays within ``J_p dt / 2`` of a function whose slope is
-at most J_p, and a third difference of the positions over a spacing h is at most ``J_p (1 + 0.75 dt
-/ h)``: with J_p the planned jerk (``planned_limits``) times :func:`window_factor` at the stages'
-durations, every channel's third difference over JERK_SPACING (or longer) is within its jerk limit.
-Where the check fails (a stage longer than its budget, the velocity or acceleration between
-fractions), the run is slowed uniformly in time (velocity x s, acceleration x s^2, jerk x s^3)
-until it holds.
+Guarantee (checked on the result, :func:`jerk_check`, between the ``CHECK`` points of every
+stage): each channel's acceleration has a total variation of at most ``J_p (|I| + SLACK)`` over
+every interval I, so it stays within ``J_p SLACK / 2`` of a function whose slope is at most J_p,
+and a third difference of the positions over a spacing h reads at most ``J_p (1 + 0.75 SLACK /
+h)``: with J_p the planned jerk (``planned_limits``) times :func:`window_factor`, every channel's
+third difference over JERK_SPACING (or longer) is within its jerk limit. Where the check fails (a
+stage longer than the programs assumed, the velocity or acceleration between fractions), the run
+is slowed uniformly in time (velocity x s, acceleration x s^2, jerk about s^3) until it holds.
 
 Long runs planned window by window (their pieces join at speed) are left as planned.
 """
@@ -54,20 +53,23 @@ LONG_STAGE = 1.0  # s: the budget of a stage at rest at both ends (none is, in a
 REGRIDS = 1  # times the stages a solution makes longer than LONG * STAGE are cut and the programs run again
 REGRID_PASSES = 2  # linear programs after each cut
 LONG = 1.5  # of STAGE: a stage this long is cut (REGRIDS)
+SPLIT = 0.75  # of a stage's jerk budget, for the steps at its ends; the rest for the change inside it
+# the programs hold a grid-aligned interval's variation within J (|I| + SPLIT dt) (half a stage's
+# step budget at each end), dt at most LONG STAGE after a cut: the check's and the planned slack
+SLACK = SPLIT * LONG * STAGE
 SLOW_PASSES = 20  # uniform slow-downs tried before a run's check holds (the first usually does)
 REST_POINTS = 40  # grid points added on each side of a point at rest (fine_grid)
-MIN_STAGE = 1e-3  # mm: grid points closer than this are one (shorter stages make the programs' rows ill-scaled)
+MIN_STAGE = 1e-6  # mm: grid points closer than this are one
 FLOOR = 1e-3  # of the largest x*: the least x_dot^2 a point's weight is taken at
-SPLIT = 0.75  # of a stage's jerk budget, for the steps at its ends; the rest for the change inside it
 ACTIVE = 0.95  # a row counts as active within 5 % of its bound (the piece's active_time)
 
 
-def window_factor(stage: float = STAGE, spacing: float = JERK_SPACING) -> float:
+def window_factor(stage: float | None = None, spacing: float = JERK_SPACING) -> float:
     """The fraction of the jerk limit planned to: a third difference over ``spacing`` of a motion
     whose acceleration varies by at most J (|I| + stage) over every interval I is at most J (1 +
     0.75 stage / spacing) (0.75 h^2: the peak of the quadratic B-spline the third difference
-    weights the jerk with)."""
-    return 1.0 / (1.0 + 0.75 * stage / spacing)
+    weights the jerk with). Default: SLACK."""
+    return 1.0 / (1.0 + 0.75 * (SLACK if stage is None else stage) / spacing)
 
 
 def jerk_limited(kin, printer, pieces: list) -> list:
@@ -135,7 +137,7 @@ def _checked(rp, x, y, vmax, amax, jmax, limited):
     for _ in range(SLOW_PASSES):
         # slowed by s, the velocity scales by s, the acceleration by s^2, the jerk by s^3 (the
         # window factor, at longer stages, a little less: so again until the check holds)
-        use = jerk_check(dq_c, ddq_c, xd * slow, xdd * slow * slow, np.diff(t) / slow, jmax)
+        use = jerk_check(dq_c, ddq_c, x, xd * slow, xdd * slow * slow, t / slow, jmax)
         use[:, ~limited] = 0.0
         if not np.all(np.isfinite(use)):
             return None
@@ -160,7 +162,7 @@ def fine_grid(piece: RunPiece, path_jerk: float):
     x = np.append(piece.x[i] + piece.xd[i] * tau + 0.5 * piece.xdd[i] * tau * tau, piece.x[-1])
     rest = piece.x[piece.xd == 0]
     if math.isfinite(path_jerk) and path_jerk > 0:
-        near = path_jerk * (np.arange(1, REST_POINTS + 1) * STAGE) ** 3 / 6
+        near = path_jerk * (np.r_[0.25, 0.5, np.arange(1, REST_POINTS + 1)] * STAGE) ** 3 / 6
         x = np.concatenate([x, (rest[:, None] + near[None]).ravel(), (rest[:, None] - near[None]).ravel()])
     x = np.unique(np.clip(x, 0.0, 1.0))
     x = x[np.concatenate([[True], np.diff(x) * piece.S > MIN_STAGE])]
@@ -246,8 +248,13 @@ def solve_grid(x, env, dq, ddq, amax, jerk, start=None, passes: int = PASSES) ->
         for sign in (1.0, -1.0):
             add(step_cols, sign * step_vals, lambda dt, r=jerk[j] / amax[j]: budgets(dt, r)[0])
             add(pair, sign * within, lambda dt, r=jerk[j] / amax[j]: budgets(dt, r)[1])
-    A = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(nrow[0], n_var[0]))
+    vals, rows = np.concatenate(vals), np.concatenate(rows)
+    # every row scaled to a largest coefficient of 1: a stage of a micron beside one of a millimetre
+    # leaves HiGHS rows whose coefficients differ by many orders (it calls such programs infeasible)
+    scale = np.zeros(nrow[0])
+    np.maximum.at(scale, rows, np.abs(vals))
+    scale = np.where(scale > 0, scale, 1.0)
+    A = sparse.csr_matrix((vals / scale[rows], (rows, np.concatenate(cols))), shape=(nrow[0], n_var[0]))
     share = np.zeros(N + 1)
     share[:-1] += 0.5 * d
     share[1:] += 0.5 * d
@@ -261,7 +268,7 @@ def solve_grid(x, env, dq, ddq, amax, jerk, start=None, passes: int = PASSES) ->
         v = np.sqrt(upper * top)
         vsum = v[:-1] + v[1:]
         dt = np.where(vsum > 0, 2 * d / np.where(vsum > 0, vsum, 1.0), LONG_STAGE)
-        b = np.concatenate([f(dt) for f in rhs])
+        b = np.concatenate([f(dt) for f in rhs]) / scale
         # -dT/dx at the last solution: each point's share of the time, so the program trades speed
         # where it saves most (a linear objective at x* alone lets a few points fall to rest)
         weight = share / np.maximum(best, FLOOR) ** 1.5
@@ -300,24 +307,38 @@ def profile(x, y):
     return xd, xdd, np.concatenate([[0.0], np.cumsum(dt)])
 
 
-def jerk_check(dq, ddq, xd, xdd, dt, jerk) -> np.ndarray:
-    """Per stage and channel (N, dof), the largest of the acceleration's variation inside the
-    stage (at the CHECK fractions of dq, ddq (N, f, dof)) and its steps at both ends (from rest
-    outside the run), each over its share (:func:`budgets`) of jerk (dof,) times the window factor
-    at the stage's duration (:func:`window_factor` of the longest of it and its neighbours: a
-    third difference over JERK_SPACING reads at most the jerk limit where every ratio is at most 1)
-    times the stages' durations dt (N,). NaN for a channel without a jerk limit."""
+def jerk_check(dq, ddq, x, xd, xdd, t, jerk) -> np.ndarray:
+    """Per stage and channel (N, dof), the largest ratio of the guarantee: the acceleration's total
+    variation over an interval I between two of the CHECK points of the stages (the steps at the
+    grid points, and the changes between the points inside each stage, from rest outside the run)
+    over ``J_p (|I| + SLACK)``, J_p the channel's jerk (dof,) times :func:`window_factor`, for the
+    intervals ending in the stage. At most 1 everywhere: every third difference over JERK_SPACING
+    reads at most the jerk limit. dq, ddq (N, f, dof) at CHECK; x, xd, t (N+1,), xdd (N,) the
+    profile. NaN for a channel without a jerk limit."""
+    N, f, dof = dq.shape
     x0, x1 = xd[:-1] ** 2, xd[1:] ** 2
     w = x0[:, None] + (x1 - x0)[:, None] * CHECK[None]
     acc = dq * xdd[:, None, None] + ddq * w[:, :, None]  # (N, f, dof)
-    inside = np.abs(np.diff(acc, axis=1)).sum(axis=1)
-    dof = acc.shape[2]
+    # the time at each CHECK point: x = x_i + f d reached after 2 f d / (xd_i + sqrt(xd_i^2 + 2 u f d))
+    fd = CHECK[None] * np.diff(x)[:, None]
+    root = np.sqrt(np.maximum(x0[:, None] + 2 * xdd[:, None] * fd, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(fd > 0, 2 * fd / (xd[:-1, None] + root), 0.0)
+    tt = (t[:-1, None] + np.minimum(tau, np.diff(t)[:, None])).ravel()  # (N f,)
+    moves = np.zeros((N, f, dof))
+    moves[:, 1:] = np.abs(np.diff(acc, axis=1))
     step = np.abs(np.vstack([acc[:, 0], np.zeros((1, dof))]) - np.vstack([np.zeros((1, dof)), acc[:, -1]]))
-    out = np.empty_like(inside)
-    longest = np.maximum(dt, np.maximum(np.r_[dt[1:], 0.0], np.r_[0.0, dt[:-1]]))
+    before = np.zeros((N, f, dof))
+    before[:, 0] = step[:-1]  # the step just before each stage's first point
+    after = np.zeros((N, f, dof))
+    after[:, -1] = step[1:]  # and just after its last
+    cum = np.cumsum((moves + before).reshape(N * f, dof), axis=0)
+    pre, post = before.reshape(N * f, dof), after.reshape(N * f, dof)
+    out = np.empty((N, dof))
     with np.errstate(divide="ignore", invalid="ignore"):
         for j in range(dof):
-            around, within = budgets(dt, jerk[j] * window_factor(longest))
-            r = step[:, j] / around
-            out[:, j] = np.maximum(inside[:, j] / within, np.maximum(r[:-1], r[1:]))
+            jp = jerk[j] * window_factor()
+            lowest = np.minimum.accumulate(cum[:, j] - pre[:, j] - jp * tt)
+            ratio = (cum[:, j] + post[:, j] - jp * tt - lowest) / (jp * SLACK)
+            out[:, j] = ratio.reshape(N, f).max(axis=1)
     return out
