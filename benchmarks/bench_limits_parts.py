@@ -6,14 +6,17 @@ the tool channel's acceleration ratio (the filament's; a laser's power has no su
 ``[dynamics]`` and torque limits on, the peak torque use read back from raw second differences
 (tests/test_torque_planning.py's ``use_of``: 1 on the stall torque or the safe speed-torque line);
 with ``--dense``, also how many stages' stage-wise bound is below their evaluation at 257 points
-(tests/test_planning_limits.py's ``stages_below_dense``: it should be none; slower).
+(tests/test_planning_limits.py's ``stages_below_dense``: it should be none; slower). The jerk column:
+every joint's largest third difference over 5 ms (``Limits`` ``third_differences``) over its jerk_max;
+``--jerk-on`` plans with ``[planning] jerk_limit = "on"`` (off by default; the print times to compare).
 A part too large for a printer is tried at half and a quarter of its size.
 
-    python benchmarks/bench_limits_parts.py [--dense] [PRINTER ...]
+    python benchmarks/bench_limits_parts.py [--dense] [--jerk-on] [--parts A,B] [PRINTER ...]
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -28,6 +31,7 @@ from deltaslice.errors import MeshError, UnreachableError  # noqa: E402
 from deltaslice.pipeline import load_toolpath  # noqa: E402
 from deltaslice.planning import plan  # noqa: E402
 from deltaslice.machine.dynamics import sampled_torques  # noqa: E402
+from deltaslice.machine.limits import third_differences  # noqa: E402
 from test_planning_limits import peak_ratios, printer_at, stages_below_dense, star_part  # noqa: E402
 from test_torque_planning import use_of  # noqa: E402
 
@@ -37,12 +41,12 @@ PRINTERS = ("delta_etitc", "delta_uady", "delta_ucb", "fivebar_atlas", "linear_k
 RATE = 10000
 
 
-def toolpaths(printer, name):
+def toolpaths(printer, name, parts=PARTS):
     """(part, scale, toolpath) for each part that fits the printer at full, half or quarter size."""
     if printer.tool.channel_kind != "extruder":
         yield "star", 1.0, star_part(name, 4)
         return
-    for part in PARTS:
+    for part in parts:
         if not (PARTS_DIR / part).exists():
             continue
         for scale in (1.0, 0.5, 0.25):
@@ -56,17 +60,27 @@ def toolpaths(printer, name):
 def main():
     args = sys.argv[1:]
     dense = "--dense" in args
-    names = [a for a in args if a != "--dense"] or PRINTERS
+    jerk_on = "--jerk-on" in args
+    parts = PARTS
+    if "--parts" in args:
+        at = args.index("--parts")
+        parts = tuple(args[at + 1].split(","))
+        del args[at : at + 2]
+    names = [a for a in args if not a.startswith("--")] or PRINTERS
     worst, below_all = 0.0, 0
     for name in names:
         printer = printer_at(name, RATE)
-        for part, scale, tp in toolpaths(printer, name):
+        if jerk_on:
+            printer = dataclasses.replace(printer, planning=dataclasses.replace(printer.planning, jerk_limit="on"))
+        for part, scale, tp in toolpaths(printer, name, parts):
             for mode in ("feed", "machine"):
                 t0 = time.perf_counter()
                 traj = plan(tp, printer, speed_limit=mode, workers=2)
                 sv, sa = traj.stage_maxima()
                 samples = traj.samples()
                 rv, ra = peak_ratios(printer, samples, RATE)
+                J = printer.n_joints
+                jerk = (np.abs(third_differences(samples.q, RATE)).max(axis=0) / printer.limits.jerk[:J]).max()
                 worst = max(worst, rv.max(), ra.max())
                 channel = printer.tool.channel_values(samples.e, samples.tool)
                 with np.errstate(divide="ignore"):  # a laser's power has no rate limit: ratio 0
@@ -82,7 +96,8 @@ def main():
                     below_all += n_below
                     below = f" stages {stages} below dense {n_below}"
                 print(f"{name:17s} {part:20s} x{scale:<5g} {mode:7s} travels {travels:5d} stage-wise "
-                      f"{max(sv.max(), sa.max()):.6f}  10 kHz v {rv.max():.4f} a {ra.max():.4f} tool a {tool_a:.4f}"
+                      f"{max(sv.max(), sa.max()):.6f}  10 kHz v {rv.max():.4f} a {ra.max():.4f} tool a {tool_a:.4f} "
+                      f"jerk {jerk:.3f} print {traj.duration:.1f} s"
                       f"{torque}{below} "
                       f"({time.perf_counter() - t0:.1f} s)", flush=True)
     print(f"worst 10 kHz ratio {worst:.4f}" + (f"; stages whose bound is below their dense evaluation: {below_all}" if dense else ""))

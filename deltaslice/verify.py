@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import StreamError
-from .machine.limits import NOISE_FRACTION, TOLERANCE, windowed_differences
+from .machine.limits import JERK_SPACING, NOISE_FRACTION, TOLERANCE, third_differences, windowed_differences
 from .tolerances import RELATIVE_ROUNDOFF, SAME_LENGTH, SHORTEST_TIME
 
 MARGIN = TOLERANCE  # shown in the report; the thresholds are Limits.sampled_check's
@@ -484,6 +484,21 @@ class _Checks:
                   percent=_share(stat.peak_acceleration, stat.acceleration_limit),
                   time=float(t[stat.acceleration_index]) if ia >= 0 else 0.0, index=stat.acceleration_index,
                   ok=not col.failed(akind, name))
+        self._jerk_row(name, unit, x, i)
+
+    def _jerk_row(self, name, unit, x, i) -> None:
+        """Channel i's jerk use: its largest third difference over ``JERK_SPACING`` against its
+        jerk_max. Reported, never failed: jerk_max is the planner's target (``planning.jerk_limit``),
+        not a limit the machine breaks at."""
+        jmax, n, t = float(self.lim.jerk[i]), self.n, self.t
+        if not (math.isfinite(jmax) and n):
+            return
+        jk = np.abs(third_differences(x, self.rate))
+        k = _nan_argmax(jk) if len(jk) else -1
+        w = max(1, int(round(JERK_SPACING * self.rate)))
+        peak = float(jk[k]) if k >= 0 else 0.0
+        self._row("jerk (5 ms third difference)", name, f"{unit}/s^3", peak, jmax, percent=_share(peak, jmax),
+                  time=float(t[min(k + 3 * w // 2, n - 1)]) if k >= 0 else 0.0, index=k, ok=True)
 
 
 def _share(peak: float, limit: float) -> float | None:

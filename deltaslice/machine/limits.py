@@ -27,6 +27,7 @@ TOLERANCE = 0.02
 #: The difference window of a sampled check is the shortest that keeps quantisation noise below
 #: this share of the limit (:func:`velocity_window`, :func:`acceleration_window`).
 NOISE_FRACTION = 0.05
+JERK_SPACING = 5e-3  # s: jerk is read (verify) and held (the planner) over third differences this far apart
 UNITS = {"revolute": "rad", "prismatic": "mm", "extruder": "mm", "laser": "0..1"}
 
 
@@ -228,6 +229,18 @@ class SampledCheck:
 
 
 # --------------------------------------------------------------------------- differences
+
+
+def third_differences(x: np.ndarray, rate: float, spacing: float = JERK_SPACING) -> np.ndarray:
+    """Jerk by third differences of samples ``spacing`` s apart (the nearest whole number of
+    samples, at least one): x (n,) or (n, k) at ``rate`` Hz -> (n - 3 w, ...), w the samples apart.
+    Over 5 ms a motion whose acceleration changes no faster than J on average over every 5 ms
+    reads at most J; an acceleration step of A reads 0.75 A / spacing."""
+    w = max(1, int(round(spacing * rate)))
+    x = np.asarray(x, dtype=float)
+    if len(x) <= 3 * w:
+        return x[:0]
+    return (x[3 * w:] - 3 * x[2 * w:-w] + 3 * x[w:-2 * w] - x[:-3 * w]) * (rate / w) ** 3
 
 
 def central_differences(x: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:

@@ -261,6 +261,7 @@ def _read_planning(sec: Section) -> PlanningSettings:
         approach_height=sec.getfloat("approach_height", 5.0, minval=0, maxval=100),
         approach_speed=sec.getfloat("approach_speed", 4.0, above=0, maxval=100),
         torque_limit=sec.getstr("torque_limit", "on", choices=("on", "off"), required=False),
+        jerk_limit=sec.getstr("jerk_limit", "off", choices=("on", "off"), required=False),
     )
 
 

@@ -129,7 +129,10 @@ class PlanningSettings:
     height (mm) above the first point (and above the printed part at the end) the tool comes
     down from and lifts to, and the speed of that vertical move (mm/s), and ``torque_limit``:
     "on" plans to the ``[dynamics]`` actuators' torque and speed-torque curve as well as the
-    joints' limits (where the file has ``[dynamics]``), "off" to the joints' limits alone."""
+    joints' limits (where the file has ``[dynamics]``), "off" to the joints' limits alone;
+    ``jerk_limit``: "on" re-times runs and straight travels within each channel's ``jerk_max``
+    (:mod:`deltaslice.planning.jerk`), "off" (the default: the re-timing's linear programs cost
+    50-500 times the planning they follow) leaves them bang-bang in path acceleration."""
 
     output_rate: float
     blend_tolerance: float
@@ -139,6 +142,7 @@ class PlanningSettings:
     approach_height: float = 5.0
     approach_speed: float = 4.0
     torque_limit: str = "on"
+    jerk_limit: str = "off"
 
 
 @dataclass(frozen=True)

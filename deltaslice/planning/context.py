@@ -31,7 +31,8 @@ class PlanContext:
     travel_lift mm (the tool's lift over the printed part); approach_height mm, approach_speed
     mm/s (the vertical moves onto the first point and off the last); rest_pose (J,) joint units;
     name: the printer's name (messages); speed_limit: "feed" or "machine"; solver: "fast" or
-    "toppra"."""
+    "toppra"; jerk_limit: whether runs from rest to rest are re-timed within the jerk limits
+    (:mod:`.jerk`)."""
 
     kin: object
     planned_limits: object
@@ -49,6 +50,7 @@ class PlanContext:
     name: str
     speed_limit: str = "feed"
     solver: str = "fast"
+    jerk_limit: bool = False
 
     @classmethod
     def of(cls, printer, speed_limit: str = "feed", solver: str = "fast") -> "PlanContext":
@@ -60,7 +62,7 @@ class PlanContext:
                    float(planning.output_rate), float(printer.slicing.travel_speed),
                    float(printer.tool.travel_lift(planning)), float(planning.approach_height),
                    float(planning.approach_speed), np.asarray(printer.rest_pose, float), printer.name,
-                   speed_limit, solver)
+                   speed_limit, solver, planning.jerk_limit == "on")
 
     def with_speed_limit(self, speed_limit: str) -> "PlanContext":
         """This context under another speed limit (the approach's vertical moves keep their feed)."""

@@ -15,6 +15,7 @@ from ..errors import DeltasliceError
 from ..pool import resolve_workers, start_pool, stop_pool
 from .batch import plan_runs
 from .context import PlanContext
+from .jerk import jerk_limited
 from .pieces import PieceBatch
 from .topp import iter_run, iter_run_parts
 from .travel import plan_travels
@@ -70,7 +71,7 @@ def plan_chunk(jobs) -> PieceBatch:
     runs = [i for i, job in enumerate(jobs) if job.kind != "travel"]
     for i, pieces in zip(runs, plan_runs(ctx, [args[i] for i in runs])):
         out[i] = pieces
-    return PieceBatch(out)
+    return PieceBatch([jerk_limited(ctx, pieces) for pieces in out])
 
 
 def _slots(jobs, chunk: int):

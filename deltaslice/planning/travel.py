@@ -24,6 +24,7 @@ from .batch import plan_lines
 from .runpath import RunSpec
 from .topp import plan_run
 from .context import PlanContext
+from .jerk import jerk_limited
 from .tolerances import CLEARANCE, DIVISION_FLOOR, FEED_MATCH, NO_MOTION, RETIME
 from .torque import travel_limits
 
@@ -378,8 +379,8 @@ def _rest_link(ctx: PlanContext, point, *, to_rest, top, feed):
             raise PlanningError(f"{ctx.name}: no straight way from the rest pose to x = {above[0]:.2f}, "
                                 f"y = {above[1]:.2f}, z = {above[2]:.2f} mm above the job's "
                                 f"{'last' if to_rest else 'first'} point stays within reach")
-    if np.array_equal(above, point):
-        return link
-    pts = np.array([point, above] if to_rest else [above, point])
-    vertical = _cartesian(fast.with_speed_limit("feed"), pts, 0, feed=ctx.approach_speed)
-    return vertical + link if to_rest else link + vertical
+    if not np.array_equal(above, point):
+        pts = np.array([point, above] if to_rest else [above, point])
+        vertical = _cartesian(fast.with_speed_limit("feed"), pts, 0, feed=ctx.approach_speed)
+        link = vertical + link if to_rest else link + vertical
+    return jerk_limited(ctx, link)

@@ -1,0 +1,347 @@
+"""Jerk limits on runs and straight travels (``[planning] jerk_limit = "on"``): a re-timing of a
+planned RunPiece under its time-optimal (TOPP-RA) speed profile, the path kept.
+
+The TOPP-RA profile keeps the path acceleration u constant per stage and switches it bang-bang,
+so each joint's acceleration ``a = q' u + q'' x_dot^2`` steps between stages (and where the path's
+curvature steps, at the joins of blend arcs and lines). Here the run is re-timed on a grid of
+stages at most ``STAGE`` long on that profile (:func:`fine_grid`), by linear programs over
+x = x_dot^2 at the grid points (:func:`solve_grid`, scipy's HiGHS):
+
+* x <= x*, the TOPP-RA profile's (so every speed cap holds: x is linear in the path parameter in
+  a stage, and the grid refines TOPP-RA's);
+* each channel's acceleration within its planned limit at both ends of every stage;
+* each channel's acceleration step at every grid point within SPLIT of the jerk budget of the time
+  around it (half of each stage beside it; from rest outside the run), and its change inside every
+  stage within the rest (:func:`budgets`): the budget is J dt, J the planned jerk times
+  :func:`window_factor`, dt a lower bound of the stage's duration (at the pass's upper bounds on x:
+  x*, then a trust region around the last pass's solution);
+* maximise the sum of x weighted by dT/dx at the last solution.
+
+Stages the solution makes longer than LONG * STAGE are cut again (:func:`split_long`) and the
+programs run again from it (REGRIDS).
+
+Guarantee (checked on the result, :func:`jerk_check`, between the ``CHECK`` points of every
+stage): each channel's acceleration has a total variation of at most ``J_p (|I| + SLACK)`` over
+every interval I, so it stays within ``J_p SLACK / 2`` of a function whose slope is at most J_p,
+and a third difference of the positions over a spacing h reads at most ``J_p (1 + 0.75 SLACK /
+h)``: with J_p the planned jerk (``planned_limits``) times :func:`window_factor`, every channel's
+third difference over JERK_SPACING (or longer) is within its jerk limit. Where the check fails (a
+stage longer than the programs assumed, the velocity or acceleration between fractions), the run
+is slowed uniformly in time (velocity x s, acceleration x s^2, jerk about s^3) until it holds.
+
+Long runs planned window by window (their pieces join at speed) are left as planned.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy import sparse
+from scipy.optimize import linprog
+
+from ..machine.limits import JERK_SPACING
+from .pieces import RunPiece
+from .constraints import CHECK
+from .context import PlanContext
+from .runpath import RunPath
+from .stages import CHECK_TOLERANCE, stage_maxima
+
+STAGE = 1e-3  # s: longest stage of the re-timing grid on the TOPP-RA profile
+PASSES = 4  # linear programs, each weighted at the last one's solution
+GROW = 2.0  # trust region of the passes after the first: x at most this times the last solution's
+LIFT = 0.01  # plus this fraction of x* (so a point at rest can start again)
+LONG_STAGE = 1.0  # s: the budget of a stage at rest at both ends (none is, in a solution)
+REGRIDS = 1  # times the stages a solution makes longer than LONG * STAGE are cut and the programs run again
+REGRID_PASSES = 2  # linear programs after each cut
+LONG = 1.5  # of STAGE: a stage this long is cut (REGRIDS)
+SPLIT = 0.75  # of a stage's jerk budget, for the steps at its ends; the rest for the change inside it
+# the programs hold a grid-aligned interval's variation within J (|I| + SPLIT dt) (half a stage's
+# step budget at each end), dt at most LONG STAGE after a cut: the check's and the planned slack
+SLACK = SPLIT * LONG * STAGE
+SLOW_PASSES = 20  # uniform slow-downs tried before a run's check holds (the first usually does)
+REST_POINTS = 40  # grid points added on each side of a point at rest (fine_grid)
+MIN_STAGE = 1e-6  # mm: grid points closer than this are one
+FLOOR = 1e-3  # of the largest x*: the least x_dot^2 a point's weight is taken at
+ACTIVE = 0.95  # a row counts as active within 5 % of its bound (the piece's active_time)
+
+
+def window_factor(stage: float | None = None, spacing: float = JERK_SPACING) -> float:
+    """The fraction of the jerk limit planned to: a third difference over ``spacing`` of a motion
+    whose acceleration varies by at most J (|I| + stage) over every interval I is at most J (1 +
+    0.75 stage / spacing) (0.75 h^2: the peak of the quadratic B-spline the third difference
+    weights the jerk with). Default: SLACK."""
+    return 1.0 / (1.0 + 0.75 * (SLACK if stage is None else stage) / spacing)
+
+
+def jerk_limited(ctx: PlanContext, pieces: list) -> list:
+    """The pieces with every RunPiece from rest to rest re-timed within the jerk limits (as they
+    are with ``[planning] jerk_limit = "off"``, or where no channel has a jerk limit)."""
+    if not ctx.jerk_limit:
+        return pieces
+    return [limit_run(ctx, p) if isinstance(p, RunPiece) else p for p in pieces]
+
+
+def _channels(ctx: PlanContext, piece: RunPiece):
+    """(e_ratio or None, planned limits, true limits) of the channels a run moves."""
+    e_ratio = piece.e_ratio if len(piece.e_ratio) and np.any(piece.e_ratio != 0) else None
+    planned, true = ctx.planned_limits, ctx.machine_limits
+    c = true.n_channels if e_ratio is not None else true.n_joints
+    return e_ratio, planned, true, c
+
+
+def limit_run(ctx: PlanContext, piece: RunPiece) -> RunPiece:
+    """One RunPiece re-timed within the jerk limits (module docstring); unchanged where it does
+    not start and end at rest or no channel it moves has a jerk limit."""
+    if len(piece.xdd) == 0 or piece.xd[0] != 0 or piece.xd[-1] != 0:
+        return piece
+    e_ratio, planned, true, c = _channels(ctx, piece)
+    jerk = planned.jerk[:c] * window_factor()
+    if not np.any(np.isfinite(jerk)):
+        return piece
+    rp = RunPath(ctx.kin, piece.path, e_ratio, piece.layer)
+    with np.errstate(divide="ignore"):
+        path_jerk = float(np.min(jerk / np.abs(rp.stage_derivatives(piece.x, np.array([0.5]))[0][:, 0]).max(axis=0)))
+    x, env = fine_grid(piece, path_jerk)
+    y, best = None, None
+    for regrid in range(REGRIDS + 1):
+        dq, ddq = rp.stage_derivatives(x, np.array([0.0, 1.0]))
+        y = solve_grid(x, env, dq, ddq, planned.acceleration[:c], jerk, y, PASSES if regrid == 0 else REGRID_PASSES)
+        found = _checked(rp, x, y, true.velocity[:c], true.acceleration[:c], true.jerk[:c], np.isfinite(jerk))
+        if found is not None and (best is None or found[3][-1] < best[3][-1]):
+            best = found
+        xd, xdd, t = profile(x, y)
+        dt = np.diff(t)
+        # where the solution is much slower than TOPP-RA its stages are long: the window factor
+        # falls with them (the check slows the run), so they are cut again (kept if faster)
+        if regrid == REGRIDS or not np.any(dt > LONG * STAGE):
+            break
+        x, y = split_long(x, xd, xdd, dt, MIN_STAGE / piece.S)
+        env = envelope(piece, x)
+    if best is None:
+        return piece  # no profile with every stage ending (solve_grid keeps one; never seen)
+    x, xd, xdd, t, use = best
+    env = envelope(piece, x)
+    active = use.max(axis=1) >= ACTIVE
+    active |= (xd[:-1] ** 2 >= ACTIVE * env[:-1]) & (env[:-1] > 0)
+    return replace(piece, x=x, xd=xd, xdd=xdd, t=t, active_time=float(np.diff(t)[active].sum()))
+
+
+def _checked(rp, x, y, vmax, amax, jmax, limited):
+    """The profile x_dot^2 = y on the grid x checked against the true limits vmax, amax, jmax (dof,)
+    (``limited``: the channels with a jerk limit) and slowed uniformly until every check holds:
+    (x, x_dot, path acceleration, t, jerk use (N, dof)), or None where a stage never ends."""
+    xd, xdd, t = profile(x, y)
+    dq_c, ddq_c = rp.stage_derivatives(x, CHECK)
+    vel = stage_maxima(rp, x, xd, xdd, vmax, amax, stage=(dq_c, ddq_c))
+    worst_v, worst_a = float(np.max(vel.velocity)), float(np.max(vel.acceleration))
+    slow = min(1.0, 1.0 / max(worst_v, 1e-12), 1.0 / math.sqrt(max(worst_a, 1e-12)))
+    for _ in range(SLOW_PASSES):
+        # slowed by s, the velocity scales by s, the acceleration by s^2, the jerk by s^3 (the
+        # window factor, at longer stages, a little less: so again until the check holds)
+        use = jerk_check(dq_c, ddq_c, x, xd * slow, xdd * slow * slow, t / slow, jmax)
+        use[:, ~limited] = 0.0
+        if not np.all(np.isfinite(use)):
+            return None
+        worst_j = float(np.max(use))
+        if worst_j <= 1.0 + CHECK_TOLERANCE:
+            break
+        slow *= min(worst_j ** (-1 / 3), 1.0 - 1e-6)
+    return x, xd * slow, xdd * slow * slow, t / slow, use
+
+
+def fine_grid(piece: RunPiece, path_jerk: float):
+    """The re-timing grid: every TOPP-RA stage cut into equal times of at most STAGE on its
+    profile, and around every point at rest the points a path jerk of ``path_jerk`` (path units
+    per s^3) passes every STAGE (x = path_jerk t^3 / 6; TOPP-RA's profile leaves rest far faster,
+    so its times there are much shorter than the stages'). -> (x (N+1,) path units, x* (N+1,) the
+    profile's x_dot^2 there)."""
+    dt = np.diff(piece.t)
+    m = np.maximum(1, np.ceil(dt / STAGE)).astype(np.int64)
+    i = np.repeat(np.arange(len(dt)), m)
+    k = np.arange(len(i)) - np.repeat(np.cumsum(m) - m, m)
+    tau = k * (dt / m)[i]
+    x = np.append(piece.x[i] + piece.xd[i] * tau + 0.5 * piece.xdd[i] * tau * tau, piece.x[-1])
+    rest = piece.x[piece.xd == 0]
+    if math.isfinite(path_jerk) and path_jerk > 0:
+        near = path_jerk * (np.r_[0.25, 0.5, np.arange(1, REST_POINTS + 1)] * STAGE) ** 3 / 6
+        x = np.concatenate([x, (rest[:, None] + near[None]).ravel(), (rest[:, None] - near[None]).ravel()])
+    x = np.unique(np.clip(x, 0.0, 1.0))
+    x = x[np.concatenate([[True], np.diff(x) * piece.S > MIN_STAGE])]
+    x[0], x[-1] = 0.0, 1.0
+    return x, envelope(piece, x)
+
+
+def envelope(piece: RunPiece, x) -> np.ndarray:
+    """The TOPP-RA profile's x_dot^2 (N+1,) at the points x (path units): linear in x in each of
+    its stages, 0 at its points at rest."""
+    j = np.clip(np.searchsorted(piece.x, x, side="right") - 1, 0, len(piece.xdd) - 1)
+    env = np.maximum(piece.xd[j] ** 2 + 2 * piece.xdd[j] * (x - piece.x[j]), 0.0)
+    env[np.isin(x, piece.x[piece.xd == 0])] = 0.0
+    return env
+
+
+def split_long(x, xd, xdd, dt, min_dx: float):
+    """The grid x with every stage longer than STAGE in time (dt (N,), on the profile x_dot = xd
+    (N+1,), path acceleration xdd (N,)) cut into equal times of at most STAGE, and the profile's
+    x_dot^2 at the new grid's points (the same motion: x_dot^2 is linear in x in a stage); no two
+    points closer than min_dx. -> (x, x_dot^2), (M+1,) each."""
+    # no more parts than min_dx fit in the stage (equal times are about equal lengths in a slow stage)
+    m = np.clip(np.ceil(dt / STAGE), 1, np.maximum(np.floor(np.diff(x) / min_dx), 1)).astype(np.int64)
+    i = np.repeat(np.arange(len(dt)), m)
+    tau = (np.arange(len(i)) - np.repeat(np.cumsum(m) - m, m)) * (dt / m)[i]
+    new = np.append(x[i] + xd[i] * tau + 0.5 * xdd[i] * tau * tau, x[-1])
+    new = np.maximum.accumulate(new)
+    keep = np.concatenate([[True], np.diff(new) > 0])
+    new = new[keep]
+    y = np.append(np.maximum(xd[i] + xdd[i] * tau, 0.0) ** 2, xd[-1] ** 2)[keep]
+    return new, y
+
+
+def _accel_forms(d, dq, ddq, scale):
+    """Each channel's acceleration at both ends of every stage as linear forms in x at the stage's
+    two grid points: (start, end), each (N, 2, dof) coefficients of (x_i, x_i+1), times scale."""
+    w = (0.5 / d)[:, None]
+    start = np.stack([-dq[:, 0] * w + ddq[:, 0], dq[:, 0] * w], axis=1) * scale
+    end = np.stack([-dq[:, 1] * w, dq[:, 1] * w + ddq[:, 1]], axis=1) * scale
+    return start, end
+
+
+def solve_grid(x, env, dq, ddq, amax, jerk, start=None, passes: int = PASSES) -> np.ndarray:
+    """The linear programs of the module docstring: x_dot^2 (N+1,) at the grid points x.
+
+    env (N+1,) upper bounds, dq, ddq (N, 2, dof) derivatives at both ends of every stage, amax,
+    jerk (dof,) planned limits (jerk NaN: none); start (N+1,): a profile to start from (the last
+    grid's solution on a refined grid), else env."""
+    N, dof = dq.shape[0], dq.shape[2]
+    top = float(env.max())
+    d = np.diff(x)
+    first, end = _accel_forms(d, dq, ddq, top / amax[None, None, :])  # accelerations / amax, x = top * y
+    rows, cols, vals, rhs = [], [], [], []
+    nrow = [0]
+    n_var = [N + 1]  # x_dot^2 / top at the grid points
+
+    def add(r_cols, r_vals, r_rhs):
+        """Rows sum_k r_vals[:, k] var[r_cols[:, k]] <= r_rhs(dt), (R, K) each, (R,)."""
+        R = len(r_cols)
+        rows.append(np.repeat(np.arange(nrow[0], nrow[0] + R), r_cols.shape[1]))
+        cols.append(r_cols.ravel())
+        vals.append(r_vals.ravel())
+        rhs.append(r_rhs)
+        nrow[0] += R
+
+    i = np.arange(N)
+    pair = np.stack([i, i + 1], axis=1)
+    for j in range(dof):
+        for form in (first[:, :, j], end[:, :, j]):
+            for sign in (1.0, -1.0):
+                add(pair, sign * form, lambda dt: np.ones(N))
+        if not math.isfinite(jerk[j]):
+            continue
+        # steps at grid points 0..N: start of stage i minus end of stage i-1 (rest outside)
+        g = np.arange(N + 1)
+        step_cols = np.stack([np.maximum(g - 1, 0), g, np.minimum(g + 1, N)], axis=1)
+        step_vals = np.zeros((N + 1, 3))
+        step_vals[:N, 1] += first[:, 0, j]
+        step_vals[:N, 2] += first[:, 1, j]
+        step_vals[1:, 0] -= end[:, 0, j]
+        step_vals[1:, 1] -= end[:, 1, j]
+        within = end[:, :, j] - first[:, :, j]
+        for sign in (1.0, -1.0):
+            add(step_cols, sign * step_vals, lambda dt, r=jerk[j] / amax[j]: budgets(dt, r)[0])
+            add(pair, sign * within, lambda dt, r=jerk[j] / amax[j]: budgets(dt, r)[1])
+    vals, rows = np.concatenate(vals), np.concatenate(rows)
+    # every row scaled to a largest coefficient of 1: a stage of a micron beside one of a millimetre
+    # leaves HiGHS rows whose coefficients differ by many orders (it calls such programs infeasible)
+    scale = np.zeros(nrow[0])
+    np.maximum.at(scale, rows, np.abs(vals))
+    scale = np.where(scale > 0, scale, 1.0)
+    A = sparse.csr_matrix((vals / scale[rows], (rows, np.concatenate(cols))), shape=(nrow[0], n_var[0]))
+    share = np.zeros(N + 1)
+    share[:-1] += 0.5 * d
+    share[1:] += 0.5 * d
+    # the TOPP-RA profile (or the start) stands where no program solves (limit_run then slows it down)
+    best = upper = env / top
+    if start is not None:
+        best = np.clip(start, 0.0, env) / top
+        upper = np.minimum(env / top, GROW * best + LIFT * env / top)
+    for _ in range(passes):
+        # each stage lasts at least its duration at the upper bounds: the time its jerk budget is over
+        v = np.sqrt(upper * top)
+        vsum = v[:-1] + v[1:]
+        dt = np.where(vsum > 0, 2 * d / np.where(vsum > 0, vsum, 1.0), LONG_STAGE)
+        b = np.concatenate([f(dt) for f in rhs]) / scale
+        # -dT/dx at the last solution: each point's share of the time, so the program trades speed
+        # where it saves most (a linear objective at x* alone lets a few points fall to rest)
+        weight = share / np.maximum(best, FLOOR) ** 1.5
+        res = linprog(-weight / weight.max(), A_ub=A, b_ub=b, bounds=np.c_[np.zeros(N + 1), upper], method="highs-ds")
+        if res.status != 0:
+            break
+        y = np.clip(res.x, 0.0, upper)
+        if not np.any((y[:-1] <= 0) & (y[1:] <= 0)):
+            best = y  # a profile: a stage at rest at both ends never ends
+        # a trust region around it: the next pass's stages can be shorter by at most sqrt(GROW), and a
+        # point the program stopped can rise (LIFT of x*)
+        upper = np.minimum(env / top, GROW * y + LIFT * env / top)
+    return best * top
+
+
+def budgets(dt, jerk):
+    """(at the grid points (N+1,), inside the stages (N,)): how far an acceleration with jerk limit
+    ``jerk`` (one, or one per stage (N,)) may step at each grid point and change inside each stage of
+    durations dt (N,): SPLIT of its stages' budget around a point (half of each), the rest inside a
+    stage."""
+    jd = jerk * dt
+    around = np.zeros(len(dt) + 1)
+    around[:-1] += 0.5 * jd
+    around[1:] += 0.5 * jd
+    return SPLIT * around, (1.0 - SPLIT) * jd
+
+
+def profile(x, y):
+    """(x_dot (N+1,), path acceleration (N,), time (N+1,)) of x_dot^2 = y on the grid x; a stage
+    at rest at both ends (none from the program, which is infeasible for it) takes no time."""
+    xd = np.sqrt(np.maximum(y, 0.0))
+    d = np.diff(x)
+    vsum = xd[:-1] + xd[1:]
+    dt = np.where(vsum > 0, 2 * d / np.where(vsum > 0, vsum, 1.0), 0.0)
+    xdd = (y[1:] - y[:-1]) / (2 * d)
+    return xd, xdd, np.concatenate([[0.0], np.cumsum(dt)])
+
+
+def jerk_check(dq, ddq, x, xd, xdd, t, jerk) -> np.ndarray:
+    """Per stage and channel (N, dof), the largest ratio of the guarantee: the acceleration's total
+    variation over an interval I between two of the CHECK points of the stages (the steps at the
+    grid points, and the changes between the points inside each stage, from rest outside the run)
+    over ``J_p (|I| + SLACK)``, J_p the channel's jerk (dof,) times :func:`window_factor`, for the
+    intervals ending in the stage. At most 1 everywhere: every third difference over JERK_SPACING
+    reads at most the jerk limit. dq, ddq (N, f, dof) at CHECK; x, xd, t (N+1,), xdd (N,) the
+    profile. NaN for a channel without a jerk limit."""
+    N, f, dof = dq.shape
+    x0, x1 = xd[:-1] ** 2, xd[1:] ** 2
+    w = x0[:, None] + (x1 - x0)[:, None] * CHECK[None]
+    acc = dq * xdd[:, None, None] + ddq * w[:, :, None]  # (N, f, dof)
+    # the time at each CHECK point: x = x_i + f d reached after 2 f d / (xd_i + sqrt(xd_i^2 + 2 u f d))
+    fd = CHECK[None] * np.diff(x)[:, None]
+    root = np.sqrt(np.maximum(x0[:, None] + 2 * xdd[:, None] * fd, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(fd > 0, 2 * fd / (xd[:-1, None] + root), 0.0)
+    tt = (t[:-1, None] + np.minimum(tau, np.diff(t)[:, None])).ravel()  # (N f,)
+    moves = np.zeros((N, f, dof))
+    moves[:, 1:] = np.abs(np.diff(acc, axis=1))
+    step = np.abs(np.vstack([acc[:, 0], np.zeros((1, dof))]) - np.vstack([np.zeros((1, dof)), acc[:, -1]]))
+    before = np.zeros((N, f, dof))
+    before[:, 0] = step[:-1]  # the step just before each stage's first point
+    after = np.zeros((N, f, dof))
+    after[:, -1] = step[1:]  # and just after its last
+    cum = np.cumsum((moves + before).reshape(N * f, dof), axis=0)
+    pre, post = before.reshape(N * f, dof), after.reshape(N * f, dof)
+    out = np.empty((N, dof))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for j in range(dof):
+            jp = jerk[j] * window_factor()
+            lowest = np.minimum.accumulate(cum[:, j] - pre[:, j] - jp * tt)
+            ratio = (cum[:, j] + post[:, j] - jp * tt - lowest) / (jp * SLACK)
+            out[:, j] = ratio.reshape(N, f).max(axis=1)
+    return out
