@@ -152,7 +152,8 @@ def trajectory_figure(samples, printer, *, title="", tool_state=True):
     J = lim.n_joints
     t = samples.t
     rate = 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    fig, axes = plt.subplots(3 + 1, J, figsize=(4.6 * J, 10.5), sharex=True, squeeze=False)
+    rows = 5 if printer.dynamics is not None else 4  # a torque row where the printer has dynamics
+    fig, axes = plt.subplots(rows, J, figsize=(4.6 * J, 2.6 * rows + 0.1), sharex=True, squeeze=False)
     colours = ["#1f77b4", "#2ca02c", "#9467bd", "#8c564b"]
     deg = 180.0 / math.pi
     for j, ch in enumerate(lim.joints):
@@ -211,10 +212,12 @@ def trajectory_figure(samples, printer, *, title="", tool_state=True):
         ax = axes[3, 2]
         xy = tip[:: max(1, len(tip) // 20000)]
         ax.remove()
-        ax = fig.add_subplot(4, J, 3 * J + 3)
+        ax = fig.add_subplot(rows, J, 3 * J + 3)
         ax.plot(xy[:, 0], xy[:, 1], lw=0.4, color="#555")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_title("tool tip, top view (mm)")
+    if rows == 5:
+        _torque_panels(axes[4], samples, printer, rate)
     for ax in axes[3, :2]:
         ax.set_xlabel("time (s)")
     for row in axes:
@@ -229,3 +232,35 @@ def trajectory_figure(samples, printer, *, title="", tool_state=True):
 
 def _peak(x, limit):
     return float(np.nanmax(np.abs(x))) / limit if len(x) and limit > 0 else 0.0
+
+
+def torque_limit_lines(printer, qd):
+    """The limits a torque panel draws, those the planner keeps to (``planning.torque``): stall (J,)
+    N m or N, and the motor's safe line at the joint speeds qd (N, J) joint units/s, stall (1 - |qd|
+    / w) with w the line speed (``ActuatorCurves.line_speed``), floored at 0: (N, J)."""
+    act = printer.dynamics.actuators
+    stall, w = np.array(act.stall, dtype=float), np.array(act.line_speed(), dtype=float)
+    return stall, stall * np.clip(1.0 - np.abs(qd) / w, 0.0, 1.0)
+
+
+def _torque_panels(axes, samples, printer, rate):
+    """Each actuator's torque (force) over time, read back through the printer's inverse dynamics as
+    verify reads it (``machine.dynamics.sampled_torques``), against its stall torque (red dashed) and
+    the speed-torque line at the joint's speed (orange: the torque it gives while driving)."""
+    from .machine.dynamics import sampled_torques
+
+    if len(samples.t) < 3:
+        return
+    tau, qd = sampled_torques(printer, samples.q, rate)
+    stall, line = torque_limit_lines(printer, qd)
+    t = samples.t[: len(tau)]
+    for j, ax in enumerate(axes):
+        revolute = printer.limits.joints[j].kind == "revolute"
+        unit = "N m" if revolute else "N"
+        _series(ax, t, tau[:, j], "#7f7f7f", stall[j])
+        lt, _lo, hi = _envelope(t, line[:, j])
+        ax.plot(lt, hi, color="#e67e22", lw=1, drawstyle="steps-mid", label="speed-torque line")
+        ax.plot(lt, -hi, color="#e67e22", lw=1, drawstyle="steps-mid")
+        ax.set_title(f"{printer.limits.joints[j].name}: {'torque' if revolute else 'force'} ({unit}), "
+                     f"peak {100 * _peak(tau[:, j], stall[j]):.0f} % of stall", fontsize=9)
+        ax.set_xlabel("time (s)")

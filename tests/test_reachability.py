@@ -129,6 +129,23 @@ def test_constraints_hold_with_interior_stops():
         assert np.all(x[xmax == 0] <= 1e-12)
 
 
+def test_one_sided_rows_equal_the_two_sided_row():
+    """A row given as two one-sided copies (the other bound infinite) gives the same profile as the
+    row itself, with and without interpolation: the torque rows are one-sided."""
+    rng = np.random.default_rng(7)
+    for interpolation in (False, True):
+        for _ in range(30):
+            grid, d1, d2, amax, xmax = _random_problem(rng, stops=True)
+            m = d1.shape[1]
+            x, u, _ = solve(d1, d2, -amax, amax, xmax, np.diff(grid), interpolation=interpolation)
+            inf = np.full(m, np.inf)
+            x1, u1, _ = solve(np.hstack([d1, d1]), np.hstack([d2, d2]), np.concatenate([-amax, -inf]),
+                              np.concatenate([inf, amax]), xmax, np.diff(grid), interpolation=interpolation)
+            np.testing.assert_array_equal(np.isnan(x1), np.isnan(x))
+            ok = ~np.isnan(x)
+            np.testing.assert_allclose(x1[ok], x[ok], rtol=1e-9, atol=1e-12)
+
+
 def test_single_joint_bang_bang_is_exact():
     """One joint, q' = 1, q'' = 0: x rises at 2*amax per path unit to the midpoint, then falls."""
     grid = np.linspace(0, 1, 201)

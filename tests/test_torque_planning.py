@@ -75,8 +75,13 @@ def test_each_row_is_the_inverse_dynamics_torque_on_the_planned_motion():
     value = (a[:-1] * u[:, None] + b[:-1] * sd[:-1, None] ** 2).reshape(n, 2, f, J)
     scale = np.abs(tau).max()
     np.testing.assert_allclose(value[:, 0], tau - gravity, atol=1e-7 * scale)
-    np.testing.assert_allclose(hi[:-1].reshape(n, 2, f, J)[:, 0], tq.planned - gravity, atol=1e-9 * scale)
     sigma = np.where(d1 >= 0, 1.0, -1.0)
+    # one-sided rows: the plain row bounds the braking side (sigma tau >= -T), the driving row the other
+    plain_lo, plain_hi = (v[:-1].reshape(n, 2, f, J)[:, 0] for v in (lo, hi))
+    braking = np.where(sigma > 0, plain_lo, -plain_hi)
+    np.testing.assert_allclose(braking, -tq.planned - sigma * gravity, atol=1e-9 * scale)
+    assert np.all(np.where(sigma > 0, plain_hi, -plain_lo) == np.inf)
+    assert np.all(lo[:-1].reshape(n, 2, f, J)[:, 1] == -np.inf)
     line_slack = tq.planned - sigma * tau - tq.planned * np.abs(qd) / tq.line_speed
     row_slack = hi[:-1].reshape(n, 2, f, J)[:, 1] - value[:, 1]
     assert np.all(row_slack <= line_slack + 1e-7 * scale)

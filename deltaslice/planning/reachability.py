@@ -63,20 +63,25 @@ def _u_rows(a, b, lo, hi, i, ds, interp, n_rows, low_p, low_r, up_p, up_r):
             be = b[i + 1, j]
         l = lo[g * step, j]
         h = hi[g * step, j]
+        # an infinite bound bounds nothing: a one-sided row gives one line, not two to pair
         if al > 0.0:
-            up_p[nu] = h / al
-            up_r[nu] = -be / al
-            nu += 1
-            low_p[nl] = l / al
-            low_r[nl] = -be / al
-            nl += 1
+            if h != np.inf:
+                up_p[nu] = h / al
+                up_r[nu] = -be / al
+                nu += 1
+            if l != -np.inf:
+                low_p[nl] = l / al
+                low_r[nl] = -be / al
+                nl += 1
         elif al < 0.0:
-            up_p[nu] = l / al
-            up_r[nu] = -be / al
-            nu += 1
-            low_p[nl] = h / al
-            low_r[nl] = -be / al
-            nl += 1
+            if l != -np.inf:
+                up_p[nu] = l / al
+                up_r[nu] = -be / al
+                nu += 1
+            if h != np.inf:
+                low_p[nl] = h / al
+                low_r[nl] = -be / al
+                nl += 1
         elif be > 0.0:
             xh = min(xh, h / be)
             xl = max(xl, l / be)
@@ -284,7 +289,8 @@ def solve(a, b, lo, hi, xmax, ds, *, x_start=0.0, x_end=0.0, interpolation=True)
 
     a, b: (n+1, m) float, coefficients of u and x in each second-order row (q'_j(s_i), q''_j(s_i));
     lo, hi: (m,) the rows' bounds (lo <= 0 <= hi for a problem with a solution at rest), or
-    (n+1, m) bounds per grid point (a torque row's gravity term moves them along the path);
+    (n+1, m) bounds per grid point (a torque row's gravity term moves them along the path); -inf
+    or inf where a row is one-sided;
     xmax: (n+1,) first-order bound on x (>= 0, may be inf); ds: (n,) >= 0 stage lengths in path
     units (a zero-length stage keeps x and takes the largest u its rows allow);
     x_start, x_end: squared path speeds at the ends.

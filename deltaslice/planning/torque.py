@@ -19,7 +19,8 @@ torque limit is two more rows per joint and evaluation fraction of every stage:
   moves closer to the curve (``TORQUE_PASSES``).
 
 The driving row's lower bound ``-T - sigma C`` is implied by the plain row (the tangent term is
-never negative), and the plain row's upper bound by the driving one, so the pair is exactly the
+never negative), and the plain row's upper bound by the driving one, so the rows carry one side
+each (the other infinite: the solver pairs half as many lines) and the pair is exactly the
 two-sided limit with the linearised curve. After solving, :func:`stage_check` bounds every joint's
 use of its curve over each whole stage with the exact torque (five points per stage, both sides of
 a join from each stage's own piece, plus a second-difference bound between them), against the
@@ -78,7 +79,9 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
     """:class:`StageTorque` of a RunPath ``rp`` on grid x_grid (n+1,) at fractions frac (f,), from
     the stage derivatives dq, ddq (n, f, dof) it gave (``rp.stage_derivatives(x_grid, frac)``);
     the tool tips and joints at the same points by the path's frames and the inverse kinematics,
-    ``block`` points at a time (bounded memory on a long window)."""
+    ``block`` points at a time (bounded memory on a long window). Where frac runs from 0 to 1, a
+    stage's end is the next stage's start when both lie in one piece (the same point, q' and q''):
+    its coefficients are computed once, for the next stage, and copied."""
     kin, path, J = rp.kin, rp.path, rp.kin.n_joints
     s = np.asarray(x_grid, float) * rp.S
     ds = np.diff(s)
@@ -86,16 +89,22 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
     n, f = len(ds), len(frac)
     out = np.empty((3, n, f, J))
     flat = out.reshape(3, n * f, J)
+    shared = np.zeros((n, f), dtype=bool)  # a stage end that is its successor's start
+    if f > 1 and frac[0] == 0.0 and frac[-1] == 1.0:
+        shared[:-1, -1] = owner[:-1] == owner[1:]
+    need = ~shared.reshape(-1)
     per = max(1, block // max(f, 1))
     for a in range(0, n, per):
         b = min(a + per, n)
-        p = path.stage_frame(s[a:b], ds[a:b], frac, owner[a:b])[0]
-        q = kin.inverse(p)
         rows = slice(a * f, b * f)
-        coef = printer.torque_path_coefficients(q, np.ascontiguousarray(dq[a:b, :, :J]).reshape(-1, J),
-                                                np.ascontiguousarray(ddq[a:b, :, :J]).reshape(-1, J), p)
+        sel = need[rows]
+        p = path.stage_frame(s[a:b], ds[a:b], frac, owner[a:b])[0][sel]
+        coef = printer.torque_path_coefficients(kin.inverse(p), dq[a:b, :, :J].reshape(-1, J)[sel],
+                                                ddq[a:b, :, :J].reshape(-1, J)[sel], p)
         for k in range(3):
-            flat[k, rows] = coef[k]
+            flat[k, rows][sel] = coef[k]
+    ends = np.flatnonzero(shared[:, -1])
+    out[:, ends, -1] = out[:, ends + 1, 0]
     return StageTorque(out[0], out[1], out[2], dq[..., :J])
 
 
@@ -152,7 +161,8 @@ def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
     kk = T |q'| / w, the tangent's slope kp = kk / (2 sqrt(x0_f)), x0_f the stage's tangent point:
     one for the stage, so the linearised torque use is nearly linear in f and holding it at the
     fractions holds it between them, which sqrt(x) itself, concave, would not)
-    (sigma A + 2 f d (sigma B + kp)) u + (sigma B + kp) x_i in [-T - sigma C, T - sigma C - kk sqrt(x0_f) / 2]."""
+    (sigma A + 2 f d (sigma B + kp)) u + (sigma B + kp) x_i <= T - sigma C - kk sqrt(x0_f) / 2. Each row
+    is one-sided (the other bound infinite): the plain row keeps the braking side, sigma tau >= -T."""
     n, f, J = A.shape
     for i in range(n + 1):
         st = i if i < n else n - 1
@@ -171,13 +181,15 @@ def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
                 col = k * J + j
                 a[i, col] = (Aj + w2 * Bj) / cc
                 b[i, col] = Bj / (cc * cc)
-                lo[i, col] = -T[j] - Cj
-                hi[i, col] = T[j] - Cj
+                # one-sided (the solver pairs half as many lines): the plain row's driving side and
+                # the driving row's braking side are implied by the other row wherever x >= 0
+                lo[i, col] = -T[j] - Cj if sg > 0.0 else -np.inf
+                hi[i, col] = np.inf if sg > 0.0 else T[j] - Cj
                 col += f * J
                 bd = sg * Bj + kp
                 a[i, col] = (sg * Aj + w2 * bd) / cc
                 b[i, col] = bd / (cc * cc)
-                lo[i, col] = -T[j] - sg * Cj
+                lo[i, col] = -np.inf
                 hi[i, col] = T[j] - sg * Cj - 0.5 * kk * sq
 
 
