@@ -614,7 +614,7 @@ def _ruckig_alone(p, q0, q1):
 
     vel, acc, jerk = travel._ruckig_limits(PlanContext.of(p), 3)
     otg, inp, traj = ruckig.Ruckig(3), ruckig.InputParameter(3), ruckig.Trajectory(3)
-    bounds = travel_limits(p, q0, q1)
+    bounds = travel_limits(PlanContext.of(p), q0, q1)
     if bounds is not None:
         vel, acc = [float(v) for v in bounds[0][0]], [float(v) for v in bounds[1][0]]
         inp.synchronization = ruckig.Synchronization.Phase

@@ -158,7 +158,7 @@ def test_torque_limit_off_plans_as_without_dynamics():
     printer file without [dynamics]."""
     toolpath = star_part("delta_etitc", 1)
     off = load_printer("delta_etitc", {"planning.torque_limit": "off"})
-    assert torque_limits(off) is None and travel_limits(off, np.zeros((1, 3)), np.ones((1, 3))) is None
+    assert torque_limits(off) is None and travel_limits(PlanContext.of(off), np.zeros((1, 3)), np.ones((1, 3))) is None
     import dataclasses
 
     bare = dataclasses.replace(load_printer("delta_etitc"), dynamics=None)
@@ -173,7 +173,7 @@ def test_travel_bounds_hold_the_torque_at_their_poses():
     printer = load_printer("delta_etitc")
     kin, tq = printer.kinematics(), torque_limits(printer)
     q = kin.inverse(np.array([[0.0, 0, 3], [25, 10, 3], [-20, 30, 40]]))
-    v, a = travel_limits(printer, q[:2], q[1:])
+    v, a = travel_limits(PlanContext.of(printer), q[:2], q[1:])
     assert np.all(v > 0) and np.all(a > 0)
     signs = np.array(np.meshgrid(*[[-1, 1]] * 6)).reshape(6, -1).T  # qd signs, qdd signs
     for r in range(2):

@@ -323,9 +323,9 @@ TRAVEL_SPEED_FRACTIONS = np.linspace(0.05, 0.8, 16)  # of the line speed: the ve
 TRAVEL_LINE = np.linspace(0.0, 1.0, 9)  # fractions of the straight joint line between the ends
 
 
-def travel_limits(printer, q0, q1):
+def travel_limits(ctx, q0, q1):
     """Joint velocity and acceleration bounds for ruckig's rest-to-rest moves q0 -> q1 (k, J) joint
-    units: (velocity (k, J), acceleration (k, J)) per s and s^2, NaN rows where no bound works;
+    units, under the plan context ctx's torque and planned limits (its ``dynamics`` the model): (velocity (k, J), acceleration (k, J)) per s and s^2, NaN rows where no bound works;
     None without torque limits. At the move's poses P (its straight joint line at TRAVEL_LINE: the
     travel planner has ruckig synchronise the joints' phases, which keeps a rest-to-rest move on
     that line) and for any joint state with |qd_k| <= v_k, |qdd_k| <= a_k:
@@ -339,16 +339,16 @@ def travel_limits(printer, q0, q1):
     v = fraction x w with the fraction (TRAVEL_SPEED_FRACTIONS) that gives the move's shortest
     trapezoid; a the joints' planned accelerations times the one scale the bound allows; neither
     above the joints' own planned limits."""
-    tq = torque_limits(printer)
+    tq = ctx.torque
     if tq is None:
         return None
     q0, q1 = np.atleast_2d(np.asarray(q0, float)), np.atleast_2d(np.asarray(q1, float))
     k, J = q0.shape
-    lim = printer.planned_limits()
+    lim = ctx.planned_limits
     vj, aj = lim.velocity[:J], lim.acceleration[:J]
     poses = q0[:, None] + TRAVEL_LINE[None, :, None] * (q1 - q0)[:, None]  # (k, P, J)
     P = poses.shape[1]
-    M, G, g = _pose_dynamics(printer, poses.reshape(-1, J))
+    M, G, g = _pose_dynamics(ctx.dynamics, poses.reshape(-1, J))
     M, G, g = M.reshape(k, P, J, J), G.reshape(k, P, J, J, J), g.reshape(k, P, J)
     v = np.minimum(TRAVEL_SPEED_FRACTIONS[:, None] * tq.line_speed[None], vj[None])  # (F, J)
     Gv = np.einsum("kpjab,fa,fb->fkpj", np.abs(G), v, v)

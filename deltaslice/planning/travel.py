@@ -102,7 +102,7 @@ class _JointMoves:
         limits (:func:`.torque.travel_limits`; found here for a printer with torque limits when not
         given)."""
         if bounds is None and self.torque:
-            vel, acc = travel_limits(self.ctx.dynamics, q0, q1)
+            vel, acc = travel_limits(self.ctx, q0, q1)
             if not np.isfinite(acc).all():
                 raise NoTorqueBound(f"layer {layer}: no joint-space move from {np.round(q0, 4)} to {np.round(q1, 4)} "
                                     "within the actuators' torque (gravity takes it all at one of its poses)")
@@ -240,7 +240,7 @@ def plan_travels(ctx: PlanContext, jobs) -> list:
     # A joint-space move's tool speed follows the joints, not a feed: only the machine speed limit takes it.
     tried = np.flatnonzero(moving & ~short & np.isfinite(q[2:]).all(axis=(0, 2)) & (ctx.speed_limit == "machine"))
     # with torque limits, each move's own joint bounds (travel_limits); none: no joint-space candidate
-    bounds = travel_limits(ctx.dynamics, q[2, tried], q[3, tried]) if len(tried) and ctx.dynamics is not None else None
+    bounds = travel_limits(ctx, q[2, tried], q[3, tried]) if len(tried) else None
     for r, n in enumerate(tried):
         if bounds is not None and not np.isfinite(bounds[1][r]).all():
             continue
