@@ -346,7 +346,9 @@ def _condition_bound_kernel(q, offsets, L1, L2, out):
         out[n] = math.sqrt(f2 * a2) / abs(det)
 
 
-@njit
+# inlined into their callers (numba's own inlining): a call no longer makes and counts references to
+# the scratch array's views (a large part of the torque coefficients' time); the same bits
+@njit(inline="always")
 def _arm_geometry(p, cq, sq, offsets, L1, work):
     """Into work (7, 3, 3) scratch: the forearms d_i (rows of D), the elbows' rates e'_i and e''_i,
     g_i = d_i.e'_i, h_i = d_i.e''_i and D^-1, at the tool point p (3,) mm with cos q, sin q (3,)."""
@@ -372,7 +374,7 @@ def _arm_geometry(p, cq, sq, offsets, L1, work):
             inv[r, c] /= det
 
 
-@njit
+@njit(inline="always")
 def _arm_torques(cq, params, x, y, gravity, work, tau):
     """tau (3,) N m of :meth:`RotaryDelta.inverse_dynamics` with joint velocities x (rad/s) and
     accelerations y (rad/s^2) where :func:`_arm_geometry` filled work; gravity 1.0 or 0.0 (0: the
