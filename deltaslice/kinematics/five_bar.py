@@ -285,7 +285,7 @@ class FiveBar(Kinematics):
         return out
 
 
-@njit
+@njit(inline="always")  # inlined: a call no longer builds and counts views of its array arguments
 def _link_torques(p, q, motors, lengths, params, x, y, gravity, tau):
     """tau (3,) of :meth:`FiveBar.inverse_dynamics` (N m, N m, N) at the tool point p and joints q,
     velocities x and accelerations y (per s, per s^2); gravity 1.0 or 0.0. In the plane: the distal

@@ -208,7 +208,7 @@ def _derivatives_kernel(points, q, t, kappa, towers, tool, q1, q2):
             q2[k, i] = kappa[k, 2] + h2
 
 
-@njit
+@njit(inline="always")  # inlined: a call no longer builds and counts views of its array arguments
 def _carriage_forces(p, q, towers, tool, params, x, y, gravity, work, tau):
     """tau (3,) N of :meth:`LinearDelta.inverse_dynamics` at the tool point p (3,) mm and carriage
     heights q (3,) mm with velocities x (mm/s), accelerations y (mm/s^2); gravity 1.0 or 0.0. The
