@@ -81,31 +81,41 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
     the tool tips and joints at the same points by the path's frames and the inverse kinematics,
     ``block`` points at a time (bounded memory on a long window). Where frac runs from 0 to 1, a
     stage's end is the next stage's start when both lie in one piece (the same point, q' and q''):
-    its coefficients are computed once, for the next stage, and copied."""
-    kin, path, J = rp.kin, rp.path, rp.kin.n_joints
+    its coefficients are computed once, for the next stage, and copied; the fractions before the
+    end are computed for every stage (contiguous slices, no masks), the ends only where not shared."""
+    path, J = rp.path, rp.kin.n_joints
     s = np.asarray(x_grid, float) * rp.S
     ds = np.diff(s)
     owner = path.locate(0.5 * (s[:-1] + s[1:]))
     n, f = len(ds), len(frac)
     out = np.empty((3, n, f, J))
-    flat = out.reshape(3, n * f, J)
-    shared = np.zeros((n, f), dtype=bool)  # a stage end that is its successor's start
-    if f > 1 and frac[0] == 0.0 and frac[-1] == 1.0:
-        shared[:-1, -1] = owner[:-1] == owner[1:]
-    need = ~shared.reshape(-1)
-    per = max(1, block // max(f, 1))
+    inner = f - 1 if f > 1 and frac[0] == 0.0 and frac[-1] == 1.0 else f
+    per = max(1, block // max(inner, 1))
     for a in range(0, n, per):
         b = min(a + per, n)
-        rows = slice(a * f, b * f)
-        sel = need[rows]
-        p = path.stage_frame(s[a:b], ds[a:b], frac, owner[a:b])[0][sel]
-        coef = printer.torque_path_coefficients(kin.inverse(p), dq[a:b, :, :J].reshape(-1, J)[sel],
-                                                ddq[a:b, :, :J].reshape(-1, J)[sel], p)
+        coef = _coefficients(printer, rp, s[a:b], ds[a:b], frac[:inner], owner[a:b], dq[a:b, :inner, :J],
+                             ddq[a:b, :inner, :J])
         for k in range(3):
-            flat[k, rows][sel] = coef[k]
-    ends = np.flatnonzero(shared[:, -1])
-    out[:, ends, -1] = out[:, ends + 1, 0]
+            out[k, a:b, :inner] = coef[k].reshape(b - a, inner, J)
+    if inner < f and n:
+        shared = np.flatnonzero(owner[:-1] == owner[1:])
+        out[:, shared, -1] = out[:, shared + 1, 0]
+        alone = np.flatnonzero(np.append(owner[:-1] != owner[1:], True))
+        for a in range(0, len(alone), block):
+            idx = alone[a: a + block]
+            coef = _coefficients(printer, rp, s[idx], ds[idx], frac[-1:], owner[idx], dq[idx, -1:, :J],
+                                 ddq[idx, -1:, :J])
+            for k in range(3):
+                out[k, idx, -1] = coef[k]
     return StageTorque(out[0], out[1], out[2], dq[..., :J])
+
+
+def _coefficients(printer, rp, s, ds, frac, owner, dq, ddq):
+    """The torque coefficients (A, B, C), each (m f, J), at fractions frac (f,) of the m stages
+    starting at s (m,) mm, of lengths ds (m,), in pieces owner (m,); dq, ddq (m, f, J)."""
+    J = dq.shape[-1]
+    p = rp.path.stage_frame(s, ds, frac, owner)[0]
+    return printer.torque_path_coefficients(rp.kin.inverse(p), dq.reshape(-1, J), ddq.reshape(-1, J), p)
 
 
 def cruise_x(model: StageTorque, limits: TorqueLimits, vmax: np.ndarray, feed2: np.ndarray, mid: int
