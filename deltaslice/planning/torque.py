@@ -29,6 +29,7 @@ real stall torque and line: a stage beyond it is refined, as for the acceleratio
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,23 +127,54 @@ def cruise_x(model: StageTorque, limits: TorqueLimits, vmax: np.ndarray, feed2: 
     vmax (J,) and the stage's feed cap feed2 (n,) (squared path speed); the floor, X0_FLOOR of the
     line's own speed there ((T - sigma C) / (T |q'| / w)), keeps a tangent point off zero. From the
     stage's own values only: a batch of runs gets the tangents each run gets alone."""
-    B, C, dq = (v[:, mid] for v in (model.B, model.C, model.dq))
-    sigma = np.where(dq >= 0, 1.0, -1.0)
-    T, w = limits.planned, limits.line_speed
-    k = T * np.abs(dq) / w
-    qa, qc = sigma * B, sigma * C - T  # qa y^2 + k y + qc <= 0, y = sqrt(x); qc < 0 where gravity is below stall
-    with np.errstate(divide="ignore", invalid="ignore"):
-        disc = np.sqrt(np.maximum(k * k - 4 * qa * qc, 0.0))
-        quad = (-k + disc) / (2 * qa)
-        lin = -qc / k
-        y = np.where(qa > 1e-12 * (k + 1.0), quad, lin)
-        y = np.where(np.isfinite(y) & (y > 0), y, np.inf)
-        line = np.min(np.where(np.isfinite(lin) & (lin > 0), lin, np.inf), axis=1) ** 2
-        vcap = np.min(vmax / np.abs(dq), axis=1) ** 2
-    # no joint moves along the stage (k = 0 for all): no tangent term, any positive point serves
-    floor = X0_FLOOR * np.where(np.isfinite(line), line, 1.0)
-    x = np.minimum(np.minimum(np.min(y, axis=1) ** 2, vcap), feed2)
-    return np.maximum(np.where(np.isfinite(x), x, 1.0), floor), floor
+    n, J = model.B.shape[0], model.B.shape[2]
+    x, floor = np.empty(n), np.empty(n)
+    _cruise_kernel(model.B, model.C, model.dq, mid, np.asarray(limits.planned, float),
+                   np.asarray(limits.line_speed, float), np.asarray(vmax, float)[:J],
+                   np.ascontiguousarray(feed2, dtype=float), x, floor)
+    return x, floor
+
+
+@njit
+def _cruise_kernel(B, C, dq, mid, T, w, vmax, feed2, x, floor):
+    """:func:`cruise_x` in one pass (numpy's NaN rules: a NaN q' makes the velocity cap NaN and the
+    tangent point 1). Per joint at the stage's middle, sigma = sign q', kk = T |q'| / w:
+    qa y^2 + kk y + qc <= 0 with qa = sigma B, qc = sigma C - T; y its positive root (the linear
+    one, -qc / kk, where qa is about 0), infinite where none."""
+    n, _f, J = B.shape
+    for i in range(n):
+        ymin = np.inf
+        line = np.inf
+        vcap = np.inf
+        for j in range(J):
+            qp = dq[i, mid, j]
+            sg = 1.0 if qp >= 0 else -1.0
+            k = T[j] * abs(qp) / w[j]
+            qa, qc = sg * B[i, mid, j], sg * C[i, mid, j] - T[j]
+            r = k * k - 4 * qa * qc
+            disc = math.sqrt(r if r != r or r > 0.0 else 0.0)
+            lin = -qc / k  # numpy's error model: inf or NaN where kk = 0
+            if qa > 1e-12 * (k + 1.0):
+                y = (-k + disc) / (2 * qa)
+            else:
+                y = lin
+            if math.isfinite(y) and y > 0:
+                ymin = min(ymin, y)
+            if math.isfinite(lin) and lin > 0:
+                line = min(line, lin)
+            c = vmax[j] / abs(qp)
+            if vcap == vcap:
+                vcap = c if c != c else min(vcap, c)
+        line = line * line
+        # no joint moves along the stage (kk = 0 for all): no tangent term, any positive point serves
+        fl = X0_FLOOR * (line if math.isfinite(line) else 1.0)
+        v = ymin * ymin
+        vc = vcap * vcap
+        v = vc if vc != vc else min(v, vc)
+        v = feed2[i] if feed2[i] != feed2[i] else (v if v != v else min(v, feed2[i]))
+        v = v if math.isfinite(v) else 1.0
+        x[i] = max(v, fl)
+        floor[i] = fl
 
 
 def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0: np.ndarray, eval_at,
