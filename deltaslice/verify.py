@@ -526,11 +526,13 @@ def _torque_rows(q, t, rate, printer, rows, notes):
         k = int(where[j])
         unit = "N m" if joint.kind == "revolute" else "N"
         name = f"q{j + 1}" if joint.name == f"q{j + 1}" else f"q{j + 1}/{joint.name}"
-        rows.append(CheckRow("torque (model)", name, unit, float(peak[j]), act.stall[j], 100.0 * peak[j] / act.stall[j],
-                             float(t[k]) if k >= 0 else 0.0, k, None, True, informational=True))
+        rows.append(CheckRow(check="torque (model)", channel=name, unit=unit, peak=float(peak[j]), limit=act.stall[j],
+                             percent=100.0 * peak[j] / act.stall[j], time=float(t[k]) if k >= 0 else 0.0, index=k,
+                             place=None, ok=True, informational=True))
     notes.append(f"torque (model): [dynamics] read back with accelerations averaged over {1e3 * ACCELERATION_WINDOW:g} ms; "
                  f"an actuator over its stall torque on {100 * over_stall / len(q):.1f} % of the samples, past its "
-                 f"speed-torque curve on {100 * over_line / len(q):.1f} %; reported, not yet planned to (issue 56)")
+                 f"speed-torque curve on {100 * over_line / len(q):.1f} %; reported, not failed (the planner keeps to "
+                 "them where [planning] torque_limit is on, the default)")
 
 
 def _with_places(rows, samples, printer):
