@@ -8,10 +8,11 @@ the tool channel's acceleration ratio (the filament's; a laser's power has no su
 with ``--dense``, also how many stages' stage-wise bound is below their evaluation at 257 points
 (tests/test_planning_limits.py's ``stages_below_dense``: it should be none; slower). The jerk column:
 every joint's largest third difference over 5 ms (``Limits`` ``third_differences``) over its jerk_max;
-``--jerk-on`` plans with ``[planning] jerk_limit = "on"`` (off by default; the print times to compare).
+``--jerk-on`` plans with ``[planning] jerk_limit = "on"`` (off by default; the print times to compare);
+``--workers N`` plans with N workers (2 by default; 1 to leave a shared machine's other core alone).
 A part too large for a printer is tried at half and a quarter of its size.
 
-    python benchmarks/bench_limits_parts.py [--dense] [--jerk-on] [--parts A,B] [PRINTER ...]
+    python benchmarks/bench_limits_parts.py [--dense] [--jerk-on] [--workers N] [--parts A,B] [PRINTER ...]
 """
 
 from __future__ import annotations
@@ -61,7 +62,11 @@ def main():
     args = sys.argv[1:]
     dense = "--dense" in args
     jerk_on = "--jerk-on" in args
-    parts = PARTS
+    parts, workers = PARTS, 2
+    if "--workers" in args:
+        at = args.index("--workers")
+        workers = int(args[at + 1])
+        del args[at : at + 2]
     if "--parts" in args:
         at = args.index("--parts")
         parts = tuple(args[at + 1].split(","))
@@ -75,7 +80,7 @@ def main():
         for part, scale, tp in toolpaths(printer, name, parts):
             for mode in ("feed", "machine"):
                 t0 = time.perf_counter()
-                traj = plan(tp, printer, speed_limit=mode, workers=2)
+                traj = plan(tp, printer, speed_limit=mode, workers=workers)
                 sv, sa = traj.stage_maxima()
                 samples = traj.samples()
                 rv, ra = peak_ratios(printer, samples, RATE)

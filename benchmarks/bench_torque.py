@@ -12,6 +12,7 @@ and the velocity (Coriolis, centripetal) terms alone take at most, and where the
     python benchmarks/bench_torque.py                       # delta_etitc: cube feed and machine, star machine
     python benchmarks/bench_torque.py --printer delta_uady --cases cube:feed
     python benchmarks/bench_torque.py --set planning.torque_limit=off          # the plans without torque limits
+    python benchmarks/bench_torque.py --printer delta_ucb --cases ../shared/parts/featuretype.STL@20:feed
 """
 
 from __future__ import annotations
@@ -46,11 +47,12 @@ def star_prism(path: Path) -> Path:
     return path
 
 
-def compile_csv(part: Path, printer: str, mode: str, out: Path, workers: int, overrides=()) -> Path:
+def compile_csv(part: Path, printer: str, mode: str, out: Path, workers: int, overrides=(), scale: float = 1.0) -> Path:
     if not out.exists():
         sets = [arg for o in overrides for arg in ("--set", o)]
         run = subprocess.run([sys.executable, "-m", "deltaslice", "compile", str(part), "--printer", printer,
-                              "--speed-limit", mode, "-o", str(out), "--workers", str(workers), *sets], cwd=ROOT,
+                              "--speed-limit", mode, "-o", str(out), "--workers", str(workers), "--scale", f"{scale:g}",
+                              *sets], cwd=ROOT,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         if run.returncode:
             raise SystemExit(f"compile of {part.name} ({mode}) failed:\n{run.stderr[-2000:]}")
@@ -105,7 +107,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--printer", default="delta_etitc")
     ap.add_argument("--cases", default="cube:feed,cube:machine,star:machine",
-                    help="comma-separated part:mode, part cube, star or a mesh's path, mode feed or machine")
+                    help="comma-separated part:mode, part cube, star or a mesh's path (PATH@SCALE to scale it), "
+                         "mode feed or machine")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--keep", type=Path, default=None, help="directory to keep (and reuse) the compiled CSVs in")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -125,18 +128,22 @@ def main(argv=None):
               "| of driving joint samples | gravity alone (x stall) | velocity terms alone (x stall) | peak at (x, y, z mm; joints deg or mm) |")
         print("|---|---|---|---|---|---|---|---|---|")
         for case in args.cases.split(","):
-            part, mode = case.split(":")
+            part, mode = case.rsplit(":", 1)
+            part, _, scale = part.partition("@")
+            scale = float(scale or 1.0)
             if part == "star" and part not in parts:
                 parts["star"] = star_prism(work / "star10.stl")
             mesh = parts.get(part) or Path(part)
             tag = "".join(f"_{o.replace('=', '-')}" for o in args.overrides)
-            csv = compile_csv(mesh, args.printer, mode, work / f"{printer.name}_{mesh.stem}_{mode}{tag}.csv", args.workers,
-                              args.overrides)
+            scaled = f"x{scale:g}" if scale != 1.0 else ""
+            csv = compile_csv(mesh, args.printer, mode, work / f"{printer.name}_{mesh.stem}{scaled}_{mode}{tag}.csv",
+                              args.workers, args.overrides, scale)
             rate, q = read_csv(csv, printer.n_joints)
             r = read_back(printer, q, rate)
             where = ", ".join(f"{v:.1f}" for v in r["where"])
             angles = ", ".join(f"{v:.0f}" for v in r["joints"])
-            print(f"| {mesh.stem if part not in parts else part}, {mode} | {r['duration']:.1f} | {r['peak']:.2f} ({r['peak_ratio']:.2f}x) "
+            name = (mesh.stem if part not in parts else part) + (f" x{scale:g}" if scaled else "")
+            print(f"| {name}, {mode} | {r['duration']:.1f} | {r['peak']:.2f} ({r['peak_ratio']:.2f}x) "
                   f"| {100 * r['over_stall']:.1f} % | {100 * r['over_line']:.1f} % | {100 * r['over_line_driving']:.1f} % "
                   f"| {r['gravity']:.2f} | {r['velocity_terms']:.3f} | {where}; {angles} |", flush=True)
             if r["nan"]:
