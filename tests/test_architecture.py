@@ -283,3 +283,17 @@ def test_slicing_a_mesh_imports_neither_scipy_spatial_nor_sparse(tmp_path):
         "print('ok')\n"
     )
     _in_a_fresh_interpreter(code, str(tmp_path / "wall.stl"))
+
+
+def test_the_planner_loads_no_linear_programming_until_a_jerk_limited_run():
+    """The planner's modules (which a compile loads while its slicing workers slice) import neither
+    scipy.optimize nor scipy.sparse: only the jerk limits' linear programs use them, and importing
+    them at the top of planning/jerk.py cost every compile 1-2 CPU-s, jerk limits on or not."""
+    code = (
+        "import sys\n"
+        "import deltaslice.planning, deltaslice.planning.jerk, deltaslice.planning.travel\n"
+        "bad = sorted(m for m in sys.modules if m.startswith(('scipy.optimize', 'scipy.sparse')))\n"
+        "assert not bad, bad\n"
+        "print('ok')\n"
+    )
+    _in_a_fresh_interpreter(code)

@@ -407,6 +407,34 @@ def test_firmware_baseline_violates_where_corners_are_sharp():
     assert ours.duration < safe.duration
 
 
+def test_the_safe_planners_peak_checks_sampled_by_workers_keep_the_plan(monkeypatch):
+    """plan_safe's peak checks sampled by worker processes (as a compile's trapezoid planner has
+    them) see the samples sampled here: the same peaks, so the same scale and the same plan."""
+    from deltaslice.planning import trajectory as trajectory_module
+    from deltaslice.planning.trapezoid import _monitor
+
+    monkeypatch.setattr(trajectory_module, "PARALLEL_BLOCKS", 1)  # this 14 s print sampled in the workers
+    forks = []
+    forked_blocks = trajectory_module.Trajectory._forked_blocks
+
+    def counted(self, *args, **kwargs):
+        forks.append(1)
+        return forked_blocks(self, *args, **kwargs)
+
+    monkeypatch.setattr(trajectory_module.Trajectory, "_forked_blocks", counted)
+    printer = load_printer("printers/delta_uady.toml")  # slowed: a bisection of several peak checks
+    toolpath = layered_part(0.25, 0.2, 1, 40)
+    here = plan(toolpath, printer, planner="trapezoid", workers=1)
+    assert not forks
+    forked = plan(toolpath, printer, planner="trapezoid", workers=2)
+    assert len(forks) > 2
+    assert here.info["scale"] == forked.info["scale"] < 1 and here.duration == forked.duration
+    a, b = _monitor(here, printer.planning.output_rate), _monitor(here, printer.planning.output_rate, workers=2)
+    np.testing.assert_array_equal(a.peak_v, b.peak_v)
+    np.testing.assert_array_equal(a.peak_a, b.peak_a)
+    assert (a.peak_tool_v, a.violating_samples, a.events) == (b.peak_tool_v, b.violating_samples, b.events)
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=3, max_size=12),

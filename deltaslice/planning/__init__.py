@@ -146,7 +146,7 @@ def plan(toolpath: Toolpath, printer, *, speed_limit="feed", planner="toppra", w
     ctx = PlanContext.of(printer, speed_limit, solver)
     source = _Whole(ctx, printer, toolpath)
     if planner == "trapezoid":
-        return _plan_trapezoid(ctx, printer, source, progress)
+        return _plan_trapezoid(ctx, printer, source, progress, resolve_workers(workers, "plan"))
     if spool is None:
         spool = len(source.toolpath) > SPOOL_MOVES
     progress = _counting_dropped(progress, len(toolpath) - len(source.toolpath), len(toolpath))
@@ -295,13 +295,15 @@ class _Streamed:
         return np.concatenate([*self.event_rows, end_events(self.ctx.tool, self.moves)]), self.moves
 
 
-def _plan_trapezoid(ctx: PlanContext, printer, source: _Whole, progress) -> Trajectory:
-    """The conventional planner, made safe (:func:`.trapezoid.plan_safe`), between the rest links."""
+def _plan_trapezoid(ctx: PlanContext, printer, source: _Whole, progress, workers: int) -> Trajectory:
+    """The conventional planner, made safe (:func:`.trapezoid.plan_safe`, its peak checks sampled by
+    ``workers`` processes), between the rest links."""
     from .trapezoid import _moves, plan_safe
 
     toolpath = source.toolpath
     head, tail = source.rest_links()
-    traj = plan_safe(toolpath, printer, speed_limit=ctx.speed_limit, progress=progress, head=head, tail=tail)
+    traj = plan_safe(toolpath, printer, speed_limit=ctx.speed_limit, progress=progress, head=head, tail=tail,
+                     workers=workers)
     # one trapezoid per kept move: move m starts at t0[number of kept moves before m]
     kept_before = np.concatenate([[0], np.cumsum(_moves(toolpath)[-1])])
     t0 = traj.pieces[len(head)].t0

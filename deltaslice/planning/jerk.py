@@ -38,8 +38,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from scipy import sparse
-from scipy.optimize import linprog
 
 from ..machine.limits import JERK_SPACING
 from .pieces import RunPiece
@@ -214,6 +212,10 @@ def solve_grid(x, env, dq, ddq, amax, jerk, start=None, passes: int = PASSES) ->
     env (N+1,) upper bounds, dq, ddq (N, 2, dof) derivatives at both ends of every stage, amax,
     jerk (dof,) planned limits (jerk NaN: none); start (N+1,): a profile to start from (the last
     grid's solution on a refined grid), else env."""
+    # here, not at the top: scipy.optimize's import costs every compile a CPU-second, jerk limits or not
+    from scipy import sparse
+    from scipy.optimize import linprog
+
     N, dof = dq.shape[0], dq.shape[2]
     top = float(env.max())
     d = np.diff(x)

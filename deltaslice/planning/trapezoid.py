@@ -108,21 +108,26 @@ def plan_firmware(toolpath, printer, *, speed_limit="feed", accel=FIRMWARE_ACCEL
     return Trajectory(printer, [piece], planner="trapezoid-firmware", speed_limit=speed_limit, info=info)
 
 
-def _monitor(traj: Trajectory, rate: float) -> LimitMonitor:
+def _monitor(traj: Trajectory, rate: float, workers: int = 1) -> LimitMonitor:
+    """The monitor of ``traj`` sampled at ``rate`` by ``workers`` processes (the same samples, and
+    the same peaks, for any number: the monitor copies what it keeps of a block)."""
     ctx = PlanContext.of(traj.printer)
-    return LimitMonitor(ctx.machine_limits, ctx.tool, rate).consume(traj.iter_samples(rate))
+    blocks = traj.iter_samples(rate, workers=workers, transient=True) if workers > 1 else traj.iter_samples(rate)
+    return LimitMonitor(ctx.machine_limits, ctx.tool, rate).consume(blocks)
 
 
-def peak_ratio(traj: Trajectory, rate: float) -> float:
-    """Largest sampled |joint velocity| / limit or |joint acceleration| / limit."""
-    return _monitor(traj, rate).worst
+def peak_ratio(traj: Trajectory, rate: float, workers: int = 1) -> float:
+    """Largest sampled |joint velocity| / limit or |joint acceleration| / limit (sampled by
+    ``workers`` processes)."""
+    return _monitor(traj, rate, workers).worst
 
 
-def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iterations=14, head=(), tail=()):
+def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iterations=14, head=(), tail=(), workers=1):
     """The conventional planner with the largest uniform limits that keep every joint
     within its limits at the output rate (bisection on one scale k). head, tail: pieces
     before and after the toolpath (the moves from and to rest); they are part of what is
-    sampled, so the samples checked are the samples written."""
+    sampled, so the samples checked are the samples written. workers: processes sampling each
+    candidate for its peak check (the same plan for any number)."""
     ctx = PlanContext.of(printer, speed_limit)
     rate = ctx.output_rate
     lo, hi = 0.0, 1.0
@@ -133,11 +138,11 @@ def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iteration
         info = {"accel": FIRMWARE_ACCEL * k, "junction_deviation": jd0 * k, "vmax": FIRMWARE_VMAX * np.sqrt(k), "scale": k}
         return Trajectory(printer, [*head, piece, *tail], planner="trapezoid-safe", speed_limit=speed_limit, info=info)
 
-    if peak_ratio(make(1.0), rate) <= SAFE_TOLERANCE:
+    if peak_ratio(make(1.0), rate, workers) <= SAFE_TOLERANCE:
         return make(1.0)
     for it in range(iterations):
         mid = 0.5 * (lo + hi) if lo > 0 else hi / 4
-        if peak_ratio(make(mid), rate) <= SAFE_TOLERANCE:
+        if peak_ratio(make(mid), rate, workers) <= SAFE_TOLERANCE:
             lo = mid
         else:
             hi = mid
@@ -145,7 +150,7 @@ def plan_safe(toolpath, printer, *, speed_limit="feed", progress=None, iteration
             progress(it + 1, iterations)
     if lo == 0.0:
         lo = hi / 4
-        while peak_ratio(make(lo), rate) > SAFE_TOLERANCE and lo > SMALLEST_SCALE:
+        while peak_ratio(make(lo), rate, workers) > SAFE_TOLERANCE and lo > SMALLEST_SCALE:
             lo /= 4
     return make(lo)
 
