@@ -107,7 +107,8 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
                                  ddq[idx, -1:, :J])
             for k in range(3):
                 out[k, idx, -1] = coef[k]
-    return StageTorque(out[0], out[1], out[2], dq[..., :J])
+    # q' contiguous like the others: the kernels reading the model compile for one layout
+    return StageTorque(out[0], out[1], out[2], np.ascontiguousarray(dq[..., :J]))
 
 
 @njit
