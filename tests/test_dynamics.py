@@ -382,6 +382,26 @@ def test_the_compiled_torque_coefficients_are_the_reference(name):
         assert np.abs(a - b).max() < 1e-9 * np.abs(b).max()
 
 
+def test_the_rotary_coefficients_are_nan_where_the_geometry_is():
+    """Where the forearms' matrix is singular (q = 0 with the tool at the shoulders' height: every
+    forearm level), overflows or is not finite, A, B and C are all NaN, as the full form's 0 x inf
+    makes them: the compiled kernel leaves the zero velocity terms of A and C out only where the
+    geometry is finite, and such a point must not come out as finite or infinite torques."""
+    p = printer("delta_etitc")
+    kin, m = p.kinematics(), p.dynamics.masses
+    z = -kin._offsets[0, 2]
+    points = np.array([[0.0, 0.0, z], [3.0, -2.0, z], [1e200, 0.0, 1e200], [np.nan, 0.0, 10.0], [5.0, 5.0, 10.0]])
+    q = np.zeros((5, 3))
+    q[3:] = kin.inverse(points[3:])
+    q[4, 1] = np.nan
+    rng = np.random.default_rng(3)
+    dq, ddq = rng.normal(size=q.shape), rng.normal(size=q.shape)
+    for coef in kin.torque_coefficients(m, points, q, dq, ddq):
+        assert np.all(np.isnan(coef))
+    finite = kin.inverse(np.array([[5.0, 5.0, 10.0]]))
+    assert np.all(np.isfinite(np.concatenate(kin.torque_coefficients(m, points[4:], finite, dq[4:], ddq[4:]))))
+
+
 @pytest.mark.parametrize("name", ["delta_etitc", "delta_ucb", "fivebar_atlas", "linear_kossel"])
 def test_every_printer_gives_its_path_coefficients(name):
     """Printer.torque_path_coefficients (the family's torque_coefficients: compiled for the rotary

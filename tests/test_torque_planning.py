@@ -92,6 +92,26 @@ def test_each_row_is_the_inverse_dynamics_torque_on_the_planned_motion():
     np.testing.assert_allclose(exact[moving], line_slack[:, 1][moving], atol=1e-6 * scale)
 
 
+def test_a_later_pass_rewrites_every_row_the_tangent_moves():
+    """solve_with_torque's later passes write only the driving rows (``driving_only``) over the last
+    pass's arrays: that gives, value for value, what a whole new call with the new tangent points
+    gives (the plain rows do not depend on them; a row left from the last pass would differ)."""
+    printer, piece = _planned_run()
+    tq = torque_limits(printer)
+    rp = RunPath(printer.kinematics(), piece.path, None, piece.layer)
+    x, sd = piece.x, piece.xd
+    dq, ddq = rp.stage_derivatives(x, CHECK)
+    model = stage_torque(printer, rp, x, CHECK, dq, ddq)
+    first = 0.5 * (sd[:-1] ** 2 + sd[1:] ** 2) * 1.7 + 1e-3
+    second = 0.5 * (sd[:-1] ** 2 + sd[1:] ** 2) + 1e-6
+    whole = torque_rows(model, tq, x, second, EVAL_IN_CHECK, EVAL)
+    rows = torque_rows(model, tq, x, first, EVAL_IN_CHECK, EVAL)
+    assert not np.array_equal(rows[3], whole[3]) and not np.array_equal(rows[0], whole[0])
+    torque_rows(model, tq, x, second, EVAL_IN_CHECK, EVAL, out=rows, driving_only=True)
+    for got, want in zip(rows, whole):
+        np.testing.assert_array_equal(got, want)
+
+
 def test_the_stage_check_is_above_a_dense_evaluation():
     """The stage-wise bound (five points and a second-difference allowance) is at least the torque use
     at 129 points of every stage of a planned run, with the torques from inverse_dynamics."""

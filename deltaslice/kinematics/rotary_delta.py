@@ -375,19 +375,24 @@ def _arm_geometry(p, cq, sq, offsets, L1, work):
 
 
 @njit(inline="always")
-def _arm_torques(cq, params, x, y, gravity, work, tau):
+def _arm_torques(cq, params, x, y, gravity, moving, work, tau):
     """tau (3,) N m of :meth:`RotaryDelta.inverse_dynamics` with joint velocities x (rad/s) and
     accelerations y (rad/s^2) where :func:`_arm_geometry` filled work; gravity 1.0 or 0.0 (0: the
     torques' velocity and acceleration part alone). The platform's acceleration solves
     D a = g y + h x^2 - |v - e' x|^2, v = D^-1 (g x); its force goes to the joints through
-    J^T = diag(g) D^-T."""
+    J^T = diag(g) D^-T. moving False: x is taken as zero and its terms, exact zeros where the
+    geometry is finite (:func:`_finite_geometry`), are left out (the same bits, to a zero's sign)."""
     e1, e2, inv, fe = work[1], work[2], work[3], work[4]
     g, h, v, rhs, ap, fp = work[5, 0], work[5, 1], work[5, 2], work[6, 0], work[6, 1], work[6, 2]
-    for r in range(3):
-        v[r] = inv[r, 0] * g[0] * x[0] + inv[r, 1] * g[1] * x[1] + inv[r, 2] * g[2] * x[2]
-    for i in range(3):
-        rx, ry, rz = v[0] - e1[i, 0] * x[i], v[1] - e1[i, 1] * x[i], v[2] - e1[i, 2] * x[i]
-        rhs[i] = g[i] * y[i] + h[i] * x[i] * x[i] - (rx * rx + ry * ry + rz * rz)
+    if moving:
+        for r in range(3):
+            v[r] = inv[r, 0] * g[0] * x[0] + inv[r, 1] * g[1] * x[1] + inv[r, 2] * g[2] * x[2]
+        for i in range(3):
+            rx, ry, rz = v[0] - e1[i, 0] * x[i], v[1] - e1[i, 1] * x[i], v[2] - e1[i, 2] * x[i]
+            rhs[i] = g[i] * y[i] + h[i] * x[i] * x[i] - (rx * rx + ry * ry + rz * rz)
+    else:
+        for i in range(3):
+            rhs[i] = g[i] * y[i]
     for r in range(3):
         ap[r] = inv[r, 0] * rhs[0] + inv[r, 1] * rhs[1] + inv[r, 2] * rhs[2]
     m_p, m_e, rod, inertia, arm_moment, grav = params[0], params[1], params[2], params[3], params[4], params[5]
@@ -396,7 +401,7 @@ def _arm_torques(cq, params, x, y, gravity, work, tau):
         fp[c] = (m_p + rod / 2) * (ap[c] * MM + (lift if c == 2 else 0.0))
     for i in range(3):
         for c in range(3):
-            ae = e1[i, c] * y[i] + e2[i, c] * x[i] * x[i]
+            ae = e1[i, c] * y[i] + e2[i, c] * x[i] * x[i] if moving else e1[i, c] * y[i]
             up = lift if c == 2 else 0.0
             fmid = (2 * rod / 3) * (0.5 * (ae + ap[c]) * MM + up)
             fp[c] += 0.5 * fmid
@@ -420,9 +425,27 @@ def _torque_coefficients_kernel(points, q, dq, ddq, offsets, L1, params, out):
         for i in range(3):
             cq[i], sq[i] = math.cos(q[n, i]), math.sin(q[n, i])
         _arm_geometry(points[n], cq, sq, offsets, L1, work)
-        _arm_torques(cq, params, zero, dq[n], 0.0, work, out[0, n])
-        _arm_torques(cq, params, dq[n], ddq[n], 0.0, work, out[1, n])
-        _arm_torques(cq, params, zero, zero, 1.0, work, out[2, n])
+        # A and C at rest: their velocity terms are exact zeros where the geometry is finite and
+        # are left out; elsewhere the full form's 0 x inf makes all six NaN, as here
+        _arm_torques(cq, params, zero, dq[n], 0.0, False, work, out[0, n])
+        _arm_torques(cq, params, dq[n], ddq[n], 0.0, True, work, out[1, n])
+        _arm_torques(cq, params, zero, zero, 1.0, False, work, out[2, n])
+        if not _finite_geometry(cq, work):
+            for j in range(3):
+                out[0, n, j] = np.nan
+                out[2, n, j] = np.nan
+
+
+@njit(inline="always")
+def _finite_geometry(cq, work):
+    """Whether cos q (3,) and what :func:`_arm_geometry` put in work (D^-1, g, h) are all finite
+    (a value times zero is zero then, NaN otherwise). sin q enters D, so D^-1, alone."""
+    z = 0.0
+    for i in range(3):
+        z += cq[i] * 0.0 + work[5, 0, i] * 0.0 + work[5, 1, i] * 0.0
+        for k in range(3):
+            z += work[3, i, k] * 0.0
+    return z == 0.0
 
 
 @njit

@@ -41,24 +41,25 @@ class StageAccelerationConstraint:
         self.frac = np.asarray(frac, dtype=float)
         self.stage = stage
 
-    def rows(self, path, gridpoints, unit: np.ndarray | None = None, last_once: bool = False):
+    def rows(self, path, gridpoints, unit: np.ndarray | None = None, last_once: bool = False, extra: int = 0):
         """The rows' u and x coefficients a, b (n+1, f * dof), each bounded by +-amax; with
         ``unit`` (n+1,), each row in other units of the path parameter (x' = c x, c = unit[i]):
         a / c and b / c^2 (the compiled solver's rows for moves that meet at rest, _speeds).
         last_once: the last channel's rows at the first fraction only (f * dof - f + 1 columns, in
         the order of :meth:`channels`): the filament's, which are the same at every fraction
-        (q' its piece's rate, q'' = 0: RunPath.stage_derivatives), so the others repeat them."""
+        (q' its piece's rate, q'' = 0: RunPath.stage_derivatives), so the others repeat them.
+        extra: that many more columns, left unset, after them (room for the torque rows: no copy)."""
         dq, ddq = self.stage if self.stage is not None else path.stage_derivatives(gridpoints, self.frac)
         d = np.diff(gridpoints)
         n, f, dof = dq.shape
         ch = self.channels(last_once)
         c = np.ones(n + 1) if unit is None else np.asarray(unit, dtype=float)  # x / 1.0 is x, bit for bit
-        a = np.empty((n + 1, len(ch)))
-        b = np.empty((n + 1, len(ch)))
+        a = np.empty((n + 1, len(ch) + extra))
+        b = np.empty((n + 1, len(ch) + extra))
         _rows_kernel(dq, ddq, self.frac, d, c, last_once, a, b)
         # The last grid point has no stage ahead: its own (end) derivatives, no u-term.
-        a[-1] = dq[-1, -1][ch] / c[-1]
-        b[-1] = ddq[-1, -1][ch] / (c[-1] * c[-1])
+        a[-1, : len(ch)] = dq[-1, -1][ch] / c[-1]
+        b[-1, : len(ch)] = ddq[-1, -1][ch] / (c[-1] * c[-1])
         return a, b
 
     def channels(self, last_once: bool = False) -> np.ndarray:

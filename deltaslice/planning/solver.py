@@ -20,7 +20,7 @@ from .runpath import RunPath, RunSpec, _path_inputs, _PathInputs, _Polyline
 from .stages import CHECK_TOLERANCE, SHORT_FRACTIONS, grid, stage_maxima
 from .context import PlanContext
 from .tolerances import ARC_SIDE, SAME_SPEED
-from .torque import cruise_x, solve_with_torque, stage_check, stage_torque
+from .torque import cruise_x, solve_with_torque, stage_check, stage_torque, torque_columns
 
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
@@ -101,7 +101,8 @@ def _solve_path(ctx: PlanContext, layer: int, inputs: _PathInputs, v_start: floa
             StageAccelerationConstraint(amax, EVAL, (dq_st, ddq_st)),
         ]
         unit = None if units is None else S / units[0][path.locate(s_grid)]
-        rows = _fast_rows(constraints, rp, x_grid, amax, unit) if ctx.solver == "fast" else None
+        extra = 0 if tq is None else torque_columns(EVAL, ctx.n_joints)
+        rows = _fast_rows(constraints, rp, x_grid, amax, unit, extra) if ctx.solver == "fast" else None
         model = x0 = None
         if tq is None:
             sd, top = _speeds(constraints, rp, x_grid, rows, v_start / S, unit)
@@ -237,14 +238,15 @@ def _active_kernel(dq, ddq, xdd, sd, cap2, amax, out):
         out[i] = on or top >= ACTIVE
 
 
-def _fast_rows(constraints, rp, x_grid, amax, unit=None):
+def _fast_rows(constraints, rp, x_grid, amax, unit=None, extra=0):
     """What the compiled solver takes, computed once per grid: (a, b, bound, cap2), the
     acceleration rows a u + b x in [-bound, bound] and the bound on x_dot^2 (see _speeds); with
-    ``unit`` (see _speeds) the rows in each move's own units, cap2 in the path's."""
+    ``unit`` (see _speeds) the rows in each move's own units, cap2 in the path's. extra: a and b
+    that many columns wider, unset (the torque rows': :func:`.torque.solve_with_torque`)."""
     # The filament's rows, the same at every fraction, once: the solver's result is the same
     # (identical bounds), its pairing of bounds much cheaper (identical lines all survive pruning).
     once = rp.e_ratio is not None
-    a, b = constraints[1].rows(rp, x_grid, unit, once)
+    a, b = constraints[1].rows(rp, x_grid, unit, once, extra)
     return a, b, amax[constraints[1].channels(once)], constraints[0].cap2(rp, x_grid)
 
 

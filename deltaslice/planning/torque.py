@@ -99,8 +99,7 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
         for k in range(3):
             out[k, a:b, :inner] = coef[k].reshape(b - a, inner, J)
     if inner < f and n:
-        shared = np.flatnonzero(owner[:-1] == owner[1:])
-        out[:, shared, -1] = out[:, shared + 1, 0]
+        _share_ends(out, owner)
         alone = np.flatnonzero(np.append(owner[:-1] != owner[1:], True))
         for a in range(0, len(alone), block):
             idx = alone[a: a + block]
@@ -108,7 +107,20 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
                                  ddq[idx, -1:, :J])
             for k in range(3):
                 out[k, idx, -1] = coef[k]
-    return StageTorque(out[0], out[1], out[2], dq[..., :J])
+    # q' contiguous like the others: the kernels reading the model compile for one layout
+    return StageTorque(out[0], out[1], out[2], np.ascontiguousarray(dq[..., :J]))
+
+
+@njit
+def _share_ends(out, owner):
+    """out (3, n, f, J): each stage's last fraction from the next stage's first where both lie in
+    one piece (owner (n,)), in one pass (numpy's fancy indexing copied through temporaries)."""
+    _k, n, f, J = out.shape
+    for i in range(n - 1):
+        if owner[i] == owner[i + 1]:
+            for k in range(3):
+                for j in range(J):
+                    out[k, i, f - 1, j] = out[k, i + 1, 0, j]
 
 
 def _coefficients(printer, rp, s, ds, frac, owner, dq, ddq):
@@ -178,34 +190,39 @@ def _cruise_kernel(B, C, dq, mid, T, w, vmax, feed2, x, floor):
 
 
 def torque_rows(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, x0: np.ndarray, eval_at,
-                frac: np.ndarray, unit: np.ndarray | None = None, out=None):
+                frac: np.ndarray, unit: np.ndarray | None = None, out=None, driving_only: bool = False):
     """The torque rows of every grid point, in the compiled solver's collocation form (stage i's rows
     in its start's (u, x_i)): (a, b, lo, hi), each (n+1, 2 f J), at the fractions frac (f,) (the
     model's fractions eval_at: a slice or indices), plain then driving rows, fraction-major.
     x0: (n,) each stage's tangent point (> 0); the last grid point's rows take the last stage's. unit: as StageAccelerationConstraint.rows (a / c, b / c^2; bounds unchanged). The last
     grid point has no stage ahead: its rows are the last stage's end's with no u term of its own
     (the solver never uses them). out: (a, b, lo, hi) arrays (n+1, 2 f J) to write them into
-    (views of wider ones: a solve's full rows), returned."""
-    A, B, C, dq = (np.ascontiguousarray(v[:, eval_at]) for v in (model.A, model.B, model.C, model.dq))
-    n, f, J = A.shape
+    (views of wider ones: a solve's full rows), returned. driving_only: only the driving rows are
+    written (the plain ones do not depend on x0: a later pass leaves out's as they are)."""
+    n, nf, J = model.A.shape
+    ev = np.ascontiguousarray(np.arange(nf)[eval_at])
     c = np.ones(n + 1) if unit is None else np.asarray(unit, dtype=float)
-    m = 2 * f * J
+    m = 2 * len(ev) * J
     a, b, lo, hi = (np.empty((n + 1, m)) for _ in range(4)) if out is None else out
-    _torque_rows_kernel(A, B, C, dq, np.asarray(frac, float), np.diff(x_grid), np.ascontiguousarray(x0, dtype=float),
-                        limits.planned, limits.line_speed, c, a, b, lo, hi)
+    _torque_rows_kernel(model.A, model.B, model.C, model.dq, ev, np.asarray(frac, float), np.diff(x_grid),
+                        np.ascontiguousarray(x0, dtype=float), limits.planned, limits.line_speed, c, bool(driving_only),
+                        a, b, lo, hi)
     return a, b, lo, hi
 
 
 @njit
-def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
-    """:func:`torque_rows` in one pass. Row i < n at fraction f_k: x(f) = x_i + 2 f d_i u, so the
-    plain row is (A + 2 f d B) u + B x_i in [-T - C, T - C] and the driving one (sigma = sign q',
-    kk = T |q'| / w, the tangent's slope kp = kk / (2 sqrt(x0_f)), x0_f the stage's tangent point:
-    one for the stage, so the linearised torque use is nearly linear in f and holding it at the
-    fractions holds it between them, which sqrt(x) itself, concave, would not)
-    (sigma A + 2 f d (sigma B + kp)) u + (sigma B + kp) x_i <= T - sigma C - kk sqrt(x0_f) / 2. Each row
-    is one-sided (the other bound infinite): the plain row keeps the braking side, sigma tau >= -T."""
-    n, f, J = A.shape
+def _torque_rows_kernel(A, B, C, dq, ev, frac, d, x0, T, w, unit, driving_only, a, b, lo, hi):
+    """:func:`torque_rows` in one pass, reading the model's coefficients at its fractions ev (f,)
+    in place. Row i < n at fraction f_k: x(f) = x_i + 2 f d_i u, so the plain row is
+    (A + 2 f d B) u + B x_i in [-T - C, T - C] and the driving one (sigma = sign q', kk = T |q'| / w,
+    the tangent's slope kp = kk / (2 sqrt(x0_f)), x0_f the stage's tangent point: one for the
+    stage, so the linearised torque use is nearly linear in f and holding it at the fractions holds
+    it between them, which sqrt(x) itself, concave, would not)
+    (sigma A + 2 f d (sigma B + kp)) u + (sigma B + kp) x_i <= T - sigma C - kk sqrt(x0_f) / 2. Each
+    row is one-sided (the other bound infinite): the plain row keeps the braking side, sigma tau >= -T."""
+    n = A.shape[0]
+    J = A.shape[2]
+    f = len(ev)
     for i in range(n + 1):
         st = i if i < n else n - 1
         cc = unit[i]
@@ -214,19 +231,20 @@ def _torque_rows_kernel(A, B, C, dq, frac, d, x0, T, w, unit, a, b, lo, hi):
             w2 = 2.0 * fr * d[st] if i < n else 0.0
             x0f = x0[st]
             sq = np.sqrt(x0f)
+            e = ev[k] if i < n else ev[f - 1]
             for j in range(J):
-                Aj, Bj, Cj, qp = A[st, k if i < n else f - 1, j], B[st, k if i < n else f - 1, j], \
-                    C[st, k if i < n else f - 1, j], dq[st, k if i < n else f - 1, j]
+                Aj, Bj, Cj, qp = A[st, e, j], B[st, e, j], C[st, e, j], dq[st, e, j]
                 sg = 1.0 if qp >= 0.0 else -1.0
                 kk = T[j] * abs(qp) / w[j]
                 kp = kk / (2.0 * sq)
                 col = k * J + j
-                a[i, col] = (Aj + w2 * Bj) / cc
-                b[i, col] = Bj / (cc * cc)
-                # one-sided (the solver pairs half as many lines): the plain row's driving side and
-                # the driving row's braking side are implied by the other row wherever x >= 0
-                lo[i, col] = -T[j] - Cj if sg > 0.0 else -np.inf
-                hi[i, col] = np.inf if sg > 0.0 else T[j] - Cj
+                if not driving_only:
+                    a[i, col] = (Aj + w2 * Bj) / cc
+                    b[i, col] = Bj / (cc * cc)
+                    # one-sided (the solver pairs half as many lines): the plain row's driving side and
+                    # the driving row's braking side are implied by the other row wherever x >= 0
+                    lo[i, col] = -T[j] - Cj if sg > 0.0 else -np.inf
+                    hi[i, col] = np.inf if sg > 0.0 else T[j] - Cj
                 col += f * J
                 bd = sg * Bj + kp
                 a[i, col] = (sg * Aj + w2 * bd) / cc
@@ -276,6 +294,8 @@ def _check_kernel(A, B, C, dq, frac, sd, xdd, x0s, T, w, use, at, per_stage):
     n, f, J = A.shape
     g = np.empty(f)
     h = np.empty(f)
+    xs = np.empty(f)
+    rs = np.empty(f)
     for j in range(J):
         use[j] = -np.inf
         at[j] = 0
@@ -286,12 +306,15 @@ def _check_kernel(A, B, C, dq, frac, sd, xdd, x0s, T, w, use, at, per_stage):
         xm = max(x0s[i], 0.0)
         sm = np.sqrt(xm)
         worst = -np.inf
+        for m in range(f):  # the path speed at each fraction, once for every joint
+            xs[m] = max(x0 + (x1 - x0) * frac[m], 0.0)
+            rs[m] = np.sqrt(xs[m])
         for j in range(J):
             nan = False
             for m in range(f):
-                x = max(x0 + (x1 - x0) * frac[m], 0.0)
+                x = xs[m]
                 tau = A[i, m, j] * u + B[i, m, j] * x + C[i, m, j]
-                qd = dq[i, m, j] * np.sqrt(x)
+                qd = dq[i, m, j] * rs[m]
                 v = abs(tau)
                 t = abs(tau)
                 if tau * qd > 0.0:
@@ -328,29 +351,37 @@ def _bound(g, f):
     return top + 0.3125 * dd
 
 
+def torque_columns(frac, n_joints: int) -> int:
+    """How many rows (columns of the solver's arrays) :func:`torque_rows` gives a grid point at
+    the fractions frac: a plain and a driving row per joint and fraction."""
+    return 2 * len(frac) * n_joints
+
+
 def solve_with_torque(model: StageTorque, limits: TorqueLimits, x_grid: np.ndarray, rows, eval_at, frac: np.ndarray,
                       x0: np.ndarray, floor: np.ndarray, speeds, unit: np.ndarray | None = None):
     """The compiled solver's profile under the acceleration rows and the torque rows together.
 
-    rows: (a, b, bound, cap2), the acceleration rows (``topp._fast_rows``); eval_at, frac: the
-    model's fractions the rows are taken at (a slice of them) and their values; x0 (n+1,) the
-    first tangent points, one per stage, floor (n,) the least ones (:func:`cruise_x`); speeds: rows -> (sd (n+1,) or None, top), the solve (``topp._speeds``
-    with the caller's grid, start and units). TORQUE_PASSES solves, each with the driving rows'
-    tangent at the last solution (always as many, and every choice from a point's own values: a
-    batch of runs is planned as each alone would be). Returns (sd,
-    top, x0) of the fastest, x0 its driving rows' tangent points (sd None where the first finds no
-    profile)."""
-    a0, b0, bound, cap2 = rows
-    n1, m0 = a0.shape
-    m = m0 + 2 * len(frac) * model.A.shape[2]
-    a, b, lo, hi = (np.empty((n1, m)) for _ in range(4))  # the acceleration rows, then the torque rows
-    a[:, :m0], b[:, :m0], lo[:, :m0], hi[:, :m0] = a0, b0, -np.asarray(bound, float), bound
+    rows: (a, b, bound, cap2), the acceleration rows (``solver._fast_rows``) in the first
+    len(bound) columns of a, b, which have :func:`torque_columns` more for the torque rows
+    (written here: the others are not copied); eval_at, frac: the model's fractions the rows are
+    taken at (a slice of them) and their values; x0 (n+1,) the first tangent points, one per
+    stage, floor (n,) the least ones (:func:`cruise_x`); speeds: rows -> (sd (n+1,) or None, top),
+    the solve (``topp._speeds`` with the caller's grid, start and units). TORQUE_PASSES solves,
+    each with the driving rows' tangent at the last solution (always as many, and every choice from
+    a point's own values: a batch of runs is planned as each alone would be); a later pass
+    rewrites only the driving rows. Returns (sd, top, x0) of the fastest, x0 its driving rows'
+    tangent points (sd None where the first finds no profile)."""
+    a, b, bound, cap2 = rows
+    n1, m = a.shape
+    m0 = len(bound)
+    if m != m0 + torque_columns(frac, model.A.shape[2]):
+        raise ValueError(f"rows: {m} columns, expected {m0} and {torque_columns(frac, model.A.shape[2])} for torque")
+    lo, hi = np.empty((n1, m)), np.empty((n1, m))  # the acceleration rows' bounds, then the torque rows'
+    lo[:, :m0], hi[:, :m0] = -np.asarray(bound, float), bound
     tail = tuple(v[:, m0:] for v in (a, b, lo, hi))
-    # the fractions the rows are at, contiguous once for every pass
-    at = StageTorque(*(np.ascontiguousarray(v[:, eval_at]) for v in (model.A, model.B, model.C, model.dq)))
     best = (None, None, x0)
-    for _ in range(TORQUE_PASSES):
-        torque_rows(at, limits, x_grid, x0, slice(None), frac, unit, tail)
+    for k in range(TORQUE_PASSES):
+        torque_rows(model, limits, x_grid, x0, eval_at, frac, unit, tail, driving_only=k > 0)
         sd, top = speeds((a, b, (lo, hi), cap2))
         if sd is None:
             break
