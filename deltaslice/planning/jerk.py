@@ -51,7 +51,7 @@ from .runpath import RunPath
 from .stages import CHECK_TOLERANCE, stage_maxima
 
 STAGE = 1e-3  # s: longest stage of the re-timing grid on the TOPP-RA profile
-PASSES = 4  # linear programs at most, each linearised and weighted at the last one's solution
+PASSES = 2  # linear programs at most (4 planned the star no faster), each at the last one's solution
 GROW = 1.5  # trust region of the passes after the first: x at most this times the last solution's
 CONVERGED = 0.005  # and none after one that shortens the run by less than this fraction
 LIFT = 0.01  # plus this fraction of x* (so a point at rest can start again)
