@@ -89,6 +89,23 @@ def test_every_retimed_run_passes_the_stage_wise_checks_and_keeps_its_path():
         assert use.max() <= 1 + 1e-6
 
 
+def test_retimed_runs_keep_the_actuators_torque():
+    """delta_etitc plans torque: its re-timed star runs (machine mode, where the jerk-limited
+    profile leaves rest and corners slower but the TOPP-RA cap lets it cruise as fast) keep the
+    stage-wise torque check (1.21 of the stall torque at 10 kHz before the check slowed them)."""
+    from deltaslice.planning.torque import stage_check, stage_torque
+
+    printer, runs = _star_runs("delta_etitc")
+    ctx = PlanContext.of(printer, "machine")
+    assert ctx.plans_torque
+    for run in runs:
+        new = jm.limit_run(ctx, run)
+        rp = RunPath(ctx.kin, new.path, None, new.layer)
+        dq, ddq = rp.stage_derivatives(new.x, CHECK)
+        model = stage_torque(ctx.dynamics, rp, new.x, CHECK, dq, ddq)
+        assert stage_check(model, ctx.torque, CHECK, new.xd, new.xdd).use.max() <= 1 + 1e-6
+
+
 def test_jerk_limit_off_leaves_the_pieces_as_planned():
     printer, runs = _star_runs("linear_kossel")
     off = load_printer("linear_kossel", {"planning.jerk_limit": "off"})

@@ -30,8 +30,9 @@ every interval I, so it stays within ``J_p SLACK / 2`` of a function whose slope
 and a third difference of the positions over a spacing h reads at most ``J_p (1 + 0.75 SLACK /
 h)``: with J_p the planned jerk (``planned_limits``) times :func:`window_factor`, every channel's
 third difference over JERK_SPACING (or longer) is within its jerk limit. Where the check fails (a
-stage longer than the programs assumed, the velocity or acceleration between fractions), the run
-is slowed uniformly in time (velocity x s, acceleration x s^2, jerk about s^3) until it holds.
+stage longer than the programs assumed, the velocity or acceleration between fractions, or the
+actuators' torque where the solver plans it), the run is slowed uniformly in time (velocity x s,
+acceleration x s^2, jerk about s^3) until it holds.
 
 Long runs planned window by window (their pieces join at speed) are left as planned.
 """
@@ -49,6 +50,7 @@ from .constraints import CHECK
 from .context import PlanContext
 from .runpath import RunPath
 from .stages import CHECK_TOLERANCE, stage_maxima
+from .torque import stage_check, stage_torque
 
 STAGE = 1e-3  # s: longest stage of the re-timing grid on the TOPP-RA profile
 PASSES = 2  # linear programs at most (4 planned the star no faster), each at the last one's solution
@@ -112,7 +114,7 @@ def limit_run(ctx: PlanContext, piece: RunPiece) -> RunPiece:
     for regrid in range(REGRIDS + 1):
         dq, ddq = rp.stage_derivatives(x, np.array([0.0, 1.0]))
         y = solve_grid(x, env, dq, ddq, planned.acceleration[:c], jerk, y, PASSES if regrid == 0 else REGRID_PASSES)
-        found = _checked(rp, x, y, true.velocity[:c], true.acceleration[:c], true.jerk[:c], np.isfinite(jerk))
+        found = _checked(ctx, rp, x, y, true.velocity[:c], true.acceleration[:c], true.jerk[:c], np.isfinite(jerk))
         if found is not None and (best is None or found[3][-1] < best[3][-1]):
             best = found
         xd, xdd, t = profile(x, y)
@@ -132,26 +134,31 @@ def limit_run(ctx: PlanContext, piece: RunPiece) -> RunPiece:
     return replace(piece, x=x, xd=xd, xdd=xdd, t=t, active_time=float(np.diff(t)[active].sum()))
 
 
-def _checked(rp, x, y, vmax, amax, jmax, limited):
+def _checked(ctx: PlanContext, rp, x, y, vmax, amax, jmax, limited):
     """The profile x_dot^2 = y on the grid x checked against the true limits vmax, amax, jmax (dof,)
-    (``limited``: the channels with a jerk limit) and slowed uniformly until every check holds:
-    (x, x_dot, path acceleration, t, jerk use (N, dof)), or None where a stage never ends."""
+    (``limited``: the channels with a jerk limit) and, where the solver plans torque, the actuators'
+    torque (:func:`.torque.stage_check`), and slowed uniformly until every check holds: (x, x_dot,
+    path acceleration, t, jerk use (N, dof)), or None where a stage never ends."""
     xd, xdd, t = profile(x, y)
     dq_c, ddq_c = rp.stage_derivatives(x, CHECK)
     vel = stage_maxima(rp, x, xd, xdd, vmax, amax, stage=(dq_c, ddq_c))
     worst_v, worst_a = float(np.max(vel.velocity)), float(np.max(vel.acceleration))
     slow = min(1.0, 1.0 / max(worst_v, 1e-12), 1.0 / math.sqrt(max(worst_a, 1e-12)))
+    model = stage_torque(ctx.dynamics, rp, x, CHECK, dq_c, ddq_c) if ctx.plans_torque else None
     for _ in range(SLOW_PASSES):
         # slowed by s, the velocity scales by s, the acceleration by s^2, the jerk by s^3 (the
-        # window factor, at longer stages, a little less: so again until the check holds)
+        # window factor, at longer stages, a little less: so again until the check holds); the
+        # torque's inertial and speed terms by s^2, gravity not at all (so again until it holds)
         use = jerk_check(dq_c, ddq_c, x, xd * slow, xdd * slow * slow, t / slow, jmax)
         use[:, ~limited] = 0.0
         if not np.all(np.isfinite(use)):
             return None
         worst_j = float(np.max(use))
-        if worst_j <= 1.0 + CHECK_TOLERANCE:
+        worst_t = 0.0 if model is None else float(np.max(stage_check(model, ctx.torque, CHECK, xd * slow,
+                                                                     xdd * slow * slow).use))
+        if worst_j <= 1.0 + CHECK_TOLERANCE and worst_t <= 1.0 + CHECK_TOLERANCE:
             break
-        slow *= min(worst_j ** (-1 / 3), 1.0 - 1e-6)
+        slow *= min(max(worst_j, 1.0) ** (-1 / 3), max(worst_t, 1.0) ** (-1 / 2), 1.0 - 1e-6)
     return x, xd * slow, xdd * slow * slow, t / slow, use
 
 
