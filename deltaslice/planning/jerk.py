@@ -226,7 +226,6 @@ def solve_grid(x, env, dq, ddq, amax, jerk, start=None, passes: int = PASSES) ->
     jerk (dof,) planned limits (jerk NaN: none); start (N+1,): a profile to start from (the last
     grid's solution on a refined grid), else env."""
     # here, not at the top: scipy.optimize's import costs every compile a CPU-second, jerk limits or not
-    from scipy import sparse
     from scipy.optimize import linprog
 
     N, dof = dq.shape[0], dq.shape[2]
@@ -326,6 +325,8 @@ def _rows(cols, vals, rhs, col):
     every row scaled to a largest coefficient of 1 (a stage of a micron beside one of a millimetre
     leaves rows whose coefficients differ by many orders, which HiGHS calls infeasible). cols, vals
     (R, K) each over y, rhs (R,)."""
+    from scipy import sparse  # here, as linprog: only where jerk limits are planned
+
     R, K = cols.shape
     n = len(col)
     vals = vals * col[cols]
