@@ -89,17 +89,57 @@ def test_every_retimed_run_passes_the_stage_wise_checks_and_keeps_its_path():
         assert use.max() <= 1 + 1e-6
 
 
+def test_retimed_runs_keep_the_actuators_torque():
+    """delta_etitc plans torque: its re-timed star runs (machine mode, where the jerk-limited
+    profile leaves rest and corners slower but the TOPP-RA cap lets it cruise as fast) keep the
+    stage-wise torque check (1.21 of the stall torque at 10 kHz before the check slowed them)."""
+    from deltaslice.planning.torque import stage_check, stage_torque
+
+    printer, runs = _star_runs("delta_etitc")
+    ctx = PlanContext.of(printer, "machine")
+    assert ctx.plans_torque
+    for run in runs:
+        new = jm.limit_run(ctx, run)
+        rp = RunPath(ctx.kin, new.path, None, new.layer)
+        dq, ddq = rp.stage_derivatives(new.x, CHECK)
+        model = stage_torque(ctx.dynamics, rp, new.x, CHECK, dq, ddq)
+        assert stage_check(model, ctx.torque, CHECK, new.xd, new.xdd).use.max() <= 1 + 1e-6
+
+
 def test_jerk_limit_off_leaves_the_pieces_as_planned():
     printer, runs = _star_runs("linear_kossel")
     off = load_printer("linear_kossel", {"planning.jerk_limit": "off"})
     assert jm.jerk_limited(PlanContext.of(off, "machine"), runs) is runs
 
 
+def test_the_stage_time_tangent_is_below_every_duration_and_above_the_bounds():
+    """The jerk budgets' durations: the tangent plane at the upper bounds is at most the true
+    duration for every x >= 0 (so a solution's budgets hold on its real time), exact at the bounds
+    and at least the duration there for every x under them."""
+    rng = np.random.default_rng(5)
+    d = rng.uniform(1e-6, 1e-3, 200)
+    top = 4.0
+    bound = rng.uniform(0.0, 1.0, 201)
+    bound[[0, -1]] = 0.0  # at rest at both ends: no slope there
+    c, g = jm.stage_time_tangent(d, bound, top)
+    duration = jm.profile(np.r_[0.0, np.cumsum(d)], bound * top)[2]
+    assert np.allclose(c + g[:, 0] * bound[:-1] + g[:, 1] * bound[1:], np.diff(duration))
+    for _ in range(20):
+        y = bound * rng.uniform(0.0, 1.0, 201) ** 2
+        y[rng.uniform(size=201) < 0.1] *= 3.0  # some above the bounds: still below the duration
+        dt = np.diff(jm.profile(np.r_[0.0, np.cumsum(d)], y * top)[2])
+        tangent = c + g[:, 0] * y[:-1] + g[:, 1] * y[1:]
+        assert np.all(tangent <= dt * (1 + 1e-9))
+        under = (y[:-1] <= bound[:-1]) & (y[1:] <= bound[1:])
+        assert np.all(tangent[under] >= np.diff(duration)[under] * (1 - 1e-9))
+
+
 @pytest.mark.parametrize("length", [2.0, 10.0, 40.0])
-def test_a_vertical_line_is_within_half_of_ruckigs_optimum(length):
+def test_a_vertical_line_is_within_a_quarter_of_ruckigs_optimum(length):
     """On a linear delta a vertical line moves the three carriages alike (q' constant, q'' = 0), so
     the jerk-limited optimum is ruckig's one-axis profile with the planned limits: the re-timed run
-    is measured against it (1.17-1.47 when written: 1.47 on the 40 mm line, where the programs leave a slow stretch) and never faster than it."""
+    is measured against it (1.14-1.22 when written; 1.17-1.47 with budgets over the duration at the
+    bounds) and never faster than it."""
     printer = load_printer("linear_kossel", ON)
     ctx = PlanContext.of(printer, "machine")
     spec = RunSpec(np.array([[0, 0, 20.0], [0, 0, 20.0 + length]]), np.array([1000.0]), np.zeros(1), 0.0, 0)
@@ -113,7 +153,7 @@ def test_a_vertical_line_is_within_half_of_ruckigs_optimum(length):
     reference = ruckig.Trajectory(1)
     ruckig.Ruckig(1).calculate(inp, reference)
     gap = new.duration / reference.duration
-    assert 0.99 <= gap <= 1.5, gap
+    assert 0.99 <= gap <= 1.25, gap
 
 
 def test_verify_reports_each_joints_jerk_use():

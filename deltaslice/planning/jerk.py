@@ -12,13 +12,17 @@ x = x_dot^2 at the grid points (:func:`solve_grid`, scipy's HiGHS):
 * each channel's acceleration within its planned limit at both ends of every stage;
 * each channel's acceleration step at every grid point within SPLIT of the jerk budget of the time
   around it (half of each stage beside it; from rest outside the run), and its change inside every
-  stage within the rest (:func:`budgets`): the budget is J dt, J the planned jerk times
-  :func:`window_factor`, dt a lower bound of the stage's duration (at the pass's upper bounds on x:
-  x*, then a trust region around the last pass's solution);
-* maximise the sum of x weighted by dT/dx at the last solution.
+  stage within the rest (:func:`_jerk_rows`): the budget is J dt, J the planned jerk times
+  :func:`window_factor`, dt the tangent plane of the stage's duration at the pass's upper bounds on
+  x (x*, then a trust region around the last pass's solution; :func:`stage_time_tangent`): the
+  duration is convex in x, so the tangent is below it everywhere and the budget holds for the
+  solution's true durations, and above the duration at the bounds, which the budget used to be;
+* maximise the sum of x weighted by dT/dx at the last solution; no further pass once one gains
+  less than CONVERGED.
 
-Stages the solution makes longer than LONG * STAGE are cut again (:func:`split_long`) and the
-programs run again from it (REGRIDS).
+The unknowns are x over its upper bound (near rest x is 1e-7 of its largest, within HiGHS's
+tolerances). Stages the solution makes longer than LONG * STAGE are cut again into stages of at
+most CUT * STAGE (:func:`split_long`) and the programs run again from it (REGRIDS).
 
 Guarantee (checked on the result, :func:`jerk_check`, between the ``CHECK`` points of every
 stage): each channel's acceleration has a total variation of at most ``J_p (|I| + SLACK)`` over
@@ -26,8 +30,9 @@ every interval I, so it stays within ``J_p SLACK / 2`` of a function whose slope
 and a third difference of the positions over a spacing h reads at most ``J_p (1 + 0.75 SLACK /
 h)``: with J_p the planned jerk (``planned_limits``) times :func:`window_factor`, every channel's
 third difference over JERK_SPACING (or longer) is within its jerk limit. Where the check fails (a
-stage longer than the programs assumed, the velocity or acceleration between fractions), the run
-is slowed uniformly in time (velocity x s, acceleration x s^2, jerk about s^3) until it holds.
+stage longer than the programs assumed, the velocity or acceleration between fractions, or the
+actuators' torque where the solver plans it), the run is slowed uniformly in time (velocity x s,
+acceleration x s^2, jerk about s^3) until it holds.
 
 Long runs planned window by window (their pieces join at speed) are left as planned.
 """
@@ -45,15 +50,18 @@ from .constraints import CHECK
 from .context import PlanContext
 from .runpath import RunPath
 from .stages import CHECK_TOLERANCE, stage_maxima
+from .torque import stage_check, stage_torque
 
 STAGE = 1e-3  # s: longest stage of the re-timing grid on the TOPP-RA profile
-PASSES = 4  # linear programs, each weighted at the last one's solution
-GROW = 2.0  # trust region of the passes after the first: x at most this times the last solution's
+PASSES = 2  # linear programs at most (4 planned the star no faster), each at the last one's solution
+GROW = 1.5  # trust region of the passes after the first: x at most this times the last solution's
+CONVERGED = 0.005  # and none after one that shortens the run by less than this fraction
 LIFT = 0.01  # plus this fraction of x* (so a point at rest can start again)
 LONG_STAGE = 1.0  # s: the budget of a stage at rest at both ends (none is, in a solution)
 REGRIDS = 1  # times the stages a solution makes longer than LONG * STAGE are cut and the programs run again
 REGRID_PASSES = 2  # linear programs after each cut
 LONG = 1.5  # of STAGE: a stage this long is cut (REGRIDS)
+CUT = 1.25  # of STAGE: into stages at most this long (1: a 2x larger grid, no faster run)
 SPLIT = 0.75  # of a stage's jerk budget, for the steps at its ends; the rest for the change inside it
 # the programs hold a grid-aligned interval's variation within J (|I| + SPLIT dt) (half a stage's
 # step budget at each end), dt at most LONG STAGE after a cut: the check's and the planned slack
@@ -106,7 +114,7 @@ def limit_run(ctx: PlanContext, piece: RunPiece) -> RunPiece:
     for regrid in range(REGRIDS + 1):
         dq, ddq = rp.stage_derivatives(x, np.array([0.0, 1.0]))
         y = solve_grid(x, env, dq, ddq, planned.acceleration[:c], jerk, y, PASSES if regrid == 0 else REGRID_PASSES)
-        found = _checked(rp, x, y, true.velocity[:c], true.acceleration[:c], true.jerk[:c], np.isfinite(jerk))
+        found = _checked(ctx, rp, x, y, true.velocity[:c], true.acceleration[:c], true.jerk[:c], np.isfinite(jerk))
         if found is not None and (best is None or found[3][-1] < best[3][-1]):
             best = found
         xd, xdd, t = profile(x, y)
@@ -126,26 +134,31 @@ def limit_run(ctx: PlanContext, piece: RunPiece) -> RunPiece:
     return replace(piece, x=x, xd=xd, xdd=xdd, t=t, active_time=float(np.diff(t)[active].sum()))
 
 
-def _checked(rp, x, y, vmax, amax, jmax, limited):
+def _checked(ctx: PlanContext, rp, x, y, vmax, amax, jmax, limited):
     """The profile x_dot^2 = y on the grid x checked against the true limits vmax, amax, jmax (dof,)
-    (``limited``: the channels with a jerk limit) and slowed uniformly until every check holds:
-    (x, x_dot, path acceleration, t, jerk use (N, dof)), or None where a stage never ends."""
+    (``limited``: the channels with a jerk limit) and, where the solver plans torque, the actuators'
+    torque (:func:`.torque.stage_check`), and slowed uniformly until every check holds: (x, x_dot,
+    path acceleration, t, jerk use (N, dof)), or None where a stage never ends."""
     xd, xdd, t = profile(x, y)
     dq_c, ddq_c = rp.stage_derivatives(x, CHECK)
     vel = stage_maxima(rp, x, xd, xdd, vmax, amax, stage=(dq_c, ddq_c))
     worst_v, worst_a = float(np.max(vel.velocity)), float(np.max(vel.acceleration))
     slow = min(1.0, 1.0 / max(worst_v, 1e-12), 1.0 / math.sqrt(max(worst_a, 1e-12)))
+    model = stage_torque(ctx.dynamics, rp, x, CHECK, dq_c, ddq_c) if ctx.plans_torque else None
     for _ in range(SLOW_PASSES):
         # slowed by s, the velocity scales by s, the acceleration by s^2, the jerk by s^3 (the
-        # window factor, at longer stages, a little less: so again until the check holds)
+        # window factor, at longer stages, a little less: so again until the check holds); the
+        # torque's inertial and speed terms by s^2, gravity not at all (so again until it holds)
         use = jerk_check(dq_c, ddq_c, x, xd * slow, xdd * slow * slow, t / slow, jmax)
         use[:, ~limited] = 0.0
         if not np.all(np.isfinite(use)):
             return None
         worst_j = float(np.max(use))
-        if worst_j <= 1.0 + CHECK_TOLERANCE:
+        worst_t = 0.0 if model is None else float(np.max(stage_check(model, ctx.torque, CHECK, xd * slow,
+                                                                     xdd * slow * slow).use))
+        if worst_j <= 1.0 + CHECK_TOLERANCE and worst_t <= 1.0 + CHECK_TOLERANCE:
             break
-        slow *= min(worst_j ** (-1 / 3), 1.0 - 1e-6)
+        slow *= min(max(worst_j, 1.0) ** (-1 / 3), max(worst_t, 1.0) ** (-1 / 2), 1.0 - 1e-6)
     return x, xd * slow, xdd * slow * slow, t / slow, use
 
 
@@ -181,12 +194,12 @@ def envelope(piece: RunPiece, x) -> np.ndarray:
 
 
 def split_long(x, xd, xdd, dt, min_dx: float):
-    """The grid x with every stage longer than STAGE in time (dt (N,), on the profile x_dot = xd
-    (N+1,), path acceleration xdd (N,)) cut into equal times of at most STAGE, and the profile's
+    """The grid x with every stage longer than CUT * STAGE in time (dt (N,), on the profile x_dot =
+    xd (N+1,), path acceleration xdd (N,)) cut into equal times of at most that, and the profile's
     x_dot^2 at the new grid's points (the same motion: x_dot^2 is linear in x in a stage); no two
     points closer than min_dx. -> (x, x_dot^2), (M+1,) each."""
     # no more parts than min_dx fit in the stage (equal times are about equal lengths in a slow stage)
-    m = np.clip(np.ceil(dt / STAGE), 1, np.maximum(np.floor(np.diff(x) / min_dx), 1)).astype(np.int64)
+    m = np.clip(np.ceil(dt / (CUT * STAGE)), 1, np.maximum(np.floor(np.diff(x) / min_dx), 1)).astype(np.int64)
     i = np.repeat(np.arange(len(dt)), m)
     tau = (np.arange(len(i)) - np.repeat(np.cumsum(m) - m, m)) * (dt / m)[i]
     new = np.append(x[i] + xd[i] * tau + 0.5 * xdd[i] * tau * tau, x[-1])
@@ -213,92 +226,115 @@ def solve_grid(x, env, dq, ddq, amax, jerk, start=None, passes: int = PASSES) ->
     jerk (dof,) planned limits (jerk NaN: none); start (N+1,): a profile to start from (the last
     grid's solution on a refined grid), else env."""
     # here, not at the top: scipy.optimize's import costs every compile a CPU-second, jerk limits or not
-    from scipy import sparse
     from scipy.optimize import linprog
 
     N, dof = dq.shape[0], dq.shape[2]
     top = float(env.max())
     d = np.diff(x)
     first, end = _accel_forms(d, dq, ddq, top / amax[None, None, :])  # accelerations / amax, x = top * y
-    rows, cols, vals, rhs = [], [], [], []
-    nrow = [0]
-    n_var = [N + 1]  # x_dot^2 / top at the grid points
-
-    def add(r_cols, r_vals, r_rhs):
-        """Rows sum_k r_vals[:, k] var[r_cols[:, k]] <= r_rhs(dt), (R, K) each, (R,)."""
-        R = len(r_cols)
-        rows.append(np.repeat(np.arange(nrow[0], nrow[0] + R), r_cols.shape[1]))
-        cols.append(r_cols.ravel())
-        vals.append(r_vals.ravel())
-        rhs.append(r_rhs)
-        nrow[0] += R
-
     i = np.arange(N)
-    pair = np.stack([i, i + 1], axis=1)
-    for j in range(dof):
-        for form in (first[:, :, j], end[:, :, j]):
-            for sign in (1.0, -1.0):
-                add(pair, sign * form, lambda dt: np.ones(N))
-        if not math.isfinite(jerk[j]):
-            continue
-        # steps at grid points 0..N: start of stage i minus end of stage i-1 (rest outside)
-        g = np.arange(N + 1)
-        step_cols = np.stack([np.maximum(g - 1, 0), g, np.minimum(g + 1, N)], axis=1)
-        step_vals = np.zeros((N + 1, 3))
-        step_vals[:N, 1] += first[:, 0, j]
-        step_vals[:N, 2] += first[:, 1, j]
-        step_vals[1:, 0] -= end[:, 0, j]
-        step_vals[1:, 1] -= end[:, 1, j]
-        within = end[:, :, j] - first[:, :, j]
-        for sign in (1.0, -1.0):
-            add(step_cols, sign * step_vals, lambda dt, r=jerk[j] / amax[j]: budgets(dt, r)[0])
-            add(pair, sign * within, lambda dt, r=jerk[j] / amax[j]: budgets(dt, r)[1])
-    vals, rows = np.concatenate(vals), np.concatenate(rows)
-    # every row scaled to a largest coefficient of 1: a stage of a micron beside one of a millimetre
-    # leaves HiGHS rows whose coefficients differ by many orders (it calls such programs infeasible)
-    scale = np.zeros(nrow[0])
-    np.maximum.at(scale, rows, np.abs(vals))
-    scale = np.where(scale > 0, scale, 1.0)
-    A = sparse.csr_matrix((vals / scale[rows], (rows, np.concatenate(cols))), shape=(nrow[0], n_var[0]))
+    pair = np.tile(np.stack([i, i + 1, i + 1], axis=1), (4 * dof, 1))  # (a third column of zeros)
+    forms = np.concatenate([np.c_[s * f[:, :, j], np.zeros(N)] for j in range(dof) for f in (first, end)
+                            for s in (1.0, -1.0)])
+    limited = [j for j in range(dof) if math.isfinite(jerk[j])]
     share = np.zeros(N + 1)
     share[:-1] += 0.5 * d
     share[1:] += 0.5 * d
     # the TOPP-RA profile (or the start) stands where no program solves (limit_run then slows it down)
-    best = upper = env / top
-    if start is not None:
-        best = np.clip(start, 0.0, env) / top
-        upper = np.minimum(env / top, GROW * best + LIFT * env / top)
+    upper = env / top
+    # the programs' unknowns are y / upper (1 where upper is 0, fixed at 0): near rest y is 1e-7 of
+    # its largest, HiGHS's feasibility tolerance, and its points would all read as at rest
+    col = np.where(upper > 0, upper, 1.0)
+    best = upper if start is None else np.clip(start, 0.0, env) / top
+    best_time, bound = math.inf, upper
     for _ in range(passes):
-        # each stage lasts at least its duration at the upper bounds: the time its jerk budget is over
-        v = np.sqrt(upper * top)
-        vsum = v[:-1] + v[1:]
-        dt = np.where(vsum > 0, 2 * d / np.where(vsum > 0, vsum, 1.0), LONG_STAGE)
-        b = np.concatenate([f(dt) for f in rhs]) / scale
+        # each stage's jerk budget over the tangent of its duration at the upper bounds: at most
+        # the duration of every profile under them (and more than the duration at them)
+        c, g = stage_time_tangent(d, bound, top)
+        rows = [(pair, forms, np.ones(len(pair)))]
+        rows += [_jerk_rows(first[:, :, j], end[:, :, j], jerk[j] / amax[j], c, g) for j in limited]
+        A, b = _rows(*(np.concatenate(part) for part in zip(*rows)), col)
         # -dT/dx at the last solution: each point's share of the time, so the program trades speed
         # where it saves most (a linear objective at x* alone lets a few points fall to rest)
-        weight = share / np.maximum(best, FLOOR) ** 1.5
-        res = linprog(-weight / weight.max(), A_ub=A, b_ub=b, bounds=np.c_[np.zeros(N + 1), upper], method="highs-ds")
+        weight = share / np.maximum(best, FLOOR) ** 1.5 * col
+        res = linprog(-weight / weight.max(), A_ub=A, b_ub=b, bounds=np.c_[np.zeros(N + 1), bound / col],
+                      method="highs-ds")
         if res.status != 0:
             break
-        y = np.clip(res.x, 0.0, upper)
-        if not np.any((y[:-1] <= 0) & (y[1:] <= 0)):
-            best = y  # a profile: a stage at rest at both ends never ends
+        y = np.clip(res.x * col, 0.0, bound)
+        # a profile (no stage at rest at both ends, which never ends) kept if the fastest so far
+        duration = math.inf if np.any((y[:-1] <= 0) & (y[1:] <= 0)) else profile(x, y * top)[2][-1]
+        if duration < best_time:
+            gain, best, best_time = 1.0 - duration / best_time, y, duration
+            if gain < CONVERGED:
+                break
         # a trust region around it: the next pass's stages can be shorter by at most sqrt(GROW), and a
         # point the program stopped can rise (LIFT of x*)
-        upper = np.minimum(env / top, GROW * y + LIFT * env / top)
+        bound = np.minimum(upper, GROW * y + LIFT * upper)
     return best * top
 
 
-def budgets(dt, jerk):
-    """(at the grid points (N+1,), inside the stages (N,)): how far an acceleration with jerk limit
-    ``jerk`` (one, or one per stage (N,)) may step at each grid point and change inside each stage of
-    durations dt (N,): SPLIT of its stages' budget around a point (half of each), the rest inside a
-    stage."""
-    jd = jerk * dt
-    around = np.zeros(len(dt) + 1)
-    around[:-1] += 0.5 * jd
-    around[1:] += 0.5 * jd
-    return SPLIT * around, (1.0 - SPLIT) * jd
+def _jerk_rows(first, end, jerk, c, g):
+    """One channel's jerk rows (cols, vals (R, 3), rhs (R,)) over y = x_dot^2 / top: its
+    acceleration's step at every grid point within SPLIT of the budget around it (half of each
+    stage beside it; from rest outside the run), its change inside every stage within the rest,
+    each budget ``jerk`` (of amax, per s) times the stage durations' tangent ``c + g y``
+    (:func:`stage_time_tangent`: below the duration, so the programs' solutions keep the budgets
+    of their true durations). first, end (N, 2): the acceleration (of amax) at both ends of every
+    stage as forms in the stage's two points."""
+    N = len(c)
+    gp = np.arange(N + 1)
+    cols = np.stack([np.maximum(gp - 1, 0), gp, np.minimum(gp + 1, N)], axis=1)
+    step = np.zeros((N + 1, 3))  # start of stage i minus end of stage i-1 (rest outside)
+    step[:N, 1:] += first
+    step[1:, :2] -= end
+    around = np.zeros((N + 1, 3))  # half of each neighbouring stage's duration tangent
+    around[:N, 1:] += 0.5 * g
+    around[1:, :2] += 0.5 * g
+    b_step = np.zeros(N + 1)
+    b_step[:N] += 0.5 * c
+    b_step[1:] += 0.5 * c
+    k_s, k_w = SPLIT * jerk, (1.0 - SPLIT) * jerk
+    within = end - first
+    zero = np.zeros((N, 1))
+    pair = np.c_[gp[:-1], gp[1:], gp[1:]]
+    return (np.concatenate([cols, cols, pair, pair]),
+            np.concatenate([step - k_s * around, -step - k_s * around,
+                            np.c_[within - k_w * g, zero], np.c_[-within - k_w * g, zero]]),
+            np.concatenate([k_s * b_step, k_s * b_step, k_w * c, k_w * c]))
+
+
+def stage_time_tangent(d, y, top: float):
+    """The tangent plane of every stage's duration ``2 d / (sqrt(top y_i) + sqrt(top y_i+1))`` at
+    y (N+1,) (x_dot^2 / top): (c (N,) s, g (N, 2) s per unit of y). The duration is convex in y,
+    so ``c + g[:, 0] y_i + g[:, 1] y_i+1`` is at most it for every y >= 0 (exact at y; homogeneous
+    of degree -1/2, so c is 1.5 times it). A point with y = 0 gets no slope: it must stay at 0 (its
+    upper bound), and a stage at rest at both ends gets LONG_STAGE."""
+    v = np.sqrt(top * np.maximum(y, 0.0))
+    vs = v[:-1] + v[1:]
+    moving = vs > 0
+    dt = np.where(moving, 2 * d / np.where(moving, vs, 1.0), LONG_STAGE)
+    ends = np.stack([v[:-1], v[1:]], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.where(ends > 0, -(d * top / np.where(moving, vs, 1.0) ** 2)[:, None] / ends, 0.0)
+    return np.where(moving, 1.5 * dt, LONG_STAGE), g
+
+
+def _rows(cols, vals, rhs, col):
+    """A stacked system (sparse CSR, b) over the unknowns y / col (col (n,) the columns' scales):
+    every row scaled to a largest coefficient of 1 (a stage of a micron beside one of a millimetre
+    leaves rows whose coefficients differ by many orders, which HiGHS calls infeasible). cols, vals
+    (R, K) each over y, rhs (R,)."""
+    from scipy import sparse  # here, as linprog: only where jerk limits are planned
+
+    R, K = cols.shape
+    n = len(col)
+    vals = vals * col[cols]
+    scale = np.abs(vals).max(axis=1)
+    scale = np.where(scale > 0, scale, 1.0)
+    A = sparse.csr_matrix(((vals / scale[:, None]).ravel(), (np.repeat(np.arange(R), K), cols.ravel())),
+                          shape=(R, n))
+    return A, rhs / scale
 
 
 def profile(x, y):
