@@ -197,12 +197,12 @@ class RotaryDelta(Kinematics):
 
     def scaled_path_derivatives(self, points, t, kappa, scale, out1, out2) -> int:
         """The base contract in one compiled pass with the inverse (the planner's hottest call):
-        no q array, and the scaling done as the rates are written."""
+        no q array, and the scaling done as the rates are written (columns 0-2 of out1, out2)."""
         points, t, kappa = (np.ascontiguousarray(v, dtype=float) for v in (points, t, kappa))
         for out in (out1, out2):  # the kernel writes unchecked: numpy's out= would have refused these
-            if out.shape != (len(points), 3) or out.dtype != np.float64:
+            if out.ndim != 2 or out.shape[0] != len(points) or out.shape[1] < 3 or out.dtype != np.float64:
                 raise ValueError(f"scaled_path_derivatives: an output is {out.dtype} {out.shape}, "
-                                 f"expected float64 ({len(points)}, 3)")
+                                 f"expected float64 ({len(points)}, 3 or more)")
         return int(_scaled_rates_kernel(points, t, kappa, self._offsets, self.L1, self.L2, float(scale), out1, out2))
 
     def inverse_dynamics(self, masses: RotaryDeltaMasses, q, qd, qdd):
@@ -562,7 +562,7 @@ def _inverse_kernel(points, offsets, L1, L2, q):
     ok = np.empty((3, BLOCK), dtype=np.bool_)
     for k0 in range(0, n, BLOCK):
         m = min(BLOCK, n - k0)
-        _to_rows(points, k0, m, p, 0)
+        _to_rows(points, k0, m, p, np.int64(0))  # a literal row would compile _to_rows for that value
         px, py, pz = p[0], p[1], p[2]
         for i in range(3):
             ux, uy = U[i, 0], U[i, 1]
@@ -599,9 +599,9 @@ def _scaled_rates_kernel(points, t, kappa, offsets, L1, L2, scale, q1, q2):
     o1, o2, ok = np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK), dtype=np.bool_)
     for k0 in range(0, n, BLOCK):
         m = min(BLOCK, n - k0)
-        _to_rows(points, k0, m, s, 0)
-        _to_rows(t, k0, m, s, 3)
-        _to_rows(kappa, k0, m, s, 6)
+        _to_rows(points, k0, m, s, np.int64(0))
+        _to_rows(t, k0, m, s, np.int64(3))
+        _to_rows(kappa, k0, m, s, np.int64(6))
         px, py, pz, tx, ty, tz, kx, ky, kz = s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8]
         for i in range(3):
             ux, uy = U[i, 0], U[i, 1]

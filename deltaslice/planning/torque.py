@@ -67,7 +67,9 @@ def torque_limits(printer) -> TorqueLimits | None:
 class StageTorque:
     """The torque coefficients at fractions ``frac`` (f,) of every stage of a grid (each with the
     piece the stage lies in): A, B, C (n, f, J) in the path's units (N m or N per path unit/s^2,
-    per (path unit/s)^2, and N m or N); dq (n, f, J) the joints' q' (joint units per path unit)."""
+    per (path unit/s)^2, and N m or N); dq (n, f, dof) the stage derivatives as given, the joints' q'
+    (joint units per path unit) in its first J columns: the whole array, not a view of those
+    columns, so the kernels reading it see one layout (and compile once) with or without a filament."""
 
     A: np.ndarray
     B: np.ndarray
@@ -108,7 +110,7 @@ def stage_torque(printer, rp, x_grid: np.ndarray, frac: np.ndarray, dq: np.ndarr
                                  ddq[idx, -1:, :J])
             for k in range(3):
                 out[k, idx, -1] = coef[k]
-    return StageTorque(out[0], out[1], out[2], dq[..., :J])
+    return StageTorque(out[0], out[1], out[2], dq)
 
 
 def _coefficients(printer, rp, s, ds, frac, owner, dq, ddq):
