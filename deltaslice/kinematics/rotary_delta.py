@@ -414,15 +414,15 @@ def _torque_coefficients_kernel(points, q, dq, ddq, offsets, L1, params, out):
     (no gravity in A and B: the torques are affine in the accelerations and quadratic in the
     velocities). The geometry once per point for the three."""
     cq, sq = np.empty(3), np.empty(3)
-    zero = np.zeros(3)
+    xs, ys = np.zeros((3, 3)), np.zeros((3, 3))  # the velocities and accelerations of A, B, C: row 2 stays 0
     work = np.empty((7, 3, 3))
     for n in range(q.shape[0]):
         for i in range(3):
             cq[i], sq[i] = math.cos(q[n, i]), math.sin(q[n, i])
+            ys[0, i], xs[1, i], ys[1, i] = dq[n, i], dq[n, i], ddq[n, i]
         _arm_geometry(points[n], cq, sq, offsets, L1, work)
-        _arm_torques(cq, params, zero, dq[n], 0.0, work, out[0, n])
-        _arm_torques(cq, params, dq[n], ddq[n], 0.0, work, out[1, n])
-        _arm_torques(cq, params, zero, zero, 1.0, work, out[2, n])
+        for k in range(3):  # one call site: numba inlines (and types) _arm_torques once, not three times
+            _arm_torques(cq, params, xs[k], ys[k], 1.0 if k == 2 else 0.0, work, out[k, n])
 
 
 @njit
