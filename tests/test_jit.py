@@ -94,14 +94,17 @@ def test_a_first_run_compiles_the_listed_kernels_once_and_says_so(tmp_path):
 
 def test_kernels_that_share_a_callee_are_compiled_in_one_process():
     """numba compiles a called kernel with its caller: two processes each compiling it would pay
-    twice. Every kernel goes to one share, each once."""
+    twice. Every kernel goes to one group (a process compiles a whole group), each once; the
+    longest group comes first."""
     import deltaslice.planning.blend as blend
 
     jobs = [{"module": m, "name": n, "seconds": 1.0, "signatures": []} for m, n in jit._KERNELS if m == blend.__name__]
     assert len(jobs) > 3
-    shares = jit._shares(jobs, 2)
-    assert sorted(j["name"] for s in shares for j in s) == sorted(j["name"] for j in jobs)
-    where = {j["name"]: i for i, share in enumerate(shares) for j in share}
+    groups = jit._groups(jobs)
+    assert len(groups) > 1
+    assert sorted(j["name"] for g in groups for j in g) == sorted(j["name"] for j in jobs)
+    assert [len(g) for g in groups] == sorted((len(g) for g in groups), reverse=True)  # 1 s each
+    where = {j["name"]: i for i, group in enumerate(groups) for j in group}
     reach = {j["name"]: jit._reached(jit._KERNELS[(j["module"], j["name"])][0]) | {(j["module"], j["name"])}
              for j in jobs}
     for a in reach:
