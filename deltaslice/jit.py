@@ -19,7 +19,8 @@ A first compile (an empty cache, inside :func:`first_run`) compiles the kernels 
 parallel before it goes on (:func:`warm_up`): ``kernels.json`` lists the kernels the README's first compile calls from Python
 with their argument types (``scripts/record_kernels.py`` writes it), and each is compiled by
 numba's documented eager form (``numba.njit([signature], cache=True)``) in this process and in
-one worker process per further core, which share the result through numba's cache; the run then
+one worker process per further core (each takes the next group of kernels as it finishes one,
+longest first), which share the result through numba's cache; the run then
 loads them from the cache as a later run does. A kernel called with other types, or one not
 listed, compiles at its first call as before."""
 
@@ -206,9 +207,10 @@ def _reached(fn, seen=None) -> set:
     return seen
 
 
-def _shares(jobs: list, processes: int) -> list:
-    """``jobs`` (manifest entries) split into at most ``processes`` lists of about equal recorded
-    compile time; kernels that call a common kernel stay together (in manifest order)."""
+def _groups(jobs: list) -> list:
+    """``jobs`` (manifest entries) in groups that share no kernel: kernels that call a common kernel
+    stay together (in manifest order), compiled in one process. The group of the longest recorded
+    compile time first."""
     groups = []  # [kernels reached, [job indices]]
     for i, job in enumerate(jobs):
         reach = _reached(_KERNELS[(job["module"], job["name"])][0]) | {(job["module"], job["name"])}
@@ -217,31 +219,49 @@ def _shares(jobs: list, processes: int) -> list:
             groups.remove(g)
             reach |= g[0]
         groups.append([reach, sorted([i] + [k for g in joined for k in g[1]])])
-    shares, load = [[] for _ in range(processes)], [0.0] * processes
-    for _reach, members in sorted(groups, key=lambda g: -sum(jobs[k]["seconds"] for k in g[1])):
-        j = load.index(min(load))
-        shares[j].extend(members)
-        load[j] += sum(jobs[k]["seconds"] for k in members)
-    return [[jobs[k] for k in sorted(share)] for share in shares if share]
+    groups.sort(key=lambda g: -sum(jobs[k]["seconds"] for k in g[1]))
+    return [[jobs[k] for k in members] for _reach, members in groups]
+
+
+def _take(counter) -> int:
+    """The next group's index from the counter the warm-up's processes share."""
+    with counter.get_lock():
+        k = counter.value
+        counter.value += 1
+    return k
+
+
+def _compile_groups(groups: list, counter, done=None, conn=None) -> None:
+    """Compile the groups the shared ``counter`` hands out, until none is left, into the cache:
+    the processes take the next one as each finishes (longest first), so none idles while another
+    has a queue (recorded times are a poor guide on a busy machine). Per kernel, 1 (0 on a failure:
+    that kernel compiles, and fails with its message, at its first call) to ``conn`` or
+    added to ``done[0]``."""
+    while (k := _take(counter)) < len(groups):
+        for job in groups[k]:
+            try:
+                _compile(job["module"], job["name"], job["signatures"])
+                ok = 1
+            except Exception:  # noqa: BLE001 - it fails again, with its message, when the run calls it
+                ok = 0
+            if conn is not None:
+                conn.send(ok)
+            else:
+                done[0] += 1
 
 
 def _cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-def _compile_share(jobs: list, conn) -> None:
-    """A warm-up worker: compile each job into the cache, sending 1 (or 0 on a failure: that kernel
-    compiles at its first call) after each. Ctrl-C ends it silently (the parent reports it)."""
+def _compile_share(groups: list, counter, conn) -> None:
+    """A warm-up worker: :func:`_compile_groups`, reporting to ``conn``. Ctrl-C ends it silently
+    (the parent reports it)."""
     signal.signal(signal.SIGINT, lambda *_: os._exit(130))
-    for module in sorted({job["module"] for job in jobs}):
+    for module in sorted({job["module"] for group in groups for job in group}):
         __import__(module)
     load(warm=False)
-    for job in jobs:
-        try:
-            _compile(job["module"], job["name"], job["signatures"])
-            conn.send(1)
-        except Exception:  # noqa: BLE001 - a kernel that fails here fails again, with its message, when called
-            conn.send(0)
+    _compile_groups(groups, counter, conn=conn)
     conn.close()
 
 
@@ -262,14 +282,15 @@ def warm_up(entries: list, progress=None, processes: int | None = None) -> int:
     stats = getattr(probe, "stats", None)
     if stats is None or not sum(stats.cache_misses.values()):
         return 0
-    shares = _shares(jobs[1:], max(1, min(processes or _cores(), len(jobs) - 1)))
+    groups = _groups(jobs[1:])
     done, stop = [1, 0], threading.Event()  # kernels compiled here (the probe too), by the workers
     context = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else None)
+    counter = context.Value("i", 0)
     workers = []
     try:
-        for share in shares[1:]:
+        for _ in range(max(1, min(processes or _cores(), len(groups))) - 1):
             recv, send = context.Pipe(duplex=False)
-            worker = context.Process(target=_compile_share, args=(share, send), daemon=True)
+            worker = context.Process(target=_compile_share, args=(groups, counter, send), daemon=True)
             gc.freeze()  # a forked worker's collections skip what it inherits (as pool.start_pool's)
             try:
                 worker.start()
@@ -279,12 +300,7 @@ def warm_up(entries: list, progress=None, processes: int | None = None) -> int:
             workers.append((worker, recv))
         reporter = threading.Thread(target=_report, args=(workers, done, len(jobs), progress, stop), daemon=True)
         reporter.start()
-        for job in shares[0] if shares else []:
-            try:
-                _compile(job["module"], job["name"], job["signatures"])
-            except Exception:  # noqa: BLE001 - it fails again, with its message, when the run calls it
-                pass
-            done[0] += 1
+        _compile_groups(groups, counter, done=done)
         for worker, _recv in workers:
             worker.join()
     finally:

@@ -5,10 +5,13 @@ argument types of each call and the seconds each takes to compile with an empty 
 
 A first run compiles these in parallel before it goes on (deltaslice.jit.warm_up). Run it again
 when a kernel listed there changes its arguments' types or a new kernel is called from Python
-(tests/test_jit.py says so). Two child processes: one compiles the part (one worker, every
-kernel in that process) and reads each kernel's signatures from numba's dispatchers; the other
-compiles each kernel alone into an empty cache directory and times it (the split between
-processes is balanced by these times).
+(tests/test_jit.py says so). Child processes: one compiles the part (one worker, every kernel in
+that process) into an empty cache, a second compiles it again from that cache and reads each
+kernel's signatures from numba's dispatchers (a kernel loaded from the cache has not compiled the
+kernels it calls, so only those called from Python are listed: a callee listed on its own would
+be compiled twice, alone and inside its callers, whatever the state of the tree's cache); the last
+compiles each kernel alone into an empty cache directory and times it, in CPU seconds (the split
+between processes is balanced by these times).
 """
 
 from __future__ import annotations
@@ -53,9 +56,9 @@ jit.load(warm=False)
 import numba
 numba.njit(lambda x: x + 1)(1)  # numba's own set-up, paid once by any process, is no kernel's
 for k in kernels:
-    t = time.perf_counter()
+    t = time.process_time()  # CPU time: on a busy machine the wall time says more of the others
     jit._compile(k["module"], k["name"], k["signatures"])
-    k["seconds"] = round(time.perf_counter() - t, 2)
+    k["seconds"] = round(time.process_time() - t, 2)
 print(json.dumps(kernels))
 """
 
@@ -75,8 +78,10 @@ def main() -> None:
     ap.add_argument("--printer", default="delta_etitc")
     args = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    with tempfile.TemporaryDirectory() as tmp:
-        out = _child(SIGNATURES, [args.part, args.printer, str(Path(tmp) / "x.dsl")], env)
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as cache:
+        argv = [args.part, args.printer, str(Path(tmp) / "x.dsl")]
+        _child(SIGNATURES, argv, dict(env, NUMBA_CACHE_DIR=cache))
+        out = _child(SIGNATURES, argv, dict(env, NUMBA_CACHE_DIR=cache))
         kernels = _child(TIMES, [], dict(env, NUMBA_CACHE_DIR=tmp), stdin=json.dumps(out))
     manifest = {"about": "kernels a first run compiles in parallel (deltaslice.jit.warm_up); "
                          "written by scripts/record_kernels.py",

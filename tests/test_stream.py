@@ -421,7 +421,8 @@ def _records_sized_from_scratch(x, block_samples, max_record):
         todo = [(first, min(first + block_samples, len(x)))]
         while todo:
             a, b = todo.pop()
-            size = stream._plan(x, a, b, True, True, order, width, v0, ored)
+            stream._ors(x, a, b, ored)
+            size = stream._sized(x, a, b, True, True, order, width, v0, ored)
             if size > max_record:
                 assert b - a > 1
                 m = (a + b) // 2

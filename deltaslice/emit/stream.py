@@ -135,13 +135,6 @@ def _sized(x, a, b, use1, use2, order, width, v0, ored):
 
 
 @njit
-def _plan(x, a, b, use1, use2, order, width, v0, ored):
-    """:func:`_sized` of rows a..b-1, their ors taken into ``ored`` ((2, C) int64)."""
-    _ors(x, a, b, ored)
-    return _sized(x, a, b, use1, use2, order, width, v0, ored)
-
-
-@njit
 def _write_record(x, a, b, order, width, v0, size, buf, pos):
     """The block record of rows a..b-1 at buf[pos:pos + size] (every byte written), its CRC
     left zero (the caller's)."""
@@ -205,7 +198,7 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
     halves = np.empty((2, 2, nch), dtype=np.int64)  # of a nominal block's two halves
     # a, b, and which ors are known: -1 none, 0 or 1 a half's (in halves), 2 the nominal block's (in ored)
     stack = np.empty((64, 3), dtype=np.int64)
-    pos = 0
+    pos = np.int64(0)  # not a literal 0: numba would compile _write_record for that value too
     count = 0
     for first in range(0, x.shape[0], block_samples):
         a = first
@@ -220,12 +213,9 @@ def _encode_kernel(x, block_samples, max_record, use1, use2, buf, rec_end):
             a = stack[top, 0]
             b = stack[top, 1]
             known = stack[top, 2]
-            if known == 2:
-                size = _sized(x, a, b, use1, use2, order, width, v0, ored)
-            elif known >= 0:
-                size = _sized(x, a, b, use1, use2, order, width, v0, halves[known])
-            else:
-                size = _plan(x, a, b, use1, use2, order, width, v0, ored)
+            if known < 0:
+                _ors(x, a, b, ored)
+            size = _sized(x, a, b, use1, use2, order, width, v0, halves[known] if 0 <= known <= 1 else ored)
             if size > max_record:
                 if b - a == 1:
                     return -1

@@ -170,13 +170,15 @@ class Kinematics:
     def scaled_path_derivatives(self, points, t, kappa, scale, out1, out2) -> int:
         """:meth:`path_derivatives` at points (N,3) mm along unit tangents t and curvature vectors
         kappa (N,3), in path units of ``scale`` mm: q' scale and q'' scale^2 written into out1 and
-        out2 (N,J), which may be views (the planner's joint columns), with no (N,J) temporaries
-        where a family fuses it (the rotary delta). Returns the index of the first point out of
-        reach (its rows are NaN), -1 when all are reachable."""
+        out2 (N,J), or into the first J columns of (N, dof) arrays (the planner's, the filament's
+        column after the joints' left alone: whole arrays keep a compiled family's kernel to one
+        layout), with no (N,J) temporaries where a family fuses it (the rotary delta). Returns the
+        index of the first point out of reach (its rows are NaN), -1 when all are reachable."""
         q = self.inverse(points)
         d1, d2 = self.path_derivatives(points, q, t, kappa)
-        np.multiply(d1, scale, out=out1)
-        np.multiply(d2, scale * scale, out=out2)
+        J = d1.shape[1]
+        np.multiply(d1, scale, out=out1[:, :J])
+        np.multiply(d2, scale * scale, out=out2[:, :J])
         with np.errstate(over="ignore"):
             if np.isfinite(q.sum()):  # one reduction: a NaN row makes the sum NaN
                 return -1

@@ -197,12 +197,12 @@ class RotaryDelta(Kinematics):
 
     def scaled_path_derivatives(self, points, t, kappa, scale, out1, out2) -> int:
         """The base contract in one compiled pass with the inverse (the planner's hottest call):
-        no q array, and the scaling done as the rates are written."""
+        no q array, and the scaling done as the rates are written (columns 0-2 of out1, out2)."""
         points, t, kappa = (np.ascontiguousarray(v, dtype=float) for v in (points, t, kappa))
         for out in (out1, out2):  # the kernel writes unchecked: numpy's out= would have refused these
-            if out.shape != (len(points), 3) or out.dtype != np.float64:
+            if out.ndim != 2 or out.shape[0] != len(points) or out.shape[1] < 3 or out.dtype != np.float64:
                 raise ValueError(f"scaled_path_derivatives: an output is {out.dtype} {out.shape}, "
-                                 f"expected float64 ({len(points)}, 3)")
+                                 f"expected float64 ({len(points)}, 3 or more)")
         return int(_scaled_rates_kernel(points, t, kappa, self._offsets, self.L1, self.L2, float(scale), out1, out2))
 
     def inverse_dynamics(self, masses: RotaryDeltaMasses, q, qd, qdd):
@@ -419,17 +419,18 @@ def _torque_coefficients_kernel(points, q, dq, ddq, offsets, L1, params, out):
     (no gravity in A and B: the torques are affine in the accelerations and quadratic in the
     velocities). The geometry once per point for the three."""
     cq, sq = np.empty(3), np.empty(3)
-    zero = np.zeros(3)
+    xs, ys = np.zeros((3, 3)), np.zeros((3, 3))  # the velocities and accelerations of A, B, C: row 2 stays 0
     work = np.empty((7, 3, 3))
     for n in range(q.shape[0]):
         for i in range(3):
             cq[i], sq[i] = math.cos(q[n, i]), math.sin(q[n, i])
+            ys[0, i], xs[1, i], ys[1, i] = dq[n, i], dq[n, i], ddq[n, i]
         _arm_geometry(points[n], cq, sq, offsets, L1, work)
-        # A and C at rest: their velocity terms are exact zeros where the geometry is finite and
-        # are left out; elsewhere the full form's 0 x inf makes all six NaN, as here
-        _arm_torques(cq, params, zero, dq[n], 0.0, False, work, out[0, n])
-        _arm_torques(cq, params, dq[n], ddq[n], 0.0, True, work, out[1, n])
-        _arm_torques(cq, params, zero, zero, 1.0, False, work, out[2, n])
+        # one call site: numba inlines (and types) _arm_torques once, not three times. A and C at
+        # rest: their velocity terms are exact zeros where the geometry is finite and are left out;
+        # elsewhere the full form's 0 x inf makes all six NaN, as here
+        for k in range(3):
+            _arm_torques(cq, params, xs[k], ys[k], 1.0 if k == 2 else 0.0, k == 1, work, out[k, n])
         if not _finite_geometry(cq, work):
             for j in range(3):
                 out[0, n, j] = np.nan
@@ -585,7 +586,7 @@ def _inverse_kernel(points, offsets, L1, L2, q):
     ok = np.empty((3, BLOCK), dtype=np.bool_)
     for k0 in range(0, n, BLOCK):
         m = min(BLOCK, n - k0)
-        _to_rows(points, k0, m, p, 0)
+        _to_rows(points, k0, m, p, np.int64(0))  # a literal row would compile _to_rows for that value
         px, py, pz = p[0], p[1], p[2]
         for i in range(3):
             ux, uy = U[i, 0], U[i, 1]
@@ -622,9 +623,9 @@ def _scaled_rates_kernel(points, t, kappa, offsets, L1, L2, scale, q1, q2):
     o1, o2, ok = np.empty((3, BLOCK)), np.empty((3, BLOCK)), np.empty((3, BLOCK), dtype=np.bool_)
     for k0 in range(0, n, BLOCK):
         m = min(BLOCK, n - k0)
-        _to_rows(points, k0, m, s, 0)
-        _to_rows(t, k0, m, s, 3)
-        _to_rows(kappa, k0, m, s, 6)
+        _to_rows(points, k0, m, s, np.int64(0))
+        _to_rows(t, k0, m, s, np.int64(3))
+        _to_rows(kappa, k0, m, s, np.int64(6))
         px, py, pz, tx, ty, tz, kx, ky, kz = s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8]
         for i in range(3):
             ux, uy = U[i, 0], U[i, 1]

@@ -193,7 +193,7 @@ def _last_at_or_below_from(a, v, n_max, j):
 def _locate_kernel(a, s, n_max, out):
     """out[i] = :func:`_last_at_or_below` (a, s[i], n_max), each search starting from the answer
     before (s (n,), out (n,) int64)."""
-    j = 0
+    j = np.int64(0)  # not a literal 0: numba would compile the search for that value too
     for i in range(s.shape[0]):
         j = _last_at_or_below_from(a, s[i], n_max, j)
         out[i] = j
@@ -209,7 +209,7 @@ def sample_kernel(tau, t, x, xd, xdd, S, piece_start, kind, p0, d0, normal, radi
     methods they replace (the same values). Here, beside the frame kernel whose point formula it
     repeats: a change to one is a change to the other."""
     duration = t[t.shape[0] - 1]
-    j = m = 0  # the stage and the piece of the sample before: in time order, the next is a few further
+    j = m = np.int64(0)  # the stage and the piece of the sample before: in time order, the next is a few further
     before = np.nan
     for i in range(tau.shape[0]):
         ta = min(max(tau[i], 0.0), duration)

@@ -221,7 +221,7 @@ def _solve_one(a, b, lo, hi, xmax, ds, interp, x_start, x_end, xs, us, K):
             us[k] = np.nan
         return 1
     xs[0] = x_start
-    i = 0
+    i = np.int64(0)  # not a literal 0: numba would compile _u_rows for that value too
     tries = 0
     while i < n:
         x = xs[i]

@@ -111,8 +111,7 @@ class RunPath:
         """The joints' columns of dq, ddq (n, dof) at the points of ``frame`` (point, tangent,
         curvature: (n, 3) each); UnreachableError at the first point out of reach."""
         p, t, kappa = frame
-        J = self.kin.n_joints
-        bad = self.kin.scaled_path_derivatives(p, t, kappa, self.S, dq[:, :J], ddq[:, :J])
+        bad = self.kin.scaled_path_derivatives(p, t, kappa, self.S, dq, ddq)  # the joints' columns
         if bad >= 0:
             self._raise_unreachable(p[bad])
 

@@ -67,7 +67,8 @@ def torque_limits(printer) -> TorqueLimits | None:
 class StageTorque:
     """The torque coefficients at fractions ``frac`` (f,) of every stage of a grid (each with the
     piece the stage lies in): A, B, C (n, f, J) in the path's units (N m or N per path unit/s^2,
-    per (path unit/s)^2, and N m or N); dq (n, f, J) the joints' q' (joint units per path unit)."""
+    per (path unit/s)^2, and N m or N); dq (n, f, J) the joints' q' (joint units per path unit),
+    contiguous, so the kernels reading it see one layout (and compile once) with or without a filament."""
 
     A: np.ndarray
     B: np.ndarray
