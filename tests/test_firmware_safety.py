@@ -99,7 +99,7 @@ def assert_stopped_safe(out, error, within_s, since=0):
 
 def test_every_avr_image_feeds_the_watchdog(build):
     for elf in ("uno_servo_player.elf", "mega_stepper_player.elf", "mega_stepper_player_kossel.elf",
-                "mega_stepper_player_sim.elf"):
+                "mega_stepper_player_sim.elf", "mega_stepper_player_kossel_sim.elf"):
         text = subprocess.run(["avr-objdump", "-d", str(build / elf)], capture_output=True, text=True, check=True).stdout
         assert re.search(r"\twdr\b", text), f"{elf}: no wdr instruction: the watchdog is never fed"
         # wdt_enable writes WDTCSR (0x60 in data space on both MCUs) with the change-enable sequence
@@ -236,11 +236,11 @@ def warp(out, counts, period_ms=1.0, h=20):
 
 
 @pytest.mark.parametrize("name, mcu, elf, fault", [
-    ("fivebar_atlas", "atmega2560", "mega_stepper_player.elf", "stall"),
-    ("linear_kossel", "atmega2560", "mega_stepper_player_kossel.elf", "stall"),
+    ("fivebar_atlas", "atmega2560", "mega_stepper_player_sim.elf", "stall"),
+    ("linear_kossel", "atmega2560", "mega_stepper_player_kossel_sim.elf", "stall"),
     ("delta_etitc", "atmega328p", "uno_servo_player.elf", "stall"),
-    ("fivebar_atlas", "atmega2560", "mega_stepper_player.elf", "pause"),
-    ("linear_kossel", "atmega2560", "mega_stepper_player_kossel.elf", "pause"),
+    ("fivebar_atlas", "atmega2560", "mega_stepper_player_sim.elf", "pause"),
+    ("linear_kossel", "atmega2560", "mega_stepper_player_kossel_sim.elf", "pause"),
     ("delta_etitc", "atmega328p", "uno_servo_player.elf", "pause"),
 ])
 def test_stall_and_pause_are_ridden_out_with_a_ramp(build, tmp_path, name, mcu, elf, fault):
@@ -314,8 +314,8 @@ def test_a_sender_of_the_unframed_protocol_is_refused(build, atlas_stream):
     assert not out["T"] and not any(level for _h, _c, level in heater_timeline(out))
 
 
-@pytest.mark.parametrize("name, elf, offset", [("fivebar_atlas", "mega_stepper_player.elf", (300, -250, 800)),
-                                               ("linear_kossel", "mega_stepper_player_kossel.elf", (-2000, -1500, -2500))])
+@pytest.mark.parametrize("name, elf, offset", [("fivebar_atlas", "mega_stepper_player_sim.elf", (300, -250, 800)),
+                                               ("linear_kossel", "mega_stepper_player_kossel_sim.elf", (-2000, -1500, -2500))])
 def test_homing_finds_the_rest_pose_then_every_step_is_exact(build, tmp_path, name, elf, offset):
     """The machine powers up away from its rest pose (the arms turned, the carriages lower): the
     player homes every joint against its simulated end stop ([homing] of the printer file), steps

@@ -44,7 +44,8 @@
  * exactly between the pin changes. At every ADC conversion the model's temperatures go to the
  * thermistor inputs as the voltage that reads what dsl_thermistor.h (the player's own table)
  * says for them. simavr 1.6 keeps analog inputs for ADC0..7 only, while the RAMPS thermistors
- * are on A13 and A14: the player's simulated build moves them (--thermistors, default 5,6).
+ * are on A13 and A14: the player's simulated builds (make sim) move them (--thermistors, default
+ * 5,6), and a build that converts A8..A15 is refused (exit 3).
  */
 #include <math.h>
 #include <stdio.h>
@@ -326,11 +327,22 @@ static void heater_pin(avr_irq_t *irq, uint32_t value, void *param)
     printf("H %d %llu %d %ld\n", h, (unsigned long long)avr->cycle, heater_on[h], lround(temp[h] * 10));
 }
 
-/* a conversion starts: put the model's temperatures on the thermistor inputs */
+/* a conversion starts: put the model's temperatures on the thermistor inputs. simavr 1.6 keeps
+   ADC0..7 only and reads past that array for A8..A15 (a reading that changes from run to run), so
+   a build reading those (the RAMPS's own A13/A14: not `make sim`'s) is refused, not simulated. */
 static void adc_trigger(avr_irq_t *irq, uint32_t value, void *param)
 {
+    union {
+        avr_adc_mux_t mux;
+        uint32_t v;
+    } e = {.v = value};
     int h;
-    (void)irq; (void)value; (void)param;
+    (void)irq; (void)param;
+    if (e.mux.kind == ADC_MUX_SINGLE && e.mux.src >= 8) {
+        fprintf(stderr, "error: the player converts ADC%u, which simavr 1.6 does not model (ADC0..7 only): "
+                        "run its `make sim` build (thermistors on A5/A6)\n", (unsigned)e.mux.src);
+        exit(3);
+    }
     thermal_advance();
     for (h = 0; h < 2; h++) {
         uint32_t reading = dsl_ntc_adc_for_celsius_x10((int32_t)lround(temp[h] * 10));
