@@ -138,7 +138,7 @@ def test_the_stage_time_tangent_is_below_every_duration_and_above_the_bounds():
 def test_a_vertical_line_is_within_a_quarter_of_ruckigs_optimum(length):
     """On a linear delta a vertical line moves the three carriages alike (q' constant, q'' = 0), so
     the jerk-limited optimum is ruckig's one-axis profile with the planned limits: the re-timed run
-    is measured against it (1.04-1.13; 1.14-1.22 with budgets over the tangent at the bounds, 2
+    is measured against it (1.03-1.13; 1.14-1.22 with budgets over the tangent at the bounds, 2
     passes) and never faster than it."""
     printer = load_printer("linear_kossel", ON)
     ctx = PlanContext.of(printer, "machine")
