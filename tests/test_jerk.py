@@ -89,6 +89,19 @@ def test_every_retimed_run_passes_the_stage_wise_checks_and_keeps_its_path():
         assert use.max() <= 1 + 1e-6
 
 
+def test_a_run_whose_check_never_holds_is_refused(monkeypatch):
+    """A run the uniform slow-downs leave failing its jerk check is refused with one line, not
+    passed on unchecked (the slow-down used to return its last, unchecked profile; with no
+    profile at all the run was kept as TOPP-RA planned it, bang-bang in acceleration)."""
+    from deltaslice.errors import PlanningError
+
+    printer, runs = _star_runs("linear_kossel")
+    ctx = PlanContext.of(printer, "machine")
+    monkeypatch.setattr(jm, "SLOW_PASSES", 0)  # no check is ever seen to hold
+    with pytest.raises(PlanningError, match=r"layer \d+: the jerk limits could not be held on the run from x = "):
+        jm.limit_run(ctx, runs[0])
+
+
 def test_retimed_runs_keep_the_actuators_torque():
     """delta_etitc plans torque: its re-timed star runs (machine mode, where the jerk-limited
     profile leaves rest and corners slower but the TOPP-RA cap lets it cruise as fast) keep the

@@ -46,6 +46,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..errors import PlanningError
 from ..machine.limits import JERK_SPACING
 from .pieces import RunPiece
 from .constraints import CHECK
@@ -131,8 +132,12 @@ def limit_run(ctx: PlanContext, piece: RunPiece) -> RunPiece:
             break
         x, y = split_long(x, xd, xdd, dt, MIN_STAGE / piece.S)
         env = envelope(piece, x)
-    if best is None:
-        return piece  # no profile with every stage ending (solve_grid keeps one; never seen)
+    if best is None:  # never seen: solve_grid keeps a profile whose stages end, and slowing holds
+        start = piece.path.evaluate(np.array([0.0]))[0]
+        raise PlanningError(
+            f"layer {piece.layer}: the jerk limits could not be held on the run from x = {start[0]:.2f}, "
+            f"y = {start[1]:.2f}, z = {start[2]:.2f} mm (re-timed and slowed {SLOW_PASSES} times); "
+            "[planning] jerk_limit = \"off\" plans it without them")
     x, xd, xdd, t, use = best
     env = envelope(piece, x)
     active = use.max(axis=1) >= ACTIVE
@@ -144,7 +149,8 @@ def _checked(ctx: PlanContext, rp, x, y, vmax, amax, jmax, limited):
     """The profile x_dot^2 = y on the grid x checked against the true limits vmax, amax, jmax (dof,)
     (``limited``: the channels with a jerk limit) and, where the solver plans torque, the actuators'
     torque (:func:`.torque.stage_check`), and slowed uniformly until every check holds: (x, x_dot,
-    path acceleration, t, jerk use (N, dof)), or None where a stage never ends."""
+    path acceleration, t, jerk use (N, dof)), or None where a stage never ends or SLOW_PASSES
+    slow-downs leave a check failing."""
     xd, xdd, t = profile(x, y)
     dq_c, ddq_c = rp.stage_derivatives(x, CHECK)
     vel = stage_maxima(rp, x, xd, xdd, vmax, amax, stage=(dq_c, ddq_c))
@@ -163,9 +169,9 @@ def _checked(ctx: PlanContext, rp, x, y, vmax, amax, jmax, limited):
         worst_t = 0.0 if model is None else float(np.max(stage_check(model, ctx.torque, CHECK, xd * slow,
                                                                      xdd * slow * slow).use))
         if worst_j <= 1.0 + CHECK_TOLERANCE and worst_t <= 1.0 + CHECK_TOLERANCE:
-            break
+            return x, xd * slow, xdd * slow * slow, t / slow, use
         slow *= min(max(worst_j, 1.0) ** (-1 / 3), max(worst_t, 1.0) ** (-1 / 2), 1.0 - 1e-6)
-    return x, xd * slow, xdd * slow * slow, t / slow, use
+    return None  # never held: the caller refuses the run rather than pass a profile unchecked
 
 
 def fine_grid(piece: RunPiece, path_jerk: float):
