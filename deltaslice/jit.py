@@ -236,18 +236,27 @@ def _compile_groups(groups: list, counter, done=None, conn=None) -> None:
     the processes take the next one as each finishes (longest first), so none idles while another
     has a queue (recorded times are a poor guide on a busy machine). Per kernel, 1 (0 on a failure:
     that kernel compiles, and fails with its message, at its first call) to ``conn`` or
-    added to ``done[0]``."""
-    while (k := _take(counter)) < len(groups):
-        for job in groups[k]:
-            try:
-                _compile(job["module"], job["name"], job["signatures"])
-                ok = 1
-            except Exception:  # noqa: BLE001 - it fails again, with its message, when the run calls it
-                ok = 0
-            if conn is not None:
-                conn.send(ok)
-            else:
-                done[0] += 1
+    added to ``done[0]``. Python's cyclic garbage collector is off meanwhile (as it was after):
+    numba makes objects by the million as it compiles, and the collector's passes over them took a
+    fifth of the compile's CPU; what they would free is freed by the next collection (or with a
+    worker)."""
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        while (k := _take(counter)) < len(groups):
+            for job in groups[k]:
+                try:
+                    _compile(job["module"], job["name"], job["signatures"])
+                    ok = 1
+                except Exception:  # noqa: BLE001 - it fails again, with its message, when the run calls it
+                    ok = 0
+                if conn is not None:
+                    conn.send(ok)
+                else:
+                    done[0] += 1
+    finally:
+        if collecting:
+            gc.enable()
 
 
 def _cores() -> int:

@@ -5,6 +5,7 @@ and nothing is said. kernels.json covers what the README's first compile calls."
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import subprocess
 import sys
@@ -111,6 +112,28 @@ def test_kernels_that_share_a_callee_are_compiled_in_one_process():
         for b in reach:
             if reach[a] & reach[b]:
                 assert where[a] == where[b], (a, b)
+
+
+def test_the_warm_up_compiles_without_the_cyclic_collector_and_gives_it_back(monkeypatch):
+    """numba's compile makes objects by the million: the collector's passes over them took a fifth
+    of a first run's CPU. Off while the groups compile (a failing kernel too), on again after."""
+    import gc
+
+    seen = []
+
+    def compile_(module, name, signatures):
+        seen.append(gc.isenabled())
+        if name == "bad":
+            raise ValueError("a kernel that does not compile")
+
+    monkeypatch.setattr(jit, "_compile", compile_)
+    groups = [[{"module": "m", "name": n, "signatures": []} for n in ("a", "bad", "c")]]
+    counter = multiprocessing.Value("i", 0)
+    assert gc.isenabled()
+    done = [0]
+    jit._compile_groups(groups, counter, done=done)
+    assert seen == [False, False, False] and done == [3]
+    assert gc.isenabled()
 
 
 def test_the_manifest_lists_what_the_readme_compile_calls(tmp_path):

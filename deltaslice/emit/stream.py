@@ -97,7 +97,7 @@ def _ors(x, a, b, ored):
         ored[1, c] = m2
 
 
-@njit
+@njit(inline="always")  # one caller: typed in it, no module of its own on a first run
 def _halves_ors(x, a, m, b, left, right, whole):
     """:func:`_ors` of rows a..m-1 and m..b-1 (a + 2 <= m <= b - 2), and of a..b-1 from theirs:
     the whole's differences are the halves' and those that cross m (the first difference at row
@@ -112,7 +112,7 @@ def _halves_ors(x, a, m, b, left, right, whole):
         whole[1, c] = left[1, c] | right[1, c] | _zz(d_at - d_before) | _zz(d_after - d_at)
 
 
-@njit
+@njit(inline="always")  # one caller: typed in it, no module of its own on a first run
 def _sized(x, a, b, use1, use2, order, width, v0, ored):
     """Per channel of rows a..b-1 (their ors: :func:`_ors`): first (order 1) or second (order 2)
     differences, whichever needs fewer bits of their zig-zag; v0 the first difference an order-2
@@ -134,7 +134,7 @@ def _sized(x, a, b, use1, use2, order, width, v0, ored):
     return size + ((n - 1) * row_bits + 7) // 8
 
 
-@njit
+@njit(inline="always")  # one caller: typed in it, no module of its own on a first run
 def _write_record(x, a, b, order, width, v0, size, buf, pos):
     """The block record of rows a..b-1 at buf[pos:pos + size] (every byte written), its CRC
     left zero (the caller's)."""

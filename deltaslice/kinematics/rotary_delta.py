@@ -279,7 +279,7 @@ class RotaryDelta(Kinematics):
 PLANE_VERTICAL_Z = 1e-9
 
 
-@njit
+@njit(inline="always")  # one caller: typed in it, no module of its own on a first run
 def _lower_meeting(c, L2):
     """Where three spheres of radius L2 centred at the rows of c (3, 3) meet, the root below
     their plane, as :func:`.base.lower_sphere_intersection` (NaN where they do not meet). NaN too
@@ -531,7 +531,7 @@ def _root(wx, wy, wz, ux, uy, L1, L2):
     return a * c + b * h, b * c - a * h, rho2, a + c, b, exists
 
 
-@njit
+@njit(inline="always")  # one caller: typed in it, no module of its own on a first run
 def _shift(x, y, a_plus_c, b):
     """What an arm's theta, taken as atan2(y, x) of :func:`_root`'s values in (-pi, pi], needs added
     to lie in (-2 pi, pi]: atan2(b, a) - acos(c / rho) lies there, below -pi exactly when b < 0 and

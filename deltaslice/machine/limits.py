@@ -402,7 +402,7 @@ def _counts_kernel(q, channel, cpu, zero, out):
     return peak + finite
 
 
-@njit
+@njit(inline="always")  # one caller: typed in it, no module of its own on a first run
 def _row_ratios(q, i, half, rate2, vlim, alim):
     """The largest velocity and acceleration ratio to vlim, alim (J,) among the joints at interior
     sample i + 1 of q (n, J), by central differences (each NaN if any joint's is, as numpy's

@@ -142,7 +142,7 @@ def _pairs(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u):
     return xl, xh, near
 
 
-@njit(error_model="python")
+@njit(error_model="python", inline="always")  # one caller: typed in it, no module of its own on a first run
 def _x_range(nl, nu, low_p, low_r, up_p, up_r, xl, xh, keep_l, keep_u):
     """Projection onto x of {(u, x): low_k(x) <= u <= up_j(x)} within [xl, xh]. Where it is not
     empty it is that of the bounds that can lie on their envelope (:func:`_envelope`), paired.

@@ -65,7 +65,7 @@ class RuckigProfile:
         return out
 
 
-@njit
+@njit(inline="always")  # one caller: typed in it, no module of its own on a first run
 def _cubic(dt, p, v, a, j):
     """A constant-jerk phase's position dt s after its start (p, v, a: its start state; j: its jerk),
     as ruckig evaluates it."""
