@@ -102,6 +102,29 @@ def test_a_run_whose_check_never_holds_is_refused(monkeypatch):
         jm.limit_run(ctx, runs[0])
 
 
+@pytest.mark.parametrize("gravity", [0.0, 0.5, 0.95, 0.999])
+def test_the_torque_slow_down_holds_within_a_few_tries_where_gravity_carries_the_use(gravity):
+    """A uniform slow-down by s scales the torque's inertial part by s^2, not its gravity: with
+    only worst^(-1/2) a step, a delta_ucb run of small_dorito (gravity about 2/3 of its use, 1.03
+    of stall) still read 1.00003 after 20 tries and was refused. The secant step of
+    _torque_step ends within the check's tolerance in a few tries, without slowing much more."""
+    inertia = 1.0316 - gravity
+    slow, last = 1.0, None
+    for tries in range(1, jm.SLOW_PASSES + 1):
+        use = gravity + inertia * slow * slow
+        if use <= 1.0 + 1e-6:
+            break
+        step = jm._torque_step(slow, use, last)
+        last = (slow * slow, use)
+        slow *= min(step, 1.0 - 1e-6)
+    assert use <= 1.0 + 1e-6 and tries <= 4, (tries, use)
+    assert use >= 1.0 - 2 * jm.TORQUE_AIM  # slowed to the limit, not far beyond it
+
+
+def test_no_torque_slow_down_is_taken_for_one_that_gravity_alone_exceeds():
+    assert jm._torque_step(0.9, 1.02, (1.0, 1.021)) == 1.02 ** -0.5  # the plain step; the run is refused
+
+
 def test_retimed_runs_keep_the_actuators_torque():
     """delta_etitc plans torque: its re-timed star runs (machine mode, where the jerk-limited
     profile leaves rest and corners slower but the TOPP-RA cap lets it cruise as fast) keep the

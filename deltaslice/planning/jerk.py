@@ -74,6 +74,7 @@ SLACK = SPLIT * LONG * STAGE
 PLAN_SLACK = 0.3e-3
 RATES = np.geomspace(0.5, 1.0, 16)  # of jerk_max: the rates J_r the check tries (the least bound kept)
 SLOW_PASSES = 20  # uniform slow-downs tried before a run's check holds (the first usually does)
+TORQUE_AIM = 1e-4  # below the torque limit: where a secant slow-down aims (_torque_step)
 REST_POINTS = 40  # grid points added on each side of a point at rest (fine_grid)
 MIN_STAGE = 1e-6  # mm: grid points closer than this are one
 FLOOR = 1e-3  # of the largest x*: the least x_dot^2 a point's weight is taken at
@@ -157,6 +158,7 @@ def _checked(ctx: PlanContext, rp, x, y, vmax, amax, jmax, limited):
     worst_v, worst_a = float(np.max(vel.velocity)), float(np.max(vel.acceleration))
     slow = min(1.0, 1.0 / max(worst_v, 1e-12), 1.0 / math.sqrt(max(worst_a, 1e-12)))
     model = stage_torque(ctx.dynamics, rp, x, CHECK, dq_c, ddq_c) if ctx.plans_torque else None
+    last = None  # (slow^2, worst torque use) of the last try
     for _ in range(SLOW_PASSES):
         # slowed by s, the velocity scales by s, the acceleration by s^2, the jerk by s^3 (the
         # window factor, at longer stages, a little less: so again until the check holds); the
@@ -170,8 +172,26 @@ def _checked(ctx: PlanContext, rp, x, y, vmax, amax, jmax, limited):
                                                                      xdd * slow * slow).use))
         if worst_j <= 1.0 + CHECK_TOLERANCE and worst_t <= 1.0 + CHECK_TOLERANCE:
             return x, xd * slow, xdd * slow * slow, t / slow, use
-        slow *= min(max(worst_j, 1.0) ** (-1 / 3), max(worst_t, 1.0) ** (-1 / 2), 1.0 - 1e-6)
+        step_t = _torque_step(slow, worst_t, last)
+        last = (slow * slow, worst_t)
+        slow *= min(max(worst_j, 1.0) ** (-1 / 3), step_t, 1.0 - 1e-6)
     return None  # never held: the caller refuses the run rather than pass a profile unchecked
+
+
+def _torque_step(slow: float, worst: float, last) -> float:
+    """The factor the next uniform slow-down takes for the torque, whose worst use ``worst`` at
+    ``slow`` is about gravity + inertia x slow^2: worst^(-1/2) (right where gravity is nil), or,
+    from the second try on, the slow-down the line through the last two tries (``last``: slow^2,
+    use) puts at 1 - TORQUE_AIM, where that is more. Where gravity carries most of the use, the
+    first alone took more than SLOW_PASSES tries to end within CHECK_TOLERANCE."""
+    step = max(worst, 1.0) ** (-1 / 2)
+    if worst <= 1.0 or last is None or last[1] <= worst or last[0] <= slow * slow:
+        return step
+    inertia = (last[1] - worst) / (last[0] - slow * slow)
+    room = 1.0 - TORQUE_AIM - (worst - inertia * slow * slow)  # what the aim leaves beside gravity
+    if room <= 0.0:
+        return step  # gravity alone is over the aim: no slow-down holds (the caller refuses the run)
+    return min(step, math.sqrt(room / inertia) / slow)
 
 
 def fine_grid(piece: RunPiece, path_jerk: float):
