@@ -2,7 +2,7 @@
 bar), this checkout against other source trees or environments, alternated, then the same
 command warm.
 
-    git worktree add --detach /tmp/base beb858f
+    git worktree add --detach /tmp/base 21c7ef9
     python benchmarks/ab_first_run.py --rounds 3 base=/tmp/base head=. "o1=.:NUMBA_OPT=1"
 
 A variant is NAME=TREE[:VAR=VALUE,...]: the tree is the working directory and first on
