@@ -177,7 +177,7 @@ DOCS = {
     ("planning", "approach_height"): ("mm", "Height above the first point from which every job comes down onto it, and above the printed part to which it lifts at the end (lower where the machine cannot reach so high). Default: Marlin's Z_CLEARANCE_BETWEEN_PROBES.", None),
     ("planning", "approach_speed"): ("mm/s", "Speed of that vertical descent and lift, in both speed limits. Default: Marlin's Z homing feed (HOMING_FEEDRATE_MM_M, 4*60 mm/min).", None),
     ("planning", "torque_limit"): ("", "Where the file has `[dynamics]`: `on` plans runs and travels within the actuators' stall torque and speed-torque line as well as the joints' limits; `off` to the joints' constant limits alone.", None),
-    ("planning", "jerk_limit"): ("", "`on` re-times runs and straight travels so that each joint's acceleration changes no faster than its `jerk_max` (the path kept; docs/architecture.md); `off` (the default: the re-timing costs 30-150x the planning) leaves them bang-bang in path acceleration.", None),
+    ("planning", "jerk_limit"): ("", "`on` re-times runs and straight travels so that each joint's acceleration changes no faster than its `jerk_max` (the path kept; docs/architecture.md); `off` (the default: the re-timing costs 70-500x the planning) leaves them bang-bang in path acceleration.", None),
     # safety (firmware players: docs/bring-up.md, "What the players guard")
     ("safety", "hotend_min_temp"): ("deg C", "A hot end that reads colder than this while set is a fault (Marlin's HEATER_0_MINTEMP): a loose or open thermistor.", None),
     ("safety", "hotend_max_temp"): ("deg C", "A hot end that reads hotter than this is a fault, set or not (HEATER_0_MAXTEMP); at least hotend_temperature + 15.", None),
